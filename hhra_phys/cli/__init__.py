@@ -1,0 +1,48 @@
+"""Command-line interface ``hhra-phys``.
+
+Each sub-command lives in its own module of this package and exposes
+``register(subparsers)``, which adds its parser and sets ``func`` to the
+callable that runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# Sub-command modules, in the order they are listed by ``--help``.
+_COMMANDS = ("demo", "simulate", "fit", "compare", "diagnose", "benchmark")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the top-level argument parser with every available sub-command."""
+    parser = argparse.ArgumentParser(
+        prog="hhra-phys",
+        description="Fit physical models of hydraulic actuators to measured data.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMANDS:
+        try:
+            module = importlib.import_module(f"hhra_phys.cli.{name}")
+        except ModuleNotFoundError as exc:  # a command not built yet
+            if exc.name != f"hhra_phys.cli.{name}":
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``hhra-phys`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

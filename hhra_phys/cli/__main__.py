@@ -1,0 +1,3 @@
+from hhra_phys.cli import main
+
+raise SystemExit(main())
