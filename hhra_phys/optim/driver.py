@@ -1,0 +1,255 @@
+"""``minimize``: a SciPy-style driver that runs any of the optimisers through ask/tell."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import OptimizeResult
+
+from hhra_phys.errors import ParameterError
+from hhra_phys.optim.core import Optimiser, SeedLike
+from hhra_phys.optim.de import DE
+from hhra_phys.optim.gwo import GWO
+from hhra_phys.optim.hgwo import HGWO
+from hhra_phys.optim.pso import PSO
+
+#: Optimiser class per method name.
+METHODS: dict[str, type[Optimiser]] = {cls.method: cls for cls in (HGWO, GWO, PSO, DE)}
+
+
+@dataclass(frozen=True)
+class IterationState:
+    """What a callback sees after each iteration (``nit = 0`` is the initialisation).
+
+    Attributes
+    ----------
+    nit : int
+        Iterations completed after the initialisation.
+    nfev : int
+        Objective evaluations so far.
+    x : numpy.ndarray
+        Best point found so far.
+    fun : float
+        Its cost.
+    diversity : float
+        Population spread (see :class:`hhra_phys.optim.history.History`).
+    elapsed : float
+        Seconds since the run started.
+    """
+
+    nit: int
+    nfev: int
+    x: np.ndarray
+    fun: float
+    diversity: float
+    elapsed: float
+
+
+def make_optimiser(
+    method: str,
+    bounds: Any,
+    pop_size: int = 30,
+    *,
+    max_iter: int | None = 100,
+    max_nfev: int | None = None,
+    target: float | None = None,
+    seed: SeedLike = None,
+    x0: Any = None,
+    options: Mapping[str, Any] | None = None,
+) -> Optimiser:
+    """Build the ask/tell optimiser of ``method`` (see :func:`minimize` for the arguments)."""
+    if not isinstance(method, str) or method.lower() not in METHODS:
+        raise ParameterError(f"method: expected one of {sorted(METHODS)}, got {method!r}")
+    cls = METHODS[method.lower()]
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - set(cls.option_names))
+    if unknown:
+        raise ParameterError(
+            f"options: {unknown} not understood by {cls.method} "
+            f"(accepted: {list(cls.option_names)})"
+        )
+    return cls(
+        bounds,
+        pop_size,
+        max_iter=max_iter,
+        max_nfev=max_nfev,
+        target=target,
+        seed=seed,
+        x0=x0,
+        **opts,
+    )
+
+
+def _evaluator(
+    fun: Callable[..., Any], vectorized: bool, executor: Executor | None
+) -> Callable[[np.ndarray], np.ndarray]:
+    """A function mapping an ``(m, d)`` batch to its ``m`` costs."""
+    if vectorized:
+
+        def evaluate(points: np.ndarray) -> np.ndarray:
+            out = np.asarray(fun(points), dtype=float)
+            if out.ndim == 2 and out.shape[1] == 1:
+                out = out[:, 0]
+            if out.shape != (points.shape[0],):
+                raise ParameterError(
+                    f"fun: with vectorized=True it must map ({points.shape[0]}, d) points to "
+                    f"({points.shape[0]},) costs, got shape {out.shape}"
+                )
+            return out
+
+    elif executor is not None:
+
+        def evaluate(points: np.ndarray) -> np.ndarray:
+            return np.array([float(c) for c in executor.map(fun, points)])
+
+    else:
+
+        def evaluate(points: np.ndarray) -> np.ndarray:
+            return np.array([float(fun(p)) for p in points])
+
+    return evaluate
+
+
+def minimize(
+    fun: Callable[..., Any],
+    bounds: Any,
+    method: str = "hgwo",
+    pop_size: int = 30,
+    max_iter: int | None = 100,
+    seed: SeedLike = None,
+    vectorized: bool = False,
+    *,
+    options: Mapping[str, Any] | None = None,
+    max_nfev: int | None = None,
+    target: float | None = None,
+    executor: Executor | None = None,
+    callback: Callable[[IterationState], bool | None] | None = None,
+    progress: bool = False,
+    x0: Any = None,
+) -> OptimizeResult:
+    """Minimise ``fun`` over a box with a population optimiser.
+
+    Parameters
+    ----------
+    fun : callable
+        With ``vectorized=True``: ``fun(X)`` takes an ``(m, d)`` array and returns ``m`` costs.
+        Otherwise ``fun(x)`` takes one ``(d,)`` vector and returns a float. Non-finite costs
+        count as the worst possible cost.
+    bounds : sequence of (float, float), (d, 2) array or scipy.optimize.Bounds
+        Finite box with ``lo < hi``. Every point evaluated lies inside it.
+    method : {"hgwo", "gwo", "pso", "de"}
+        The optimiser, see :class:`~hhra_phys.optim.hgwo.HGWO`, :class:`~hhra_phys.optim.gwo.GWO`,
+        :class:`~hhra_phys.optim.pso.PSO`, :class:`~hhra_phys.optim.de.DE`.
+    pop_size : int
+        Population size.
+    max_iter : int or None
+        Iterations after the initialisation; ``None`` derives it from ``max_nfev``.
+    seed : int, numpy.random.Generator or None
+        The same seed reproduces the run exactly.
+    vectorized : bool
+        Whether ``fun`` evaluates a whole batch in one call.
+    options : dict, optional
+        Method-specific settings: ``F``, ``lam``, ``Cr``, ``target_vector`` (hgwo); ``F``,
+        ``Cr`` (de); ``w``, ``w_start``, ``w_end``, ``c1``, ``c2``, ``vmax`` (pso).
+    max_nfev : int, optional
+        Evaluation budget; the run stops before a batch that would exceed it.
+    target : float, optional
+        Stop once the best cost is ``<= target``.
+    executor : concurrent.futures.Executor, optional
+        With ``vectorized=False``, the batch's points are evaluated through ``executor.map``
+        (a process pool, a Dask ``Client.get_executor()`` ...). Ignored with
+        ``vectorized=True``, where the whole batch goes to ``fun`` in one call.
+    callback : callable, optional
+        ``callback(state)`` after the initialisation and after every iteration, with an
+        :class:`IterationState`; returning ``True`` stops the run.
+    progress : bool
+        Show a tqdm progress bar over iterations.
+    x0 : array of shape (k, d) or (d,), optional
+        Points injected into the first population (warm start), each method documents how:
+        GWO, PSO and DE put them in place of the first ``k`` random members; H-GWO puts them
+        in place of the first ``k`` tent-map points, so they compete (with their opposites) in
+        the opposition-based selection and survive only if among the best ``pop_size``.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        ``x``, ``fun`` (best point and cost), ``nit`` (iterations after the initialisation),
+        ``nfev``, ``history`` (:class:`~hhra_phys.optim.history.History`), ``noi`` (first
+        iteration within 0.1 % of the final best, see :func:`~hhra_phys.optim.history.noi`),
+        ``success``, ``status``, ``message``, ``method``, ``population`` and ``population_costs``
+        (the final population) and ``seconds`` (wall time).
+
+    Raises
+    ------
+    ParameterError
+        On an unknown method or option, bad bounds, ``pop_size``, ``x0`` or budget, or a
+        vectorised ``fun`` returning the wrong shape.
+    """
+    opt = make_optimiser(
+        method,
+        bounds,
+        pop_size,
+        max_iter=max_iter,
+        max_nfev=max_nfev,
+        target=target,
+        seed=seed,
+        x0=x0,
+        options=options,
+    )
+    evaluate = _evaluator(fun, vectorized, executor)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=opt.max_iter, desc=opt.method, unit="it")
+    start = time.perf_counter()
+    stopped_by_callback = False
+    try:
+        while not opt.done:
+            points = opt.ask()
+            opt.tell(evaluate(points))
+            if bar is not None and opt.nit > 0:
+                bar.update(1)
+                bar.set_postfix(best=f"{opt.f_best:.6g}", refresh=False)
+            if callback is not None:
+                state = IterationState(
+                    nit=opt.nit,
+                    nfev=opt.nfev,
+                    x=np.array(opt.x_best, copy=True),
+                    fun=opt.f_best,
+                    diversity=opt.diversity,
+                    elapsed=time.perf_counter() - start,
+                )
+                if callback(state) is True:
+                    stopped_by_callback = True
+                    break
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - start
+    if stopped_by_callback:
+        message, status = "stopped by the callback", 1
+    else:
+        message = opt.stop_reason or ""
+        status = 0
+    finite = bool(np.isfinite(opt.f_best))
+    return OptimizeResult(
+        x=np.array(opt.x_best, copy=True),
+        fun=opt.f_best,
+        nit=opt.nit,
+        nfev=opt.nfev,
+        history=opt.history,
+        noi=opt.history.noi(),
+        success=finite,
+        status=status if finite else 2,
+        message=message if finite else f"{message}; no finite cost was found",
+        method=opt.method,
+        population=np.array(opt.population, copy=True),
+        population_costs=np.array(opt.costs, copy=True),
+        seconds=seconds,
+    )
