@@ -719,7 +719,7 @@ def _parse_column(cells: list[str], label: str, lines: np.ndarray, path: Path) -
         pass
     bad = np.array([i for i, c in enumerate(cells) if not _is_number(c)])
     first = cells[int(bad[0])]
-    what = "an empty cell" if first == "" else f"the non-numeric cell {first!r}"
+    what = "an empty cell" if first == "" else repr(first)
     raise NonNumericError(
         f"{path}: column {label!r} has {bad.size} non-numeric cell{'s' * (bad.size > 1)} "
         f"at {_rows_text(bad, lines)}; first: {what}"
@@ -907,8 +907,13 @@ def save_csv(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
     for bad in ("t", "u", "y"):
         if bad in ds.extra:  # Dataset forbids this, but a mutated instance could slip through
             raise DataError(f"{p}: extra channel {bad!r} clashes with the columns t, u, y")
-    _writable(side, overwrite)
     _writable(p, overwrite)
+    try:
+        _writable(side, overwrite)
+    except DataFileExistsError:
+        raise DataFileExistsError(
+            f"{side} (the side-car of {p.name}) exists; pass overwrite=True to replace it"
+        ) from None
     text = _to_json(ds, side)
     data = np.column_stack([ds.t, ds.u, ds.y, *ds.extra.values()])
     with p.open("w", newline="", encoding="utf-8") as fh:
@@ -1008,6 +1013,10 @@ def _from_variables(
         specs["t"] = t
     values = {role: _pick(variables, spec, source, role) for role, spec in specs.items()}
     labels = {role: str(spec) for role, spec in specs.items()}
+    sizes = {role: v.size for role, v in values.items()}
+    if len(set(sizes.values())) > 1:  # before a time axis is built from one of them
+        listing = ", ".join(f"{labels[k]!r} {n}" for k, n in sizes.items())
+        raise LengthMismatchError(f"{source}: columns have different lengths (samples): {listing}")
     time, sample_units = _time_axis(values.get("t"), fs, values["u"].size)
     fields_ = _dataset_fields(info, default_name=default_name, **names)
     if sample_units:
