@@ -153,7 +153,7 @@ class DataChecks:
         Relative tolerance [-] on the time step: every step ``t[k+1] - t[k]`` must lie within
         ``time_rtol * median_step`` of the median step (default 1e-3).
     input_rtol : float
-        The input counts as non-exciting when ``std(u) <= input_rtol * max|u|`` (default 1e-3,
+        The input counts as non-exciting when ``std(u) <= input_rtol * max(abs(u))`` (default 1e-3,
         which also catches a constant current with converter noise on it).
     require_excitation : bool
         Set to False to accept a non-exciting input (for example a rest segment).
@@ -313,7 +313,7 @@ def _validate(
         if spread <= checks.input_rtol * scale or spread == 0.0:
             raise NonExcitingInputError(
                 f"{pre}input column {lab('u')} ({input_desc}) is constant or nearly so "
-                f"(std {spread:.3g} <= {checks.input_rtol:g} * max|u| = "
+                f"(std {spread:.3g} <= {checks.input_rtol:g} * max(abs(u)) = "
                 f"{checks.input_rtol * scale:.3g}): it does not excite the system, so nothing can "
                 "be identified from it. Use DataChecks(require_excitation=False) to accept it "
                 "anyway"
