@@ -726,6 +726,14 @@ def _parse_column(cells: list[str], label: str, lines: np.ndarray, path: Path) -
     )
 
 
+def _check_extra_name(key: str, source: PathLike) -> None:
+    if key in ("t", "u", "y"):
+        raise DataError(
+            f"{source}: extra channel name {key!r} clashes with the dataset's t, u, y; name it "
+            "differently with a mapping {name: column}"
+        )
+
+
 def _column_index(spec: str | int, header: list[str], path: Path, role: str) -> int:
     if isinstance(spec, int | np.integer) and not isinstance(spec, bool):
         if not -len(header) <= spec < len(header):
@@ -752,7 +760,7 @@ def load_csv(
     t: str | int | None = "t",
     u: str | int = "u",
     y: str | int = "y",
-    extra: Sequence[str | int] | None = None,
+    extra: Sequence[str | int] | Mapping[str, str | int] | None = None,
     delimiter: str | None = ",",
     fs: float | None = None,
     *,
@@ -778,9 +786,9 @@ def load_csv(
         column is absent (or ``t=None``) and ``fs`` is given, ``t = arange(N) / fs``; with
         ``t=None`` and no ``fs`` the record is in sample units (fs = 1,
         ``metadata["time_unit"] = "samples"``).
-    extra : sequence of str or int, optional
-        Further columns to keep in ``Dataset.extra``. ``None`` (default): the extras the
-        side-car lists, else none.
+    extra : sequence of str or int, or mapping of name to column, optional
+        Further columns to keep in ``Dataset.extra`` (a mapping renames them, e.g.
+        ``{"p_a": "u"}``). ``None`` (default): the extras the side-car lists, else none.
     delimiter : str or None
         Field separator (default ","); ``None`` splits on runs of whitespace.
     fs : float, optional
@@ -836,8 +844,12 @@ def load_csv(
     if t is not None and (isinstance(t, int) or t in header or fs is None):
         roles["t"] = t
     roles.update({"u": u, "y": y})
-    for e in extra:
-        roles[e if isinstance(e, str) else header[_column_index(e, header, p, "extra")]] = e
+    pairs = extra.items() if isinstance(extra, Mapping) else ((e, e) for e in extra)
+    for key, e in pairs:
+        if not isinstance(key, str):  # an index without a name: use the header's
+            key = header[_column_index(e, header, p, "extra")]
+        _check_extra_name(key, p)
+        roles[key] = e
     index = {role: _column_index(spec, header, p, role) for role, spec in roles.items()}
     columns = {role: [r[i] for r in rows] for role, i in index.items()}
     values = {
@@ -1008,6 +1020,8 @@ def _from_variables(
         extra = {}
     elif not isinstance(extra, Mapping):
         extra = {str(spec): spec for spec in extra}
+    for key in extra:
+        _check_extra_name(key, source)
     specs = {"u": u, "y": y, **extra}
     if t is not None and not (t_optional and fs is not None and _parse_spec(t)[0] not in variables):
         specs["t"] = t

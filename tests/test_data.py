@@ -424,3 +424,11 @@ def test_public_actuator_search_order(tmp_path: Path, monkeypatch: pytest.Monkey
     assert D.load_public_actuator().n == 64
     # an explicit directory works too
     assert D.load_public_actuator(fake_dir).n == 64
+
+
+def test_csv_extra_mapping_and_name_clash(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "k.csv", "t,u,y,u2", [r + ",1.5" for r in good_rows()])
+    ds = D.load_csv(path, u="y", y="u2", extra={"first_u": "u"})
+    assert set(ds.extra) == {"first_u"}
+    with pytest.raises(DataError, match="k.csv: extra channel name 'u' clashes"):
+        D.load_csv(path, extra=["u"])
