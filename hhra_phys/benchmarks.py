@@ -183,6 +183,11 @@ class Benchmark:
     shift: np.ndarray
     func: Callable[[np.ndarray], np.ndarray] = field(repr=False)
     noise_rng: np.random.Generator | None = field(default=None, repr=False)
+    _shifted: bool = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # cached: __call__ sits in every optimiser's inner loop
+        object.__setattr__(self, "_shifted", bool(np.any(self.shift != 0.0)))
 
     @property
     def bounds(self) -> list[tuple[float, float]]:
@@ -192,7 +197,7 @@ class Benchmark:
     @property
     def is_shifted(self) -> bool:
         """Whether the optimum has been moved."""
-        return bool(np.any(self.shift != 0.0))
+        return self._shifted
 
     def __call__(self, x: np.ndarray) -> np.ndarray | float:
         """Costs of points: ``(n, d)`` gives ``(n,)``, a single ``(d,)`` vector gives a float."""
@@ -203,7 +208,7 @@ class Benchmark:
             raise ParameterError(
                 f"x: {self.key} expects points of shape (n, {self.dim}), got {arr.shape}"
             )
-        out = self.func(pts - self.shift if self.is_shifted else pts)
+        out = self.func(pts - self.shift if self._shifted else pts)
         if self.noise_rng is not None:
             out = out + self.noise_rng.random(out.shape[0])
         return float(out[0]) if single else out

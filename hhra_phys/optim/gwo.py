@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
 
 from hhra_phys.optim.core import Optimiser, SeedLike
+
+
+@functools.cache
+def _strictly_upper(m: int) -> np.ndarray:
+    return np.triu(np.ones((m, m), dtype=bool), 1)
 
 
 def best_distinct(points: np.ndarray, costs: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -20,7 +26,7 @@ def best_distinct(points: np.ndarray, costs: np.ndarray, k: int) -> tuple[np.nda
     while True:
         cand = points[order[:m]]
         same = (cand[:, None, :] == cand[None, :, :]).all(axis=2)
-        dup = np.triu(same, 1).any(axis=0)  # equal to a better-ranked candidate
+        dup = (same & _strictly_upper(m)).any(axis=0)  # equal to a better-ranked candidate
         keep = order[:m][~dup][:k]
         if keep.size == k or m == order.size:
             return points[keep], costs[keep]
