@@ -1,0 +1,187 @@
+"""Named model parameters with units, nominal values, bounds and fitting scales.
+
+A :class:`Parameter` describes one scalar; a :class:`ParameterSet` is the ordered
+collection a model exposes. Parameter vectors everywhere in hhra-phys follow the
+order of the model's ``ParameterSet``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from hhra_phys.errors import ParameterError
+
+Scale = Literal["log", "linear"]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One scalar model parameter.
+
+    Parameters
+    ----------
+    name : str
+        Identifier used in vectors, the CLI (``--free``, ``--fix``) and JSON.
+    unit : str
+        Physical unit (SI unless stated, ``"-"`` for dimensionless).
+    nominal : float
+        Default value, in ``unit``.
+    lower, upper : float
+        Bounds used by fitting and by simulation stability checks, in ``unit``.
+    scale : {"log", "linear"}
+        Fitting coordinate: ``"log"`` (positive quantities spanning decades) or
+        ``"linear"`` (signed quantities such as offsets).
+    description : str
+        One line saying what the parameter means physically.
+    """
+
+    name: str
+    unit: str
+    nominal: float
+    lower: float
+    upper: float
+    scale: Scale = "log"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier():
+            raise ParameterError(f"parameter name {self.name!r} is not a valid identifier")
+        for field in ("nominal", "lower", "upper"):
+            value = getattr(self, field)
+            if not math.isfinite(value):
+                raise ParameterError(
+                    f"parameter {self.name!r}: {field} must be finite, got {value}"
+                )
+        if not self.lower <= self.nominal <= self.upper:
+            raise ParameterError(
+                f"parameter {self.name!r}: nominal {self.nominal} outside bounds "
+                f"[{self.lower}, {self.upper}]"
+            )
+        if self.scale not in ("log", "linear"):
+            raise ParameterError(f"parameter {self.name!r}: scale must be 'log' or 'linear'")
+        if self.scale == "log" and self.lower <= 0:
+            raise ParameterError(
+                f"parameter {self.name!r}: log scale needs a positive lower bound, got {self.lower}"
+            )
+
+    def with_(self, **changes: float | str) -> Parameter:
+        """Return a copy with some fields changed (validated again)."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+
+class ParameterSet:
+    """Ordered, name-addressable collection of :class:`Parameter`.
+
+    Parameters
+    ----------
+    params : iterable of Parameter
+        The parameters, in vector order. Names must be unique.
+    """
+
+    def __init__(self, params: Iterable[Parameter]) -> None:
+        self._params: tuple[Parameter, ...] = tuple(params)
+        self._index: dict[str, int] = {}
+        for i, p in enumerate(self._params):
+            if p.name in self._index:
+                raise ParameterError(f"duplicate parameter name {p.name!r}")
+            self._index[p.name] = i
+
+    def __iter__(self) -> Iterator[Parameter]:
+        return iter(self._params)
+
+    def __len__(self) -> int:
+        return len(self._params)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __getitem__(self, key: str | int) -> Parameter:
+        if isinstance(key, str):
+            return self._params[self.index(key)]
+        return self._params[key]
+
+    def __repr__(self) -> str:
+        return f"ParameterSet({', '.join(self.names)})"
+
+    @property
+    def names(self) -> list[str]:
+        """Parameter names in vector order."""
+        return [p.name for p in self._params]
+
+    def index(self, name: str) -> int:
+        """Position of ``name`` in parameter vectors; clear error when unknown."""
+        try:
+            return self._index[name]
+        except KeyError:
+            raise ParameterError(
+                f"unknown parameter {name!r}; known parameters: {', '.join(self.names)}"
+            ) from None
+
+    def nominal(self) -> np.ndarray:
+        """Vector of nominal values, shape (n,)."""
+        return np.array([p.nominal for p in self._params], dtype=float)
+
+    def bounds(self) -> np.ndarray:
+        """Bounds as an (n, 2) array of (lower, upper)."""
+        return np.array([(p.lower, p.upper) for p in self._params], dtype=float)
+
+    def vector(self, values: Mapping[str, float] | None = None, **kw: float) -> np.ndarray:
+        """Nominal vector with some entries replaced by name.
+
+        Examples
+        --------
+        >>> model.params.vector(g_leak=3.0)  # doctest: +SKIP
+        """
+        v = self.nominal()
+        for name, value in {**(values or {}), **kw}.items():
+            v[self.index(name)] = float(value)
+        return v
+
+    def as_dict(self, vector: np.ndarray) -> dict[str, float]:
+        """Map a parameter vector of shape (n,) to ``{name: value}``."""
+        vec = np.asarray(vector, dtype=float)
+        if vec.shape != (len(self),):
+            raise ParameterError(
+                f"parameter vector has shape {vec.shape}, expected ({len(self)},) for "
+                f"{', '.join(self.names)}"
+            )
+        return {p.name: float(x) for p, x in zip(self._params, vec, strict=True)}
+
+    def check_population(self, P: np.ndarray) -> np.ndarray:
+        """Return ``P`` as a float (n_pop, n_params) array, or raise a clear error."""
+        arr = np.asarray(P, dtype=float)
+        if arr.ndim == 1:
+            arr = arr[None, :]
+        if arr.ndim != 2 or arr.shape[1] != len(self):
+            raise ParameterError(
+                f"parameter array has shape {np.shape(P)}, expected (n_pop, {len(self)}) or "
+                f"({len(self)},) with columns {', '.join(self.names)}"
+            )
+        return arr
+
+    def replace(self, name: str, **changes: float | str) -> ParameterSet:
+        """Return a new set with one parameter's fields changed."""
+        i = self.index(name)
+        params = list(self._params)
+        params[i] = params[i].with_(**changes)
+        return ParameterSet(params)
+
+    def to_json(self) -> list[dict[str, object]]:
+        """JSON-able description of every parameter."""
+        return [
+            {
+                "name": p.name,
+                "unit": p.unit,
+                "nominal": p.nominal,
+                "lower": p.lower,
+                "upper": p.upper,
+                "scale": p.scale,
+                "description": p.description,
+            }
+            for p in self._params
+        ]
