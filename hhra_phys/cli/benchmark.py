@@ -4,23 +4,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
 from hhra_phys.errors import HHRAError
-from hhra_phys.optim.study import (
-    PAPER_METHODS,
-    TABLES,
-    StudySettings,
-    check_outputs,
-    format_report,
-    plot_convergence,
-    plot_paths,
-    run_study,
-    write_json,
-)
+from hhra_phys.optim.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -76,6 +64,7 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the study described by ``args``; returns the exit code (2 on bad input)."""
+    progress = None if args.quiet else (lambda line: print(line, file=sys.stderr))
     try:
         settings = StudySettings(
             runs=args.runs,
@@ -87,31 +76,17 @@ def run(args: argparse.Namespace) -> int:
             tables=args.tables,
             scipy_reference=not args.no_scipy,
         )
-        plots = plot_paths(args.plot, settings.tables) if args.plot else {}
-        outputs: dict[str, Path | None] = {
-            "json": Path(args.json) if args.json else None,
-            "markdown": Path(args.markdown) if args.markdown else None,
-            **{f"plot ({t})": p for t, p in plots.items()},
-        }
-        # checked before the study runs, so a refusal costs nothing
-        check_outputs(outputs, args.overwrite)
-        progress = None if args.quiet else (lambda line: print(line, file=sys.stderr))
-        start = time.perf_counter()
-        report = run_study(settings, progress=progress, jobs=args.jobs)
+        _, text = run_and_write(
+            settings,
+            json_path=args.json,
+            plot_path=args.plot,
+            markdown_path=args.markdown,
+            overwrite=args.overwrite,
+            jobs=args.jobs,
+            progress=progress,
+        )
     except HHRAError as exc:
         print(f"hhra-phys benchmark: error: {exc}", file=sys.stderr)
         return 2
-    text = format_report(report)
-    footer = (
-        f"\n{settings.runs} runs per cell, population {settings.pop_size}, "
-        f"{settings.max_iter} iterations, seed {settings.seed}; "
-        f"total {time.perf_counter() - start:.1f} s with {args.jobs} job(s)\n"
-    )
-    print(text + footer)
-    if args.markdown:
-        Path(args.markdown).write_text(text + footer)
-    if args.json:
-        write_json(report, args.json, overwrite=True)  # existence checked above
-    for table, path in plots.items():
-        plot_convergence(report, table, str(path))
+    print(text)
     return 0

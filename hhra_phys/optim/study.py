@@ -595,3 +595,48 @@ def write_json(report: dict[str, Any], path: str | Path, overwrite: bool = False
     """Write ``report`` as strict JSON (``NaN``/``inf`` as ``null``)."""
     check_outputs({"json": Path(path)}, overwrite)
     Path(path).write_text(json.dumps(_finite_or_none(report), indent=1) + "\n")
+
+
+def run_and_write(
+    settings: StudySettings,
+    *,
+    json_path: str | Path | None = None,
+    plot_path: str | Path | None = None,
+    markdown_path: str | Path | None = None,
+    overwrite: bool = False,
+    jobs: int = 1,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[dict[str, Any], str]:
+    """Run the study and write its outputs; returns the report and its markdown text.
+
+    Every output path is checked before anything runs: an existing file is an error unless
+    ``overwrite``. Plots: see :func:`plot_paths`. The markdown ends with a line giving the
+    settings and the total wall time.
+
+    Raises
+    ------
+    ParameterError
+        On bad settings or an existing output file without ``overwrite``.
+    """
+    plots = plot_paths(plot_path, settings.tables) if plot_path else {}
+    check_outputs(
+        {
+            "json": Path(json_path) if json_path else None,
+            "markdown": Path(markdown_path) if markdown_path else None,
+            **{f"plot ({t})": p for t, p in plots.items()},
+        },
+        overwrite,
+    )
+    report = run_study(settings, progress=progress, jobs=jobs)
+    text = format_report(report) + (
+        f"\n{settings.runs} runs per cell, population {settings.pop_size}, "
+        f"{settings.max_iter} iterations, seed {settings.seed}; "
+        f"total {report['timing']['total']:.1f} s with {jobs} job(s)\n"
+    )
+    if markdown_path:
+        Path(markdown_path).write_text(text)
+    if json_path:
+        write_json(report, json_path, overwrite=True)  # checked above
+    for table, path in plots.items():
+        plot_convergence(report, table, str(path))
+    return report, text
