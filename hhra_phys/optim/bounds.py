@@ -99,11 +99,12 @@ class Box:
 
         Returns a new array; components inside the box are unchanged.
         """
-        out = (x < self.lower) | (x > self.upper)
-        if not out.any():
+        rows, cols = np.nonzero((x < self.lower) | (x > self.upper))
+        if rows.size == 0:
             return x
-        fresh = self.lower + rng.random(x.shape) * self.width
-        return np.where(out, fresh, x)
+        x = x.copy()
+        x[rows, cols] = self.lower[cols] + rng.random(rows.size) * self.width[cols]
+        return x
 
     def contains(self, x: np.ndarray) -> bool:
         """Whether every point of ``x`` lies inside the closed box."""

@@ -96,6 +96,8 @@ class Optimiser(ABC):
     option_names: ClassVar[tuple[str, ...]] = ()
     #: Smallest population the method can work with.
     min_pop_size: ClassVar[int] = 1
+    #: Whether :attr:`history` records the population's diversity (costs a little per iteration).
+    record_diversity: bool = True
 
     def __init__(
         self,
@@ -231,7 +233,8 @@ class Optimiser(ABC):
         else:
             self._tell_initial(pts, arr)
             self._initialised = True
-        self.history.append(self.f_best, self.nfev, self.x_best, self.diversity)
+        div = self.diversity if self.record_diversity else None
+        self.history.append(self.f_best, self.nfev, self.x_best, div)
 
     # -- state -----------------------------------------------------------------------------
     @property

@@ -131,6 +131,7 @@ def minimize(
     callback: Callable[[IterationState], bool | None] | None = None,
     progress: bool = False,
     x0: Any = None,
+    record_diversity: bool = True,
 ) -> OptimizeResult:
     """Minimise ``fun`` over a box with a population optimiser.
 
@@ -174,6 +175,9 @@ def minimize(
         GWO, PSO and DE put them in place of the first ``k`` random members; H-GWO puts them
         in place of the first ``k`` tent-map points, so they compete (with their opposites) in
         the opposition-based selection and survive only if among the best ``pop_size``.
+    record_diversity : bool
+        Record the population's diversity per iteration in the history (a small cost per
+        iteration that large studies may skip).
 
     Returns
     -------
@@ -201,6 +205,7 @@ def minimize(
         x0=x0,
         options=options,
     )
+    opt.record_diversity = record_diversity
     evaluate = _evaluator(fun, vectorized, executor)
     bar = None
     if progress:

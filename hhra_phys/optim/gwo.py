@@ -22,6 +22,9 @@ def best_distinct(points: np.ndarray, costs: np.ndarray, k: int) -> tuple[np.nda
     lowest-cost one is kept.
     """
     order = np.argsort(costs, kind="stable")
+    cand = points[order[:k]]
+    if ((cand[:, None, :] == cand[None, :, :]).all(axis=2)).sum() == cand.shape[0]:
+        return cand, costs[order[:k]]  # the usual case: the k best are already distinct
     m = min(order.size, k + 4)  # duplicates are rare: look a little past k first
     while True:
         cand = points[order[:m]]

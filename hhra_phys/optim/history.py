@@ -54,6 +54,7 @@ class History:
     diversity : list of float
         Population spread: mean over dimensions of the population's standard deviation divided
         by the box width (0 = collapsed onto one point, about 0.29 for a uniform population).
+        Empty when the optimiser's ``record_diversity`` is off.
     """
 
     best: list[float] = field(default_factory=list)
@@ -61,12 +62,15 @@ class History:
     x_best: list[np.ndarray] = field(default_factory=list)
     diversity: list[float] = field(default_factory=list)
 
-    def append(self, best: float, nfev: int, x_best: np.ndarray, diversity: float) -> None:
-        """Record one iteration."""
+    def append(
+        self, best: float, nfev: int, x_best: np.ndarray, diversity: float | None = None
+    ) -> None:
+        """Record one iteration (``diversity=None``: not recorded)."""
         self.best.append(float(best))
         self.nfev.append(int(nfev))
         self.x_best.append(np.array(x_best, copy=True))
-        self.diversity.append(float(diversity))
+        if diversity is not None:
+            self.diversity.append(float(diversity))
 
     @property
     def evals_per_iteration(self) -> np.ndarray:

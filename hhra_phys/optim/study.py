@@ -286,6 +286,7 @@ def run_method(
         seed=seed,
         vectorized=True,
         options=options,
+        record_diversity=False,
     )
     seconds = time.perf_counter() - t0
     h = res.history
