@@ -46,13 +46,14 @@ C_SOURCE = r"""
    Parameters per member: g_valve, g_compress, g_leak, g_torque, g_damping,
    g_spring, g_load. States: theta, omega, p. Output: theta in degrees. */
 #define SIGN_EPS 1e-3
-#define SQRT_DELTA 1e-2
+#define SQRT_DELTA 1e-6
 typedef struct { const double *P, *u; double *Y; int N, nsub, i0, i1; double dt; } job_t;
 static inline void rhs(const double *x, double u, const double *p, double *d) {
     double sg = u / sqrt(u * u + SIGN_EPS * SIGN_EPS);
     double z = 1.0 - sg * x[2];
-    double root = z / sqrt(sqrt(z * z + SQRT_DELTA * SQRT_DELTA))
-                  * sqrt(sqrt(1.0 + SQRT_DELTA * SQRT_DELTA));
+    double mag = (sqrt(fabs(z) + SQRT_DELTA) - sqrt(SQRT_DELTA))
+                 / (sqrt(1.0 + SQRT_DELTA) - sqrt(SQRT_DELTA));
+    double root = z > 0 ? mag : (z < 0 ? -mag : 0.0);
     d[0] = x[1];
     d[1] = p[3] * x[2] - p[4] * x[1] - p[5] * x[0] - p[6];
     d[2] = p[0] * u * root - p[1] * x[1] - p[2] * x[2];

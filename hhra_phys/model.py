@@ -82,7 +82,7 @@ class OrificeValve(Part):
     """
 
     sign_eps: float = 1e-3
-    sqrt_delta: float = 1e-2
+    sqrt_delta: float = 1e-6
     stage: ClassVar[str] = "valve"
     name: ClassVar[str] = "orifice_valve"
 

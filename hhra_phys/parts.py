@@ -166,14 +166,19 @@ def smooth_sign(v: ca.SX, eps: float) -> ca.SX:
 def smooth_signed_sqrt(z: ca.SX, delta: float) -> ca.SX:
     """Smooth ``sign(z)*sqrt(|z|)``, normalised to be exact at ``z = 1``.
 
-    ``z / (z^2 + delta^2)^(1/4) * (1 + delta^2)^(1/4)``: the slope at 0 is
-    finite (``(1+delta^2)^(1/4)/sqrt(delta)``), which bounds the stiffness of the
-    orifice equation near the supply pressure, and the value at the rest
-    operating point ``z = 1`` is exact, so the linearisation at rest equals the
-    paper's linearised valve. Two square roots are used instead of ``pow``
-    because they are several times cheaper in compiled code.
+    ``sign(z) * (sqrt(|z| + delta) - sqrt(delta)) / (sqrt(1 + delta) - sqrt(delta))``.
+    It is continuously differentiable, with the finite slope
+    ``1/(2 sqrt(delta))`` (over the normaliser) at ``z = 0``, which bounds the
+    stiffness of the orifice equation at the supply pressure; its value at the
+    rest operating point ``z = 1`` is exact, so the linearisation at rest equals
+    the paper's linearised valve. For ``delta = 1e-6`` it is within 0.1 % of
+    ``sqrt(z)`` for ``z >= 0.25`` and within 1 % for ``z >= 0.01``. One square
+    root and no division: the valve law dominates the cost of a simulation and
+    square roots and divisions are its slow operations.
     """
-    return z / ca.sqrt(ca.sqrt(z * z + delta * delta)) * math.sqrt(math.sqrt(1 + delta * delta))
+    norm = 1.0 / (math.sqrt(1.0 + delta) - math.sqrt(delta))
+    mag = (ca.sqrt(ca.fabs(z) + delta) - math.sqrt(delta)) * norm
+    return ca.sign(z) * mag
 
 
 def smooth_abs(v: ca.SX, eps: float) -> ca.SX:

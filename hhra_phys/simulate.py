@@ -50,7 +50,8 @@ STATUS_DIVERGED = 2  # non-finite or exploding output
 @dataclass
 class _Compiled:
     fn: CompiledFunction | ca.Function
-    n_pop: int
+    n_members: int  # population padded to a multiple of lanes
+    lanes: int
     native: bool
 
 
@@ -72,6 +73,10 @@ class Simulator:
         Threads used for a population (CasADi thread map).
     block : int
         Samples advanced per call of the compiled step (amortises call overhead).
+    lanes : int
+        Population members advanced together in one straight-line step, so the
+        CPU overlaps their latency-bound arithmetic (populations are padded to a
+        multiple of it; single simulations use one lane).
     backend : {"auto", "native", "casadi"}
         ``"native"`` compiles with the C compiler (error if impossible),
         ``"casadi"`` uses CasADi's virtual machine, ``"auto"`` compiles when a
@@ -100,6 +105,7 @@ class Simulator:
         substeps: int | str = "auto",
         threads: int = 2,
         block: int = 10,
+        lanes: int = 4,
         backend: str = "auto",
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
@@ -108,8 +114,8 @@ class Simulator:
             raise ParameterError(f"fs must be a positive sample rate in Hz, got {fs!r}")
         if backend not in ("auto", "native", "casadi"):
             raise ParameterError(f"backend must be 'auto', 'native' or 'casadi', got {backend!r}")
-        if int(threads) < 1 or int(block) < 1:
-            raise ParameterError("threads and block must be positive integers")
+        if int(threads) < 1 or int(block) < 1 or int(lanes) < 1:
+            raise ParameterError("threads, block and lanes must be positive integers")
         self.model = model
         self.fs = float(fs)
         self.dt = 1.0 / self.fs
@@ -128,8 +134,8 @@ class Simulator:
                 )
             self.substeps = int(substeps)
         self.h = self.dt / self.substeps
-        self._step = self._build_step(states=False)
-        self._step_states: ca.Function | None = None
+        self.lanes = int(lanes)
+        self._steps: dict[tuple[bool, int], ca.Function] = {}
         self._compiled: dict[tuple[int, int, bool], _Compiled] = {}
         self._stab: dict[int, CompiledFunction | ca.Function] = {}
         #: Status per row of the last :meth:`simulate` call (``STATUS_*`` codes).
@@ -145,62 +151,89 @@ class Simulator:
         rho = float(np.max(np.abs(np.linalg.eigvals(jac)))) if jac.size else 0.0
         return max(2, math.ceil(rho * self.dt / 0.25))
 
-    def _build_step(self, states: bool) -> ca.Function:
-        """SX function advancing ``block`` samples: (x, p, U) -> (x_next, y[, X])."""
+    def _build_step(self, states: bool, lanes: int = 1) -> ca.Function:
+        """SX function advancing ``block`` samples of ``lanes`` members.
+
+        ``(x[nx, lanes], p[n_params, lanes], U) -> (x_next[nx, lanes], y[block, lanes][, X])``.
+        The members share the input. Several lanes in one straight-line function
+        let the CPU overlap their independent dependency chains (the square roots
+        and divisions of the valve law are latency-bound in a scalar loop).
+        """
         m = self.model
         nu = m.n_lags + 1
-        x = ca.SX.sym("x", m.nx)
-        p = ca.SX.sym("p", m.n_params)
+        x = ca.SX.sym("x", m.nx, lanes)
+        p = ca.SX.sym("p", m.n_params, lanes)
         U = ca.SX.sym("U", nu * self.block)
         f, h = self._fns["f"], self._fns["h"]
         hh = self.h
-        xk = x
-        ys, xs = [], []
-        for k in range(self.block):
-            uk = U[k * nu:(k + 1) * nu]
-            ys.append(h(xk, uk, p))
-            xs.append(xk)
-            for _ in range(self.substeps):
-                k1 = f(xk, uk, p)
-                k2 = f(xk + hh / 2 * k1, uk, p)
-                k3 = f(xk + hh / 2 * k2, uk, p)
-                k4 = f(xk + hh * k3, uk, p)
-                xk = xk + hh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        outs = [xk, ca.vertcat(*ys)]
+        x_next, y_cols, x_cols = [], [], []
+        for lane in range(lanes):
+            xk, pk = x[:, lane], p[:, lane]
+            ys, xs = [], []
+            for k in range(self.block):
+                uk = U[k * nu:(k + 1) * nu]
+                ys.append(h(xk, uk, pk))
+                xs.append(xk)
+                for _ in range(self.substeps):
+                    k1 = f(xk, uk, pk)
+                    k2 = f(xk + hh / 2 * k1, uk, pk)
+                    k3 = f(xk + hh / 2 * k2, uk, pk)
+                    k4 = f(xk + hh * k3, uk, pk)
+                    xk = xk + hh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            x_next.append(xk)
+            y_cols.append(ca.vertcat(*ys))
+            x_cols.append(ca.horzcat(*xs))
+        # Outputs as (lanes, block): CasADi orders the generated code by a depth-first
+        # walk from the outputs in column-major order, so this interleaves the lanes
+        # sample by sample, which is what lets the CPU overlap them.
+        outs = [ca.horzcat(*x_next), ca.horzcat(*y_cols).T]
         if states:
-            outs.append(ca.horzcat(*xs))
+            outs.append(ca.horzcat(*x_cols))
         # CSE merges what the RK4 stages recompute from the same held input
         # (e.g. the valve's smoothed sign): about 13 % fewer instructions.
         return ca.Function("step", [x, p, U], outs, {"cse": True})
 
-    def trajectory_function(self, n: int, states: bool = False) -> ca.Function:
-        """CasADi function of one trajectory over ``n`` samples (for AD and IPOPT).
+    def trajectory_function(self, n: int, states: bool = False, lanes: int = 1) -> ca.Function:
+        """CasADi function of ``lanes`` trajectories over ``n`` samples (for AD and IPOPT).
 
         Returns
         -------
         casadi.Function
-            ``(x0[nx], p[n_params], U[(n_lags+1)*block, n_blocks]) -> (y[1, n_blocks*block])``
-            (plus ``X[nx, n_blocks*block]`` if ``states``); build ``U`` with
-            :meth:`input_matrix`. The function is symbolic (MX), so it can be
-            embedded in cost functions and differentiated.
+            ``(x0[nx, lanes], p[n_params, lanes], U[(n_lags+1)*block, n_blocks]) -> y``
+            with ``y`` of shape (1, n_blocks*block) for one lane (raw block layout
+            otherwise, see :meth:`_unpack`), plus the states ``X[nx, n_blocks*block]``
+            if ``states`` (one lane only). Build ``U`` with :meth:`input_matrix`. The
+            function is symbolic (MX), so it can be embedded in cost functions and
+            differentiated.
         """
-        if states:
-            if self._step_states is None:
-                self._step_states = self._build_step(states=True)
-            step = self._step_states
-        else:
-            step = self._step
+        if states and lanes != 1:
+            raise ParameterError("state trajectories are available for one lane only")
+        key = (states, lanes)
+        if key not in self._steps:
+            self._steps[key] = self._build_step(states=states, lanes=lanes)
+        step = self._steps[key]
         nb = self._n_blocks(n)
         acc = step.mapaccum("traj_acc", nb, [0], [0], {})
-        x0 = ca.MX.sym("x0", self.model.nx)
-        p = ca.MX.sym("p", self.model.n_params)
+        x0 = ca.MX.sym("x0", self.model.nx, lanes)
+        p = ca.MX.sym("p", self.model.n_params, lanes)
         U = ca.MX.sym("U", (self.model.n_lags + 1) * self.block, nb)
         res = acc(x0, ca.repmat(p, 1, nb), U)
-        y = ca.reshape(res[1], 1, nb * self.block)
+        y = ca.reshape(res[1], 1, nb * self.block) if lanes == 1 else res[1]  # (lanes, block*nb)
         outs = [y]
         if states:
             outs.append(ca.reshape(res[2], self.model.nx, nb * self.block))
         return ca.Function("traj", [x0, p, U], outs, ["x0", "p", "U"], ["y", "X"][: len(outs)])
+
+    def _unpack(self, raw: np.ndarray, n_members: int, lanes: int, nb: int) -> np.ndarray:
+        """Population output in block layout -> (n_members, nb*block).
+
+        Group ``g`` of ``lanes`` members writes a (lanes, block*nb) matrix whose
+        column ``b*block + k`` holds sample ``b*block + k`` of every lane; the
+        groups are stacked horizontally.
+        """
+        groups = n_members // lanes
+        arr = np.asarray(raw).reshape(lanes, self.block, nb, groups, order="F")
+        return arr.transpose(3, 0, 2, 1).reshape(n_members, nb * self.block)
 
     def _n_blocks(self, n: int) -> int:
         return -(-n // self.block)
@@ -225,13 +258,15 @@ class Simulator:
         key = (n, n_pop, states)
         if key in self._compiled:
             return self._compiled[key]
-        traj = self.trajectory_function(n, states=states)
-        threads = max(1, min(self.threads, n_pop))
+        lanes = 1 if (states or n_pop == 1) else min(self.lanes, n_pop)
+        groups = -(-n_pop // lanes)
+        traj = self.trajectory_function(n, states=states, lanes=lanes)
+        threads = max(1, min(self.threads, groups))
         name = f"hhra_sim_{'x' if states else 'y'}_{n_pop}"
-        if n_pop == 1:
+        if groups == 1:
             pop = ca.Function(name, traj.mx_in(), traj.call(traj.mx_in()))
         else:
-            mapped = traj.map("popmap", "thread", n_pop, [2], [],
+            mapped = traj.map("popmap", "thread", groups, [2], [],
                               {"max_num_threads": threads})
             pop = ca.Function(name, mapped.mx_in(), mapped.call(mapped.mx_in()))
         compiled = None
@@ -239,7 +274,8 @@ class Simulator:
             compiled = compile_function(pop, quiet=self.backend == "auto")
             if compiled is None and self.backend == "native":
                 raise SimulationError("backend='native' but the simulator could not be compiled")
-        entry = _Compiled(compiled if compiled is not None else pop, n_pop, compiled is not None)
+        entry = _Compiled(compiled if compiled is not None else pop, groups * lanes, lanes,
+                          compiled is not None)
         self._compiled[key] = entry
         return entry
 
@@ -379,16 +415,25 @@ class Simulator:
         entry = self._population_function(n, n_pop, states)
         U = self.input_matrix(u)
         nb = U.shape[1]
+        pad = entry.n_members - n_pop
+        if pad:  # fill the last group of lanes with copies of the last member
+            X0 = np.hstack([X0, np.repeat(X0[:, -1:], pad, axis=1)])
+            Pin = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
+        else:
+            Pin = P
         with np.errstate(all="ignore"):
             if entry.native:
-                outs = entry.fn(X0, P.T, U)  # type: ignore[operator]
+                outs = entry.fn(X0, Pin.T, U)  # type: ignore[operator]
             else:
-                raw = entry.fn(X0, P.T, U)  # type: ignore[operator]
+                raw = entry.fn(X0, Pin.T, U)  # type: ignore[operator]
                 raw = raw if isinstance(raw, (list, tuple)) else [raw]
                 outs = [np.array(o) for o in raw]
-            Y = np.asarray(outs[0]).reshape(n_pop, nb * self.block)
-            if Y.shape[1] != n:
-                Y = np.ascontiguousarray(Y[:, :n])
+            if entry.lanes == 1:
+                Y = np.asarray(outs[0]).reshape(entry.n_members, nb * self.block)
+            else:
+                Y = self._unpack(outs[0], entry.n_members, entry.lanes, nb)
+            if Y.shape != (n_pop, n):
+                Y = np.ascontiguousarray(Y[:n_pop, :n])
             # One pass: NaN, Inf and runaway values all fail "peak <= limit".
             bad = ~(np.max(np.abs(Y), axis=1) <= self.diverge_limit)
         status[(status == STATUS_OK) & bad] = STATUS_DIVERGED
