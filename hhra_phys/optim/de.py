@@ -19,10 +19,10 @@ def binomial_crossover(
     ``Cr = 0.5 * (1 + rand)`` per row (the paper's setting).
     """
     n, d = target.shape
-    u = rng.random((n, d + 1))  # last column draws Cr
-    rate = 0.5 * (1.0 + u[:, d:]) if cr is None else cr
+    u = rng.random((n, d + 2))  # one draw for all: d per component, then Cr, then R
+    rate = 0.5 * (1.0 + u[:, d : d + 1]) if cr is None else cr
     take = u[:, :d] <= rate
-    take[np.arange(n), rng.integers(0, d, size=n)] = True
+    take[np.arange(n), (u[:, d + 1] * d).astype(np.intp)] = True
     return np.where(take, mutant, target)
 
 

@@ -50,6 +50,8 @@ def update_leaders(
     correction of that quirk). With fewer than three distinct points the last one is repeated.
     """
     if leaders is not None and leader_costs is not None:
+        if costs.min() >= leader_costs[-1]:
+            return leaders, leader_costs  # nothing new beats delta: the usual case late in a run
         points = np.vstack([leaders, points])
         costs = np.concatenate([leader_costs, costs])
     pts, cst = best_distinct(points, costs, 3)
