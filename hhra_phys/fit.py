@@ -1,0 +1,356 @@
+"""Physical-parameter fitting: global search, local refinement, uncertainty.
+
+:func:`fit` is the product's main job::
+
+    from hhra_phys.fit import fit
+    res = fit(dataset)                      # H-GWO (pop 100, 200 it.) then IPOPT
+    print(res.summary()); res.save("fit.json")
+
+The pipeline: split the record into estimation and validation parts; build a
+:class:`~hhra_phys.problem.Problem` (free groups, bounds, log coordinates,
+initial angle fitted); run a global optimiser of :mod:`hhra_phys.optim` over the
+whole population at once through the compiled simulator; refine locally with
+IPOPT or NLopt on the least-squares cost with exact CasADi derivatives; compute
+Gauss-Newton confidence intervals; score estimation and validation data by
+free-run simulation.
+
+H-GWO's ``lam``. The paper's mutation ``lam*X_alpha + F*(X_r1 - X_r2)`` with
+``lam = 0.25`` pulls every mutant toward the coordinate origin (PAPER_NOTES
+section 3). The fitting pipeline therefore uses ``lam = 1`` (standard
+DE/best/1) by default; ``lam`` is exposed (CLI ``--lam``) and
+``experiments/fit_rig.py`` compares the two.
+
+Several fits (multi-start, several records or seeds) go through any
+:class:`concurrent.futures.Executor` with :func:`fit_many`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import Executor
+from typing import Any
+
+import numpy as np
+
+from hhra_phys.data import Dataset
+from hhra_phys.errors import ParameterError
+from hhra_phys.metrics import score
+from hhra_phys.model import HHRAModel, Model
+from hhra_phys.optim import minimize
+from hhra_phys.physical import PhysicalParameters
+from hhra_phys.problem import Problem
+from hhra_phys.refine import Stage, _Derivatives, refine_ipopt, refine_nlopt
+from hhra_phys.result import FitResult, tf_of, uncertainty
+
+OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
+
+
+def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
+    if refine is None:
+        return []
+    names = [refine] if isinstance(refine, str) else list(refine)
+    out = []
+    for name in names:
+        low = name.lower()
+        if low == "none":
+            continue
+        if low == "nlopt":
+            low = "nlopt:LD_LBFGS"
+        if not (low == "ipopt" or low.startswith("nlopt:")):
+            raise ParameterError(
+                f"refine must be 'ipopt', 'nlopt', 'nlopt:ALGORITHM' or 'none', got {name!r}"
+            )
+        out.append(low)
+    return out
+
+
+def fit(
+    data: Dataset | None = None,
+    model: Model | None = None,
+    *,
+    optimizer: str = "hgwo",
+    refine: str | Sequence[str] | None = "ipopt",
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    split: float = 0.5,
+    validation: Dataset | None = None,
+    cost: str = "itae",
+    initial_state: str = "fit",
+    pop_size: int = 100,
+    max_iter: int = 200,
+    seed: int | None = 0,
+    lam: float = 1.0,
+    options: Mapping[str, Any] | None = None,
+    refine_options: Mapping[str, Any] | None = None,
+    start: Mapping[str, float] | None = None,
+    datasheet: PhysicalParameters | None = None,
+    progress: bool = False,
+    callback: Callable[[Any], bool | None] | None = None,
+    problem: Problem | None = None,
+) -> FitResult:
+    """Fit a physical model to a record.
+
+    Parameters
+    ----------
+    data : Dataset, optional
+        The whole record (default: the built-in simulated rig, seed 0).
+    model : Model, optional
+        Model to fit (default: :class:`~hhra_phys.model.HHRAModel` with the
+        orifice valve, and a pressure output if the data's output is pressure).
+    optimizer : {"hgwo", "gwo", "pso", "de", "none"}
+        Global search (``"none"``: start the refiners from the nominal values or
+        ``start``).
+    refine : str or list of str or None
+        ``"ipopt"`` (default), ``"nlopt"`` (``LD_LBFGS`` with the CasADi gradient),
+        ``"nlopt:ALGORITHM"`` (e.g. ``"nlopt:LN_BOBYQA"``), a list of them run in
+        turn, or ``"none"``.
+    free, fixed, bounds, cost, initial_state
+        See :class:`~hhra_phys.problem.Problem` (default free set: all groups but
+        ``g_spring`` and ``g_load``; the initial angle is fitted).
+    split : float
+        Fraction of the record used for estimation; the rest is validation.
+    validation : Dataset, optional
+        Separate validation record (then ``data`` is all estimation).
+    pop_size, max_iter : int
+        Global search population and iterations (paper: 100 and 200).
+    seed : int or None
+        Seed of the global search.
+    lam : float
+        H-GWO's mutation factor (module docstring); ignored by other methods.
+    options : dict, optional
+        Further optimiser options (``F``, ``w``, ...).
+    refine_options : dict, optional
+        Keyword arguments for the refiners (``hessian``, ``shooting``, ``max_iter``,
+        ``max_eval`` ...), applied to those that accept them.
+    start : dict, optional
+        Starting values (physical units) for the global search's first population
+        and for ``optimizer="none"``.
+    datasheet : PhysicalParameters, optional
+        Known physical symbols; the fitted groups are then also reported as
+        physical symbols. Simulated rig data carries its own.
+    progress : bool
+        Show a progress bar during the global search.
+    callback : callable, optional
+        Called after every global iteration (see :func:`hhra_phys.optim.minimize`).
+    problem : Problem, optional
+        A ready problem (then ``model``, ``free`` ... are taken from it).
+
+    Returns
+    -------
+    FitResult
+    """
+    t_start = time.perf_counter()
+    if data is None:
+        from hhra_phys.rig import simulate_rig
+
+        data = simulate_rig(seed=0)
+    if optimizer not in OPTIMIZERS:
+        raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
+    if validation is None:
+        if not 0 < split <= 1:
+            raise ParameterError(f"split must be in (0, 1], got {split}")
+        est, val = data.split(split) if split < 1 else (data, None)
+    else:
+        est, val = data, validation
+    if problem is None:
+        if model is None:
+            output = "pressure" if data.output_name == "pressure" else "angle"
+            model = HHRAModel(output=output)  # type: ignore[arg-type]
+        problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
+                          bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
+                          start=start)
+    model = problem.model
+    stages: list[Stage] = []
+    history: list[float] = []
+    z_start = problem.to_z(problem.start_values())
+    z = z_start
+    if optimizer != "none":
+        t0 = time.perf_counter()
+        opts = dict(options or {})
+        if optimizer == "hgwo":
+            opts.setdefault("lam", lam)
+        bz = problem.bounds_z()
+        x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if start else None
+        res = minimize(problem, bz, method=optimizer, pop_size=pop_size, max_iter=max_iter,
+                       seed=seed, vectorized=True, options=opts, x0=x0, progress=progress,
+                       callback=callback)
+        first = float(res.history.best[0]) if len(res.history.best) else float("nan")
+        history = [float(v) for v in res.history.best]
+        z = np.asarray(res.x, dtype=float)
+        stages.append(Stage(optimizer, z, first, float(res.fun), int(res.nfev),
+                            time.perf_counter() - t0,
+                            {"nit": int(res.nit), "noi": _int_or_none(res.noi),
+                             "cost": problem.cost, "options": opts}))
+    ropts = dict(refine_options or {})
+    for name in _refiner_names(refine):
+        if name == "ipopt":
+            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+            st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
+        else:
+            keys = ("max_eval", "xtol_rel", "ftol_rel")
+            st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
+                              **{k: v for k, v in ropts.items() if k in keys})
+        stages.append(st)
+        z = st.z
+    return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
+                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start)
+
+
+def _int_or_none(x: Any) -> int | None:
+    try:
+        return None if x is None else int(x)
+    except (TypeError, ValueError):
+        return None
+
+
+def _result(
+    problem: Problem,
+    z: np.ndarray,
+    stages: list[Stage],
+    history: list[float],
+    val: Dataset | None,
+    data: Dataset,
+    optimizer: str,
+    refine: Any,
+    pop_size: int,
+    max_iter: int,
+    seed: int | None,
+    lam: float,
+    split: float,
+    datasheet: PhysicalParameters | None,
+    seconds: float,
+) -> FitResult:
+    model = problem.model
+    values_free = problem.from_z(z)
+    P = problem.full(values_free)
+    values = model.params.as_dict(P)
+    units = {p.name: p.unit for p in model.params}
+    units.update({p.name: p.unit for p in problem.free_params})
+
+    # Uncertainty from the exact residual Jacobian at the optimum.
+    d = _Derivatives(problem)
+    r, J = (np.array(m) for m in d.res_jac(z))
+    r = r.ravel()
+    cov, corr, warnings = uncertainty(J, r, problem.free_names)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    ci95: dict[str, tuple[float, float]] = {}
+    std: dict[str, float] = {}
+    for i, name in enumerate(problem.free_names):
+        lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
+        ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
+        std[name] = float(sd[i])
+
+    X0 = problem.initial_states(values_free)[0]
+    x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
+    y_est = problem.simulate_values(values_free)
+    metrics = {"est": _score(problem.data, y_est), "val": {}}
+    if val is not None:
+        y_val = problem.simulate_values(values_free, data=val)
+        metrics["val"] = _score(val, y_val)
+        if problem.model.has_part("angle_output"):
+            lo_e, hi_e = float(problem.data.y.min()), float(problem.data.y.max())
+            if val.y.min() < lo_e or val.y.max() > hi_e:
+                warnings.append(
+                    f"validation output leaves the estimation range [{lo_e:.3g}, {hi_e:.3g}]: "
+                    "position-dependent terms are extrapolated there"
+                )
+    sheet = datasheet
+    if sheet is None and isinstance(data.metadata.get("physical"), dict):
+        try:
+            sheet = PhysicalParameters(**data.metadata["physical"])
+        except (TypeError, ParameterError):
+            sheet = None
+    physical = None
+    if sheet is not None and isinstance(model, HHRAModel):
+        groups = {k: v for k, v in values.items() if k.startswith("g_") and k != "g_kp"}
+        try:
+            physical = sheet.from_groups(groups).to_dict()
+        except ParameterError as exc:
+            warnings.append(f"physical symbols not recoverable with the datasheet: {exc}")
+    settings = {
+        "optimizer": optimizer,
+        "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
+        "pop_size": pop_size,
+        "max_iter": max_iter,
+        "cost": problem.cost,
+        "lam": lam,
+        "split": split,
+        "initial_state": problem.initial_state,
+        "free": problem.free_names,
+        "fixed": problem.fixed,
+        "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
+        "fs": problem.sim.fs,
+        "substeps": problem.sim.substeps,
+        "data": {"name": data.name, "source": data.source, "n": len(data),
+                 "n_est": len(problem.data), "n_val": len(val) if val is not None else 0},
+        "seconds": seconds,
+    }
+    return FitResult(
+        model_spec=model.to_json(),
+        values=values,
+        free=problem.free_names,
+        units=units,
+        ci95=ci95,
+        std=std,
+        correlation=corr,
+        warnings=warnings,
+        metrics=metrics,
+        stages=[s.to_json() for s in stages],
+        history=history,
+        tf=tf_of(model, values),
+        x0=x0,
+        settings=settings,
+        seed=seed,
+        physical=physical,
+    )
+
+
+def _score(ds: Dataset, y_sim: np.ndarray) -> dict[str, float]:
+    return {k: float(v) for k, v in score(ds.y, y_sim, ds.t).items()}
+
+
+def _fit_one(kwargs: dict[str, Any]) -> FitResult:
+    return fit(**kwargs)
+
+
+def fit_many(
+    datasets: Iterable[Dataset | None] | None = None,
+    seeds: Iterable[int] | None = None,
+    executor: Executor | None = None,
+    **kwargs: Any,
+) -> list[FitResult]:
+    """Run several fits: batch over records and/or multi-start over seeds.
+
+    Parameters
+    ----------
+    datasets : iterable of Dataset, optional
+        Records to fit (default: one, the ``data`` keyword or the simulated rig).
+    seeds : iterable of int, optional
+        Seeds of the global search; with several seeds and one record this is a
+        multi-start (see :func:`best_of`).
+    executor : concurrent.futures.Executor, optional
+        Where the fits run (a ``ProcessPoolExecutor`` locally, a Dask
+        ``Client.get_executor()`` on a cluster); default: one after another here.
+    **kwargs
+        Passed to :func:`fit`.
+
+    Returns
+    -------
+    list of FitResult
+        In the order of ``datasets`` x ``seeds``.
+    """
+    data_list = list(datasets) if datasets is not None else [kwargs.pop("data", None)]
+    seed_list = list(seeds) if seeds is not None else [kwargs.pop("seed", 0)]
+    jobs = [dict(kwargs, data=d, seed=s) for d in data_list for s in seed_list]
+    if executor is None:
+        return [_fit_one(j) for j in jobs]
+    return list(executor.map(_fit_one, jobs))
+
+
+def best_of(results: Sequence[FitResult]) -> FitResult:
+    """The result with the lowest final least-squares cost (estimation RMSE)."""
+    if not results:
+        raise ParameterError("best_of needs at least one result")
+    return min(results, key=lambda r: r.metrics["est"].get("rmse", np.inf))

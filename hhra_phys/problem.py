@@ -1,0 +1,378 @@
+"""A fitting problem: model + data + cost + which parameters are free, and how scaled.
+
+:class:`Problem` is what optimisers and refiners see. It maps between
+
+* the model's full parameter vector ``p`` (physical units, ``model.params`` order), and
+* the *fitting coordinates* ``z`` of the free parameters only, in which the
+  search box is given and the optimisers move.
+
+Fitting coordinates. Positive groups spanning decades use ``z = log10(value in
+SI units)``; signed parameters (offsets, loads) use ``z = value / s`` with ``s``
+half the width of their box. The coordinates are absolute on purpose: H-GWO's
+mutation ``lam * X_alpha`` pulls toward ``z = 0`` (PAPER_NOTES section 3), and
+coordinates centred on the nominal values or the box centre would turn that pull
+into a bias toward them whatever the data say. Here ``z = 0`` is one SI unit,
+unrelated to either (and the fitting pipeline uses ``lam = 1`` by default,
+see :mod:`hhra_phys.fit`).
+
+Initial state. ``"data"`` (default) starts the shaft at the first measured angle
+(or, for a pressure output, the pressure state at the first measured pressure)
+and everything else at rest; ``"zero"`` starts from the model's rest state;
+``"fit"`` adds the initial angle (or pressure) as a free parameter ``x0_<state>``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+
+from hhra_phys.data import DataError, Dataset
+from hhra_phys.errors import ParameterError
+from hhra_phys.metrics import itae, mse
+from hhra_phys.model import Model
+from hhra_phys.parameters import Parameter
+from hhra_phys.simulate import Simulator
+
+CostName = Literal["itae", "mse", "rmse", "ssr"]
+COSTS: tuple[str, ...] = ("itae", "mse", "rmse", "ssr")
+
+#: Parameters held fixed unless freed explicitly (the paper's G = 0, no load).
+DEFAULT_FIXED: tuple[str, ...] = ("g_spring", "g_load")
+
+
+class Problem:
+    """Model + estimation data + cost + free/fixed parameters and their scaling.
+
+    Parameters
+    ----------
+    model : Model
+        The model to fit (e.g. :class:`~hhra_phys.model.HHRAModel`).
+    data : Dataset
+        Estimation data (use :meth:`Dataset.split` first to keep validation data).
+    cost : {"itae", "mse", "rmse", "ssr"}
+        Cost minimised by the global search: ITAE (the paper's), mean or root mean
+        squared error, or the sum of squared residuals. Local refiners always
+        minimise the (smooth) sum of squares.
+    free : sequence of str, optional
+        Names of the free parameters (default: all except ``g_spring`` and
+        ``g_load``, which stay at their nominal 0 unless named here).
+    fixed : dict, optional
+        ``{name: value}``: parameters held at the given value (e.g. from a
+        datasheet). A name both free and fixed is an error.
+    bounds : dict, optional
+        ``{name: (lower, upper)}`` overriding the model's bounds (physical units).
+    initial_state : {"data", "zero", "fit"}
+        How the initial state is set (module docstring).
+    simulator : Simulator, optional
+        A simulator of ``model`` at the data's sample rate to reuse.
+    substeps : int or "auto"
+        RK4 substeps if a simulator is built here.
+    start : dict, optional
+        Parameter values to use instead of the model's nominal values for the
+        parameters that are neither free nor fixed, and as the default start of
+        local refiners.
+
+    Raises
+    ------
+    ParameterError
+        Unknown or contradictory parameter names, bad bounds.
+    DataError
+        Data too short for the number of free parameters, or a sample rate that
+        does not match the simulator.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        data: Dataset,
+        cost: CostName = "itae",
+        free: Sequence[str] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        initial_state: Literal["data", "zero", "fit"] = "data",
+        simulator: Simulator | None = None,
+        substeps: int | str = "auto",
+        start: Mapping[str, float] | None = None,
+    ) -> None:
+        if cost not in COSTS:
+            raise ParameterError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+        if initial_state not in ("data", "zero", "fit"):
+            raise ParameterError(
+                f"initial_state must be 'data', 'zero' or 'fit', got {initial_state!r}"
+            )
+        self.model = model
+        self.data = data
+        self.cost = cost
+        self.initial_state = initial_state
+        fixed = dict(fixed or {})
+        names = model.params.names
+        for name in fixed:
+            model.params.index(name)  # clear error for unknown names
+        if free is None:
+            free = [n for n in names if n not in DEFAULT_FIXED and n not in fixed]
+        free = list(free)
+        for name in free:
+            model.params.index(name)
+            if name in fixed:
+                raise ParameterError(f"parameter {name!r} is both free and fixed")
+        if len(set(free)) != len(free):
+            raise ParameterError(f"free parameters listed twice: {free}")
+        self.base = model.nominal()
+        for name, value in (start or {}).items():
+            self.base[model.params.index(name)] = float(value)
+        for name, value in fixed.items():
+            if not math.isfinite(float(value)):
+                raise ParameterError(f"fixed value of {name!r} must be finite, got {value}")
+            self.base[model.params.index(name)] = float(value)
+        self.fixed = {n: float(self.base[model.params.index(n)]) for n in names if n not in free}
+
+        # Free parameters (model parameters, then initial-state parameters).
+        params: list[Parameter] = []
+        for name in free:
+            par = model.params[name]
+            if bounds and name in bounds:
+                lo, hi = (float(b) for b in bounds[name])
+                nominal = min(max(par.nominal, lo), hi)
+                par = par.with_(lower=lo, upper=hi, nominal=nominal)
+            params.append(par)
+        unknown = set(bounds or {}) - set(free)
+        if unknown:
+            raise ParameterError(
+                f"bounds given for parameters that are not free: {sorted(unknown)}"
+            )
+        self._x0_state: str | None = None
+        self._observed = self._observed_state()
+        if initial_state == "fit":
+            state, value, span, unit = self._x0_parameter()
+            self._x0_state = state
+            params.append(Parameter(f"x0_{state}", unit, value, value - span, value + span,
+                                    "linear", f"initial value of state {state!r}"))
+        self.free_params = params
+        self.free_names = [p.name for p in params]
+        self._model_free = [model.params.index(p.name) for p in params
+                            if not p.name.startswith("x0_")]
+        self.n_free = len(params)
+        if self.n_free == 0:
+            raise ParameterError("no free parameters: nothing to fit")
+        if len(data) < 10 * self.n_free:
+            raise DataError(
+                f"{data.source or data.name or 'dataset'}: {len(data)} samples are too few to fit "
+                f"{self.n_free} parameters (need at least {10 * self.n_free})"
+            )
+        self._scale = np.array([(p.upper - p.lower) / 2 if p.scale == "linear" else 1.0
+                                for p in params])
+        self._log = np.array([p.scale == "log" for p in params])
+
+        self.sim = simulator or Simulator(model, fs=data.fs, substeps=substeps)
+        if abs(self.sim.fs - data.fs) > 1e-9 * data.fs:
+            raise DataError(
+                f"dataset sample rate {data.fs} Hz differs from the simulator's {self.sim.fs} Hz"
+            )
+        self.u = data.u
+        self.y = data.y
+        self.t = data.t - data.t[0]
+
+    # -- coordinates --------------------------------------------------------------------
+    def to_z(self, values: np.ndarray) -> np.ndarray:
+        """Fitting coordinates of free-parameter values (physical units), shape (..., n_free)."""
+        v = np.asarray(values, dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self._log, np.log10(np.abs(v)), v / self._scale)
+
+    def from_z(self, z: np.ndarray) -> np.ndarray:
+        """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
+        zz = np.asarray(z, dtype=float)
+        return np.where(self._log, 10.0 ** zz, zz * self._scale)
+
+    def bounds_z(self) -> np.ndarray:
+        """Search box in fitting coordinates, shape (n_free, 2)."""
+        lo = np.array([p.lower for p in self.free_params])
+        hi = np.array([p.upper for p in self.free_params])
+        return np.stack([self.to_z(lo), self.to_z(hi)], axis=1)
+
+    def start_values(self) -> np.ndarray:
+        """Starting values of the free parameters (physical units)."""
+        out = []
+        for p in self.free_params:
+            if p.name.startswith("x0_"):
+                out.append(p.nominal)
+            else:
+                out.append(self.base[self.model.params.index(p.name)])
+        return np.array(out)
+
+    def full(self, values: np.ndarray) -> np.ndarray:
+        """Full model parameter vectors from free values, shape (..., n_params)."""
+        v = np.atleast_2d(np.asarray(values, dtype=float))
+        P = np.tile(self.base, (v.shape[0], 1))
+        nm = len(self._model_free)
+        P[:, self._model_free] = v[:, :nm]
+        return P if np.ndim(values) > 1 else P[0]
+
+    # -- initial state --------------------------------------------------------------------
+    def _observed_state(self) -> str | None:
+        if self.model.has_part("angle_output"):
+            return "theta"
+        if self.model.has_part("pressure_output"):
+            return "p"
+        return None
+
+    def _x0_parameter(self) -> tuple[str, float, float, str]:
+        state = self._observed
+        if state is None:
+            raise ParameterError("initial_state='fit' needs an angle or pressure output part")
+        x0 = self._x0_from_data(self.base[None, :])[0]
+        value = float(x0[self.model.state_names.index(state)])
+        if state == "theta":
+            return state, value, math.radians(10.0), "rad"
+        return state, value, 0.5, "-"
+
+    def _x0_from_data(self, P: np.ndarray, y0: float | None = None) -> np.ndarray:
+        """Initial states (n_pop, nx) under the ``"data"`` rule (first output sample ``y0``)."""
+        y0 = float(self.data.y[0]) if y0 is None else y0
+        X0 = np.tile(self.model.x0(), (P.shape[0], 1))
+        if self._observed == "theta":
+            X0[:, self.model.state_names.index("theta")] = math.radians(y0)
+        elif self._observed == "p":
+            names = self.model.params.names
+            gain = P[:, names.index("p_gain")]
+            off = P[:, names.index("p_offset")]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                X0[:, self.model.state_names.index("p")] = (y0 - off) / gain
+        return X0
+
+    def initial_states(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
+        """Initial states (n_pop, nx) for free-parameter values (n_pop, n_free).
+
+        For another record (``data``, e.g. validation) the ``"data"`` rule is
+        applied to it, and under ``"fit"`` the observed initial state is
+        re-estimated on it (:meth:`fit_initial_state`): the fitted one belongs to
+        the estimation record.
+        """
+        v = np.atleast_2d(np.asarray(values, dtype=float))
+        if self.initial_state == "zero":
+            return np.tile(self.model.x0(), (v.shape[0], 1))
+        P = self.full(v)
+        if data is not None:
+            X0 = self._x0_from_data(P, float(data.y[0]))
+            if self.initial_state == "fit":
+                X0 = np.array([self.fit_initial_state(data, P[i], X0[i]) for i in range(len(P))])
+            return X0
+        X0 = self._x0_from_data(P)
+        if self.initial_state == "fit":
+            X0[:, self.model.state_names.index(self._x0_state)] = v[:, -1]  # type: ignore[arg-type]
+        return X0
+
+    def fit_initial_state(
+        self, data: Dataset, p: np.ndarray, x0: np.ndarray, iterations: int = 3
+    ) -> np.ndarray:
+        """Least-squares estimate of the observed initial state on ``data``, parameters fixed.
+
+        Like initial-condition estimation when comparing models on validation
+        data (MATLAB's ``compare``): without it the first noisy sample sets a
+        constant offset that the free-run angle never forgets. A few
+        Gauss-Newton steps with finite differences through the compiled
+        simulator (three trajectories per step, one population call).
+        """
+        if self._observed is None:
+            return x0
+        ix = self.model.state_names.index(self._observed)
+        sim = self.simulator_for(data)
+        step = math.radians(0.05) if self._observed == "theta" else 0.01
+        x = x0.copy()
+        for _ in range(iterations):
+            X = np.tile(x, (3, 1))
+            X[:, ix] += np.array([-step, 0.0, step])
+            Y = sim.simulate(data.u, np.tile(p, (3, 1)), x0=X)
+            if not np.isfinite(Y).all():
+                return x0
+            r = Y[1] - data.y
+            g = (Y[2] - Y[0]) / (2 * step)
+            gg = float(g @ g)
+            if gg <= 0:
+                break
+            delta = -float(g @ r) / gg
+            x[ix] += delta
+            if abs(delta) < 1e-6 * step:
+                break
+        return x
+
+    def simulator_for(self, data: Dataset) -> Simulator:
+        """The problem's simulator, or one at ``data``'s sample rate if it differs."""
+        if abs(data.fs - self.sim.fs) <= 1e-9 * data.fs:
+            return self.sim
+        return Simulator(self.model, fs=data.fs, substeps=self.sim.substeps)
+
+    # -- evaluation ------------------------------------------------------------------------
+    def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
+        """Simulated output for free-parameter values, (n_free,) -> (N,) or (n, n_free) -> (n, N).
+
+        With ``data`` (e.g. the validation part) the simulation runs on its input,
+        starting from its first measured output by the ``"data"`` rule.
+        """
+        single = np.ndim(values) == 1
+        v = np.atleast_2d(np.asarray(values, dtype=float))
+        P = self.full(v)
+        if data is None:
+            Y = self.sim.simulate(self.u, P, x0=self.initial_states(v))
+        else:
+            Y = self.simulator_for(data).simulate(data.u, P, x0=self.initial_states(v, data))
+        return Y[0] if single else Y
+
+    def cost_of(self, Y: np.ndarray) -> np.ndarray:
+        """Cost of simulated outputs (n, N) against the estimation data; non-finite -> inf."""
+        if self.cost == "itae":
+            c = itae(self.y, Y, self.t)
+        elif self.cost == "mse":
+            c = mse(self.y, Y)
+        elif self.cost == "rmse":
+            c = np.sqrt(mse(self.y, Y))
+        else:
+            c = mse(self.y, Y) * self.y.size
+        c = np.asarray(c, dtype=float)
+        return np.where(np.isfinite(c), c, np.inf)
+
+    def __call__(self, Z: np.ndarray) -> np.ndarray:
+        """Vectorised objective in fitting coordinates: (n, n_free) -> (n,) costs.
+
+        Candidates whose simulation is flagged (unstable, diverging) cost ``inf``.
+        """
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        return self.cost_of(self.simulate_values(self.from_z(Z)))
+
+    # -- symbolic (for IPOPT / gradients) ----------------------------------------------------
+    def residual_function(self) -> ca.Function:
+        """CasADi function ``r(z) = y_sim(z) - y`` on the estimation record (MX, differentiable)."""
+        if getattr(self, "_residual_fn", None) is not None:
+            return self._residual_fn
+        z = ca.MX.sym("z", self.n_free)
+        vals = []
+        for i, p in enumerate(self.free_params):
+            vals.append(10 ** z[i] if p.scale == "log" else z[i] * self._scale[i])
+        pv = ca.MX(self.base)
+        nm = len(self._model_free)
+        pieces = [pv[j] for j in range(self.model.n_params)]
+        for k, j in enumerate(self._model_free):
+            pieces[j] = vals[k]
+        p_full = ca.vertcat(*pieces)
+        x0_list = [ca.MX(float(v)) for v in self.model.x0()]
+        if self.initial_state in ("data", "fit") and self._observed is not None:
+            ix = self.model.state_names.index(self._observed)
+            if self.initial_state == "fit":
+                x0_list[ix] = vals[nm]
+            elif self._observed == "theta":
+                x0_list[ix] = ca.MX(math.radians(float(self.data.y[0])))
+            else:
+                names = self.model.params.names
+                x0_list[ix] = (float(self.data.y[0]) - p_full[names.index("p_offset")]) / \
+                    p_full[names.index("p_gain")]
+        x0 = ca.vertcat(*x0_list)
+        traj = self.sim.trajectory_function(self.y.size)
+        U = self.sim.input_matrix(self.u)
+        y_sim = traj(x0, p_full, ca.DM(U))
+        r = ca.vec(y_sim[: self.y.size]) - ca.DM(self.y)
+        self._residual_fn = ca.Function("residual", [z], [r], ["z"], ["r"])
+        return self._residual_fn

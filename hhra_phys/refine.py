@@ -1,0 +1,377 @@
+"""Local refiners: IPOPT (through CasADi) and NLopt, started from a global result.
+
+Both minimise the smooth least-squares cost ``0.5 * ||r(z)||^2`` of the free-run
+residual ``r(z) = y_sim(z) - y`` over the estimation record, in the problem's
+fitting coordinates ``z`` and inside its box. Derivatives come from CasADi's
+algorithmic differentiation through the RK4 integrator (the same ``mapaccum``
+graph the compiled simulator is generated from), so they are exact for the
+discretised model.
+
+* :func:`refine_ipopt` -- IPOPT via :func:`casadi.nlpsol`, single shooting by
+  default with a Gauss-Newton Hessian ``J^T J`` (or the exact Hessian, or
+  L-BFGS), or multiple shooting with continuity constraints for long or
+  unstable records.
+* :func:`refine_nlopt` -- NLopt with a gradient method fed by the CasADi
+  gradient (``LD_LBFGS``, ``LD_SLSQP``, ...) or a derivative-free one
+  (``LN_BOBYQA``, ...) evaluated with the compiled simulator.
+
+Each returns a :class:`Stage` recording what it contributed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+
+from hhra_phys.errors import ParameterError
+from hhra_phys.problem import Problem
+
+
+@dataclass
+class Stage:
+    """What one stage of a fit did.
+
+    Attributes
+    ----------
+    name : str
+        ``"hgwo"``, ``"ipopt"``, ``"nlopt:LD_LBFGS"`` ...
+    z : ndarray
+        Result in fitting coordinates.
+    cost_before, cost : float
+        The stage's own objective at its start and at its end (the global search
+        reports the problem's cost, e.g. ITAE; refiners ``0.5*||r||^2``).
+    nfev : int
+        Objective (or simulation) evaluations; gradient evaluations in ``info``.
+    seconds : float
+        Wall time.
+    info : dict
+        Solver status, iterations and anything else worth keeping.
+    """
+
+    name: str
+    z: np.ndarray
+    cost_before: float
+    cost: float
+    nfev: int
+    seconds: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able summary (without the coordinates)."""
+        return {
+            "name": self.name,
+            "cost_before": _num(self.cost_before),
+            "cost": _num(self.cost),
+            "nfev": int(self.nfev),
+            "seconds": float(self.seconds),
+            "info": self.info,
+        }
+
+
+def _num(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+class _Derivatives:
+    """Residual, Jacobian, cost and gradient functions of a problem (CasADi, cached)."""
+
+    def __init__(self, problem: Problem) -> None:
+        self.problem = problem
+        rf = problem.residual_function()
+        z = ca.MX.sym("z", problem.n_free)
+        r = rf(z)
+        self.z, self.r = z, r
+        self.f = 0.5 * ca.sumsqr(r)
+        self.J = ca.jacobian(r, z)
+        self.res_jac = ca.Function("res_jac", [z], [r, self.J])
+        self.cost_grad = ca.Function("cost_grad", [z], [self.f, ca.gradient(self.f, z)])
+
+
+def least_squares_cost(problem: Problem, z: np.ndarray) -> float:
+    """``0.5 * ||y_sim(z) - y||^2`` with the compiled simulator (``inf`` if flagged)."""
+    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    val = 0.5 * float(np.dot(r, r))
+    return val if np.isfinite(val) else np.inf
+
+
+def refine_ipopt(
+    problem: Problem,
+    z0: np.ndarray,
+    hessian: Literal["gauss-newton", "exact", "lbfgs"] = "gauss-newton",
+    shooting: Literal["single", "multiple"] = "single",
+    segments: int = 10,
+    max_iter: int = 200,
+    tol: float = 1e-8,
+    verbose: bool = False,
+) -> Stage:
+    """Refine with IPOPT through ``casadi.nlpsol``.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitting problem.
+    z0 : ndarray, shape (n_free,)
+        Start in fitting coordinates (e.g. the global search's best).
+    hessian : {"gauss-newton", "exact", "lbfgs"}
+        ``"gauss-newton"``: ``J^T J`` from the exact residual Jacobian (default;
+        positive semi-definite and cheap); ``"exact"``: CasADi's second-order
+        derivatives; ``"lbfgs"``: IPOPT's limited-memory quasi-Newton.
+    shooting : {"single", "multiple"}
+        Single shooting over the whole record, or multiple shooting: the record
+        is cut into ``segments`` pieces whose initial states are decision
+        variables tied by continuity constraints (robust for long records or
+        unstable models; single shooting is faster for this actuator).
+    segments : int
+        Number of shooting segments.
+    max_iter : int
+        IPOPT iteration limit.
+    tol : float
+        IPOPT convergence tolerance.
+    verbose : bool
+        Print IPOPT's log.
+
+    Returns
+    -------
+    Stage
+    """
+    if hessian not in ("gauss-newton", "exact", "lbfgs"):
+        raise ParameterError(f"hessian must be 'gauss-newton', 'exact' or 'lbfgs', got {hessian!r}")
+    if shooting not in ("single", "multiple"):
+        raise ParameterError(f"shooting must be 'single' or 'multiple', got {shooting!r}")
+    t0 = time.perf_counter()
+    z0 = np.asarray(z0, dtype=float)
+    bz = problem.bounds_z()
+    z0 = np.clip(z0, bz[:, 0], bz[:, 1])
+    if shooting == "multiple":
+        return _ipopt_multiple_shooting(problem, z0, hessian, segments, max_iter, tol, verbose, t0)
+    d = _Derivatives(problem)
+    cost_before = least_squares_cost(problem, z0)
+    opts: dict[str, Any] = {
+        "ipopt.max_iter": int(max_iter),
+        "ipopt.tol": float(tol),
+        "ipopt.print_level": 5 if verbose else 0,
+        "print_time": bool(verbose),
+        "ipopt.sb": "yes",
+    }
+    nlp = {"x": d.z, "f": d.f}
+    if hessian == "gauss-newton":
+        opts["hess_lag"] = _gauss_newton_hessian(d.z, d.J)
+    elif hessian == "lbfgs":
+        opts["ipopt.hessian_approximation"] = "limited-memory"
+    solver = ca.nlpsol("refine_ipopt", "ipopt", nlp, opts)
+    sol = solver(x0=z0, lbx=bz[:, 0], ubx=bz[:, 1])
+    stats = solver.stats()
+    z = np.array(sol["x"]).ravel()
+    cost = least_squares_cost(problem, z)
+    if not cost <= cost_before:  # never hand back something worse than the start
+        z, cost = z0, cost_before
+    return Stage(
+        "ipopt", z, cost_before, cost,
+        nfev=int(stats.get("n_call_nlp_f", 0)),
+        seconds=time.perf_counter() - t0,
+        info={
+            "status": stats.get("return_status"),
+            "success": bool(stats.get("success", False)),
+            "iterations": int(stats.get("iter_count", 0)),
+            "hessian": hessian,
+            "shooting": "single",
+            "n_grad": int(stats.get("n_call_nlp_grad_f", 0)),
+        },
+    )
+
+
+def _gauss_newton_hessian(z: ca.MX, J: ca.MX) -> ca.Function:
+    lam_f = ca.MX.sym("lam_f")
+    H = lam_f * ca.mtimes(J.T, J)
+    return ca.Function(
+        "gn_hess", [z, ca.MX.sym("p", 0), lam_f, ca.MX.sym("lam_g", 0)], [ca.triu(H)],
+        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"],
+    )
+
+
+def _ipopt_multiple_shooting(
+    problem: Problem,
+    z0: np.ndarray,
+    hessian: str,
+    segments: int,
+    max_iter: int,
+    tol: float,
+    verbose: bool,
+    t0: float,
+) -> Stage:
+    """Multiple shooting: segment initial states are variables, continuity is a constraint."""
+    n = problem.y.size
+    segments = int(segments)
+    if segments < 2 or n // segments < 5:
+        raise ParameterError(f"segments must be >= 2 with at least 5 samples each, got {segments}")
+    sim = problem.sim
+    m = problem.model
+    nx = m.nx
+    edges = np.linspace(0, n, segments + 1).astype(int)
+    # Start the shooting states on the single-shooting trajectory of z0.
+    v0 = problem.from_z(z0)
+    _, X_init = sim.simulate(problem.u, problem.full(v0),
+                             x0=problem.initial_states(v0)[0], states=True)
+    z = ca.MX.sym("z", problem.n_free)
+    vals = [10 ** z[i] if p.scale == "log" else z[i] * problem._scale[i]
+            for i, p in enumerate(problem.free_params)]
+    pieces = [ca.MX(float(b)) for b in problem.base]
+    for k, j in enumerate(problem._model_free):
+        pieces[j] = vals[k]
+    p_full = ca.vertcat(*pieces)
+    S = [ca.MX.sym(f"s{i}", nx) for i in range(1, segments)]
+    x_first = ca.vertcat(*[ca.MX(float(v)) for v in problem.initial_states(v0)[0]])
+    if problem.initial_state == "fit":
+        ix = m.state_names.index(problem._x0_state)  # type: ignore[arg-type]
+        x_first = ca.vertcat(*[vals[-1] if i == ix else x_first[i] for i in range(nx)])
+    starts = [x_first, *S]
+    residuals, gaps = [], []
+    for i in range(segments):
+        a, b = edges[i], edges[i + 1]
+        last = i == segments - 1
+        length = b - a if last else b - a + 1  # one more sample gives the end state
+        traj = sim.trajectory_function(length, states=not last)
+        U = sim.input_matrix(problem.u[a:a + length])
+        out = traj(starts[i], p_full, ca.DM(U))
+        residuals.append(ca.vec(out[0][: b - a]) - ca.DM(problem.y[a:b]))
+        if not last:
+            X = out[1]
+            gaps.append(X[:, b - a] - S[i])
+    r = ca.vertcat(*residuals)
+    f = 0.5 * ca.sumsqr(r)
+    w = ca.vertcat(z, *S)
+    g = ca.vertcat(*gaps)
+    w0 = np.concatenate([z0, *[X_init[edges[i]] for i in range(1, segments)]])
+    bz = problem.bounds_z()
+    lbw = np.concatenate([bz[:, 0], np.full(nx * (segments - 1), -np.inf)])
+    ubw = np.concatenate([bz[:, 1], np.full(nx * (segments - 1), np.inf)])
+    opts: dict[str, Any] = {
+        "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol),
+        "ipopt.print_level": 5 if verbose else 0, "print_time": bool(verbose), "ipopt.sb": "yes",
+    }
+    if hessian == "gauss-newton":
+        lam_f = ca.MX.sym("lam_f")
+        lam_g = ca.MX.sym("lam_g", g.numel())
+        Jr = ca.jacobian(r, w)
+        # Gauss-Newton for the cost; the constraints' curvature is dropped (GN-SQP style).
+        H = lam_f * ca.mtimes(Jr.T, Jr)
+        opts["hess_lag"] = ca.Function("gn_hess_ms", [w, ca.MX.sym("p", 0), lam_f, lam_g],
+                                       [ca.triu(H)])
+    elif hessian == "lbfgs":
+        opts["ipopt.hessian_approximation"] = "limited-memory"
+    solver = ca.nlpsol("refine_ipopt_ms", "ipopt", {"x": w, "f": f, "g": g}, opts)
+    cost_before = least_squares_cost(problem, z0)
+    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    stats = solver.stats()
+    zs = np.array(sol["x"]).ravel()[: problem.n_free]
+    cost = least_squares_cost(problem, zs)
+    if not cost <= cost_before:
+        zs, cost = z0, cost_before
+    return Stage(
+        "ipopt", zs, cost_before, cost,
+        nfev=int(stats.get("n_call_nlp_f", 0)),
+        seconds=time.perf_counter() - t0,
+        info={
+            "status": stats.get("return_status"),
+            "success": bool(stats.get("success", False)),
+            "iterations": int(stats.get("iter_count", 0)),
+            "hessian": hessian,
+            "shooting": "multiple",
+            "segments": segments,
+        },
+    )
+
+
+#: NLopt algorithms offered by name; ``LD_*`` use the CasADi gradient.
+NLOPT_ALGORITHMS: tuple[str, ...] = (
+    "LD_LBFGS", "LD_SLSQP", "LD_MMA", "LD_TNEWTON", "LN_BOBYQA", "LN_NELDERMEAD", "LN_SBPLX",
+    "LN_COBYLA",
+)
+
+
+def refine_nlopt(
+    problem: Problem,
+    z0: np.ndarray,
+    algorithm: str = "LD_LBFGS",
+    max_eval: int = 500,
+    xtol_rel: float = 1e-10,
+    ftol_rel: float = 1e-12,
+) -> Stage:
+    """Refine with NLopt.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitting problem.
+    z0 : ndarray, shape (n_free,)
+        Start in fitting coordinates.
+    algorithm : str
+        NLopt algorithm name (see :data:`NLOPT_ALGORITHMS`): gradient-based
+        ``LD_*`` methods get the exact CasADi gradient; derivative-free ``LN_*``
+        methods evaluate the compiled simulator only.
+    max_eval : int
+        Evaluation budget.
+    xtol_rel, ftol_rel : float
+        NLopt's relative tolerances on the coordinates and the cost.
+
+    Returns
+    -------
+    Stage
+    """
+    import nlopt
+
+    algorithm = algorithm.upper()
+    if algorithm not in NLOPT_ALGORITHMS:
+        raise ParameterError(
+            f"algorithm must be one of {', '.join(NLOPT_ALGORITHMS)}, got {algorithm!r}"
+        )
+    t0 = time.perf_counter()
+    bz = problem.bounds_z()
+    z0 = np.clip(np.asarray(z0, dtype=float), bz[:, 0], bz[:, 1])
+    gradient_based = algorithm.startswith("LD_")
+    d = _Derivatives(problem) if gradient_based else None
+    counter = {"f": 0, "g": 0}
+
+    def objective(x: np.ndarray, grad: np.ndarray) -> float:
+        counter["f"] += 1
+        if grad.size > 0 and d is not None:
+            counter["g"] += 1
+            fv, gv = d.cost_grad(x)
+            fval = float(fv)
+            g = np.array(gv).ravel()
+            if not (np.isfinite(fval) and np.isfinite(g).all()):
+                grad[:] = 0.0
+                return np.inf
+            grad[:] = g
+            return fval
+        return least_squares_cost(problem, x)
+
+    opt = nlopt.opt(getattr(nlopt, algorithm), problem.n_free)
+    opt.set_lower_bounds(bz[:, 0])
+    opt.set_upper_bounds(bz[:, 1])
+    opt.set_min_objective(objective)
+    opt.set_maxeval(int(max_eval))
+    opt.set_xtol_rel(float(xtol_rel))
+    opt.set_ftol_rel(float(ftol_rel))
+    if not gradient_based:
+        opt.set_initial_step(np.minimum(0.05, 0.25 * (bz[:, 1] - bz[:, 0])))
+    cost_before = least_squares_cost(problem, z0)
+    try:
+        z = opt.optimize(z0)
+        status = int(opt.last_optimize_result())
+    except (nlopt.RoundoffLimited, RuntimeError, ValueError) as exc:
+        z = z0
+        status = f"{type(exc).__name__}: {exc}"
+    cost = least_squares_cost(problem, z)
+    if not cost <= cost_before:
+        z, cost = z0, cost_before
+    return Stage(
+        f"nlopt:{algorithm}", np.asarray(z, dtype=float), cost_before, cost,
+        nfev=counter["f"],
+        seconds=time.perf_counter() - t0,
+        info={"status": status, "n_grad": counter["g"], "algorithm": algorithm},
+    )

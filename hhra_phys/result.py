@@ -1,0 +1,339 @@
+"""The result of a physical fit, its uncertainty, and saving/loading it.
+
+Uncertainty. At the optimum the residual Jacobian ``J = dr/dz`` (exact, from
+CasADi) gives the Gauss-Newton covariance of the fitting coordinates,
+``cov_z = s^2 (J^T J)^-1`` with ``s^2 = ||r||^2 / (N - n_free)``. 95 % confidence
+intervals are ``z +- 1.96 sigma_z`` mapped back to physical units (so they are
+asymmetric for log-scaled groups and never cross zero). They assume white
+residuals; :mod:`hhra_phys.diagnose` checks that assumption. When ``J^T J`` is
+near singular the parameters along its weakest direction are named in a
+warning: they are not identifiable from this record.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hhra_phys.errors import DataError, ParameterError
+from hhra_phys.model import HHRAModel, Model
+from hhra_phys.simulate import Simulator
+
+#: Condition number of the scaled information matrix beyond which parameters are
+#: reported as not identifiable from the data.
+IDENTIFIABILITY_COND = 1e10
+#: |correlation| beyond which a pair is reported as practically not separable.
+CORRELATION_LIMIT = 0.999
+
+FORMAT_VERSION = 1
+
+
+def uncertainty(
+    J: np.ndarray, r: np.ndarray, names: list[str]
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Gauss-Newton covariance in fitting coordinates, correlation matrix, warnings.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, n)
+        Residual Jacobian at the optimum (fitting coordinates).
+    r : ndarray, shape (N,)
+        Residuals at the optimum.
+    names : list of str
+        Free parameter names (for the warnings).
+
+    Returns
+    -------
+    cov : ndarray, shape (n, n)
+        Covariance of the fitting coordinates (``inf`` on the diagonal of
+        unidentifiable directions).
+    corr : ndarray, shape (n, n)
+        Correlation matrix.
+    warnings : list of str
+    """
+    n_obs, n = J.shape
+    dof = max(n_obs - n, 1)
+    s2 = float(r @ r) / dof
+    info = J.T @ J
+    warnings: list[str] = []
+    scale = np.sqrt(np.diag(info))
+    if not np.all(np.isfinite(info)) or np.any(scale == 0):
+        dead = [names[i] for i in range(n) if not (np.isfinite(scale[i]) and scale[i] > 0)]
+        warnings.append(
+            f"parameters {', '.join(dead)} do not affect the output at the optimum: "
+            "not identifiable from these data"
+        )
+        scale = np.where(scale > 0, scale, 1.0)
+    normed = info / np.outer(scale, scale)
+    eigval, eigvec = np.linalg.eigh(normed)
+    cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
+    if cond > IDENTIFIABILITY_COND:
+        weak = np.abs(eigvec[:, 0])
+        involved = [names[i] for i in np.argsort(-weak) if weak[i] > 0.3]
+        warnings.append(
+            f"information matrix near singular (condition {cond:.2e}): "
+            f"{', '.join(involved)} are not identifiable separately from these data"
+        )
+        cov_n = np.linalg.pinv(normed, rcond=1e-12)
+    else:
+        cov_n = np.linalg.inv(normed)
+    cov = s2 * cov_n / np.outer(scale, scale)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(corr[i, j]) > CORRELATION_LIMIT:
+                warnings.append(
+                    f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.4f}: "
+                    "the data hardly separate them"
+                )
+    return cov, corr, warnings
+
+
+@dataclass
+class FitResult:
+    """Everything a fit produced, enough to reproduce and reuse it.
+
+    Attributes
+    ----------
+    model_spec : dict
+        The model (:meth:`Model.to_json`), rebuilt by :attr:`model`.
+    values : dict of str to float
+        Every model parameter (free and fixed), physical units.
+    free : list of str
+        Names of the fitted parameters (may include ``x0_theta``).
+    units : dict of str to str
+        Unit of each parameter.
+    ci95 : dict of str to (float, float)
+        95 % confidence interval of each free parameter (physical units).
+    std : dict of str to float
+        Standard deviation in fitting coordinates (log10 units for log groups).
+    correlation : ndarray
+        Correlation matrix of the free parameters.
+    warnings : list of str
+        Identifiability warnings and anything else the user must know.
+    metrics : dict
+        ``{"est": {...}, "val": {...}}`` from :func:`hhra_phys.metrics.score` of
+        the free-run simulation (``val`` empty without validation data).
+    stages : list of dict
+        Per stage (global search, refiners): name, cost before/after, evaluations,
+        seconds and solver info.
+    history : list of float
+        Best global-search cost per iteration.
+    tf : dict
+        The paper's linearised transfer function ``kv / (a s^3 + b s^2 + c s)``
+        at rest, from the fitted groups (``a = 1``; only ratios are identifiable).
+    x0 : dict
+        Initial state used on the estimation record.
+    settings : dict
+        What reproduces the fit: optimiser, refiner, population, iterations,
+        cost, ``lam``, split, free and fixed parameters, data description.
+    seed : int or None
+        Seed of the global search.
+    physical : dict or None
+        Physical symbols recovered from the groups with a datasheet (see
+        :meth:`hhra_phys.physical.PhysicalParameters.from_groups`), if one was given.
+    """
+
+    model_spec: dict[str, Any]
+    values: dict[str, float]
+    free: list[str]
+    units: dict[str, str]
+    ci95: dict[str, tuple[float, float]]
+    std: dict[str, float]
+    correlation: np.ndarray
+    warnings: list[str]
+    metrics: dict[str, dict[str, float]]
+    stages: list[dict[str, Any]]
+    history: list[float]
+    tf: dict[str, float]
+    x0: dict[str, float]
+    settings: dict[str, Any]
+    seed: int | None
+    physical: dict[str, float] | None = None
+    created: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
+
+    # -- reuse ------------------------------------------------------------------------
+    @property
+    def model(self) -> Model:
+        """The fitted model, rebuilt from its specification."""
+        return Model.from_json(self.model_spec)
+
+    def parameter_vector(self) -> np.ndarray:
+        """Full parameter vector in the model's order."""
+        model = self.model
+        return np.array([self.values[n] for n in model.params.names])
+
+    def simulate(
+        self, u: np.ndarray, fs: float | None = None, x0: np.ndarray | dict | None = None
+    ) -> np.ndarray:
+        """Simulate the fitted model on a new input.
+
+        Parameters
+        ----------
+        u : array, shape (N,)
+            Input (valve current [mA] for the HHRA).
+        fs : float, optional
+            Sample rate [Hz] (default: the fit's).
+        x0 : array or dict, optional
+            Initial state (default: rest, the model's ``x0``).
+
+        Returns
+        -------
+        ndarray, shape (N,)
+        """
+        model = self.model
+        fs = float(fs or self.settings["fs"])
+        sim = Simulator(model, fs=fs, substeps=self.settings.get("substeps", "auto"))
+        if isinstance(x0, dict):
+            x = model.x0()
+            for k, v in x0.items():
+                x[model.state_names.index(k)] = v
+            x0 = x
+        return sim.simulate(np.asarray(u, dtype=float), self.parameter_vector(), x0=x0)
+
+    @property
+    def params(self) -> dict[str, dict[str, Any]]:
+        """``{name: {"value", "unit", "ci95", "free"}}`` for every parameter."""
+        out = {}
+        for name, value in self.values.items():
+            ci = self.ci95.get(name)
+            out[name] = {
+                "value": value,
+                "unit": self.units.get(name, ""),
+                "ci95": list(ci) if ci is not None else None,
+                "free": name in self.free,
+            }
+        for name in self.free:
+            if name not in out:  # initial-state parameters
+                out[name] = {"value": self.x0_param(name), "unit": self.units.get(name, ""),
+                             "ci95": list(self.ci95[name]), "free": True}
+        return out
+
+    def x0_param(self, name: str) -> float:
+        """Value of a fitted initial-state parameter ``x0_<state>``."""
+        return float(self.x0[name[3:]])
+
+    # -- reporting ----------------------------------------------------------------------------
+    def summary(self) -> str:
+        """A plain-text table: parameter, value, unit, 95 % CI; then the metrics."""
+        lines = [f"{'parameter':<12} {'value':>13} {'unit':<10} {'95 % CI':>29}"]
+        for name, info in self.params.items():
+            if not info["free"] and info["value"] == 0.0:
+                continue
+            ci = info["ci95"]
+            ci_text = f"[{ci[0]:.6g}, {ci[1]:.6g}]" if ci else "fixed"
+            lines.append(f"{name:<12} {info['value']:>13.6g} {info['unit']:<10} {ci_text:>29}")
+        for part in ("est", "val"):
+            m = self.metrics.get(part) or {}
+            if m:
+                lines.append(
+                    f"{'estimation' if part == 'est' else 'validation':<10}: RMSE {m['rmse']:.4g}, "
+                    f"VAF {m['vaf']:.4f} %, MSE {m['mse']:.4g}, ITAE {m['itae']:.4g}"
+                )
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    # -- persistence --------------------------------------------------------------------------
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able dictionary (the layout the CLI writes)."""
+        return {
+            "format": "hhra-phys fit result",
+            "version": FORMAT_VERSION,
+            "params": self.params,
+            "tf": self.tf,
+            "est": self.metrics.get("est", {}),
+            "val": self.metrics.get("val", {}),
+            "stages": self.stages,
+            "seed": self.seed,
+            "free": self.free,
+            "std_fit_coordinates": self.std,
+            "correlation": np.asarray(self.correlation).tolist(),
+            "warnings": self.warnings,
+            "history": self.history,
+            "x0": self.x0,
+            "settings": self.settings,
+            "physical": self.physical,
+            "model": self.model_spec,
+            "created": self.created,
+        }
+
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the result as JSON; an existing file is kept unless ``overwrite``."""
+        p = Path(path)
+        if p.exists() and not overwrite:
+            raise FileExistsError(
+                f"{p} exists; pass overwrite=True (CLI: --overwrite) to replace it"
+            )
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(_clean(self.to_json()), indent=1))
+        return p
+
+    @classmethod
+    def load(cls, path: str | Path) -> FitResult:
+        """Read a result written by :meth:`save`; the model is rebuilt from it."""
+        p = Path(path)
+        if not p.exists():
+            raise DataError(f"{p}: no such fit result file")
+        try:
+            d = json.loads(p.read_text())
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{p}: not a JSON fit result ({exc})") from None
+        if d.get("format") != "hhra-phys fit result":
+            raise DataError(f"{p}: not an hhra-phys fit result (missing 'format')")
+        params = d["params"]
+        model = Model.from_json(d["model"])
+        values = {n: float(params[n]["value"]) for n in model.params.names}
+        return cls(
+            model_spec=d["model"],
+            values=values,
+            free=list(d["free"]),
+            units={n: v["unit"] for n, v in params.items()},
+            ci95={n: tuple(v["ci95"]) for n, v in params.items() if v.get("ci95")},
+            std=d.get("std_fit_coordinates", {}),
+            correlation=np.array(d.get("correlation", [])),
+            warnings=list(d.get("warnings", [])),
+            metrics={"est": d.get("est", {}), "val": d.get("val", {})},
+            stages=list(d.get("stages", [])),
+            history=list(d.get("history", [])),
+            tf=d.get("tf", {}),
+            x0=d.get("x0", {}),
+            settings=d.get("settings", {}),
+            seed=d.get("seed"),
+            physical=d.get("physical"),
+            created=d.get("created", ""),
+        )
+
+
+def _clean(obj: Any) -> Any:
+    """Replace NaN/Inf by None and numpy scalars by Python numbers, recursively."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    return obj
+
+
+def tf_of(model: Model, values: dict[str, float]) -> dict[str, float]:
+    """The paper's transfer-function coefficients of a fitted HHRA (empty for other models)."""
+    if not isinstance(model, HHRAModel):
+        return {}
+    try:
+        return model.tf_coefficients(np.array([values[n] for n in model.params.names]))
+    except (KeyError, ParameterError):
+        return {}
