@@ -1,0 +1,75 @@
+"""Helpers shared by the sub-commands: loading data and parsing parameter options."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hhra_phys.data import Dataset, load, load_public_actuator
+from hhra_phys.errors import ParameterError
+
+
+def add_data_arguments(p: argparse.ArgumentParser) -> None:
+    """``DATA`` plus the column options of the loaders."""
+    p.add_argument(
+        "data", nargs="?", default=None, metavar="DATA",
+        help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
+             "record in ../shared/data, or nothing for the built-in simulated rig",
+    )
+    p.add_argument("--time-col", default=None, help="time column / variable (CSV default 't')")
+    p.add_argument("--input-col", default=None, help="input column / variable (CSV default 'u')")
+    p.add_argument("--output-col", default=None, help="output column / variable (CSV default 'y')")
+    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz if the file has none")
+    p.add_argument("--rig-seed", type=int, default=0, help="seed of the simulated rig (no DATA)")
+
+
+def load_data(args: argparse.Namespace) -> Dataset:
+    """The dataset named on the command line (or the simulated rig)."""
+    if args.data is None or args.data == "rig":
+        from hhra_phys.rig import simulate_rig
+
+        return simulate_rig(seed=args.rig_seed)
+    if args.data == "public":
+        return load_public_actuator()
+    kw: dict[str, object] = {}
+    suffix = Path(args.data).suffix.lower()
+    for opt, key in (("time_col", "t"), ("input_col", "u"), ("output_col", "y")):
+        value = getattr(args, opt)
+        if value is not None:
+            kw[key] = value
+    if args.fs is not None:
+        kw["fs"] = args.fs
+    if suffix == ".mat" and "t" not in kw:
+        kw["t"] = None
+    return load(args.data, **kw)
+
+
+def parse_fixed(items: list[str] | None) -> dict[str, float]:
+    """``["NAME=VALUE", ...]`` -> ``{NAME: VALUE}`` with clear errors."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParameterError(f"--fix expects NAME=VALUE, got {item!r}")
+        name, value = item.split("=", 1)
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ParameterError(f"--fix {name}: {value!r} is not a number") from None
+    return out
+
+
+def parse_names(text: str | None) -> list[str] | None:
+    """Comma-separated names, or None."""
+    if text is None:
+        return None
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise ParameterError("an empty list of names was given")
+    return names
+
+
+def check_outputs(paths: list[str | None], overwrite: bool) -> None:
+    """Refuse to start a long run whose outputs would overwrite existing files."""
+    for p in paths:
+        if p and Path(p).exists() and not overwrite:
+            raise ParameterError(f"{p} exists; pass --overwrite to replace it")

@@ -1,0 +1,103 @@
+"""``hhra-phys fit``: fit the physical model to a record."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from hhra_phys.cli._common import (
+    add_data_arguments,
+    check_outputs,
+    load_data,
+    parse_fixed,
+    parse_names,
+)
+from hhra_phys.errors import HHRAError
+from hhra_phys.fit import OPTIMIZERS, fit
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``fit`` sub-command."""
+    p = subparsers.add_parser(
+        "fit",
+        help="fit the HHRA's physical parameter groups to a record",
+        description=(
+            "Global search (H-GWO by default, population 100, 200 iterations as in the paper) "
+            "over the identifiable parameter groups, then local refinement with IPOPT or NLopt, "
+            "95 %% confidence intervals and free-run scores on estimation and validation data."
+        ),
+    )
+    add_data_arguments(p)
+    p.add_argument("--optimizer", choices=OPTIMIZERS, default="hgwo", help="global search")
+    p.add_argument("--refine", default="ipopt",
+                   help="ipopt | nlopt | nlopt:ALGORITHM (e.g. nlopt:LN_BOBYQA) | none")
+    p.add_argument("--free", default=None, metavar="NAMES",
+                   help="comma-separated free parameters (default: all groups but g_spring, "
+                        "g_load)")
+    p.add_argument("--fix", action="append", default=None, metavar="NAME=VALUE",
+                   help="hold a parameter at a value (repeatable)")
+    p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
+    p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
+    p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
+                   help="global-search cost (default itae, the paper's)")
+    p.add_argument("--lam", type=float, default=1.0,
+                   help="H-GWO mutation factor lambda (paper 0.25; default 1, see docs)")
+    p.add_argument("--valve", choices=("orifice", "linear"), default="orifice",
+                   help="valve law of the model")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the result as JSON")
+    p.add_argument("--plot", default=None, metavar="OUT.png", help="write a figure")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the fit; returns the exit code."""
+    from hhra_phys.model import HHRAModel
+
+    try:
+        check_outputs([args.json, args.plot], args.overwrite)
+        data = load_data(args)
+        output = "pressure" if data.output_name == "pressure" else "angle"
+        model = HHRAModel(valve=args.valve, output=output)
+        refine = [r for r in args.refine.split("+")] if args.refine else None
+        print(f"fitting {data.name or data.source or 'record'} ({len(data)} samples) with "
+              f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}",
+              file=sys.stderr)
+        res = fit(data, model, optimizer=args.optimizer, refine=refine,
+                  free=parse_names(args.free), fixed=parse_fixed(args.fix), split=args.split,
+                  seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
+                  lam=args.lam, progress=not args.quiet)
+    except (HHRAError, FileExistsError) as exc:
+        print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
+        return 2
+    print(res.summary())
+    for st in res.stages:
+        print(f"stage {st['name']:<16} cost {st['cost_before']:.6g} -> {st['cost']:.6g}, "
+              f"{st['nfev']} evaluations, {st['seconds']:.2f} s")
+    if args.json:
+        print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+    if args.plot:
+        print(f"wrote {plot_result(res, data, args.plot, args.split, args.overwrite)}")
+    return 0
+
+
+def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -> Any:
+    """Figure of a fit on its estimation and validation parts."""
+    from hhra_phys.plots import plot_fit
+    from hhra_phys.problem import Problem
+
+    est, val = data.split(split) if split < 1 else (data, None)
+    problem = Problem(res.model, est, free=[n for n in res.free if not n.startswith("x0_")],
+                      initial_state="fit" if any(n.startswith("x0_") for n in res.free)
+                      else "data")
+    values = [res.values[n] for n in problem.free_names if n in res.values]
+    if problem.initial_state == "fit":
+        values.append(res.x0[problem.free_names[-1][3:]])
+    parts = [("estimation", est, problem.simulate_values(values))]
+    if val is not None:
+        parts.append(("validation", val, problem.simulate_values(values, data=val)))
+    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)
