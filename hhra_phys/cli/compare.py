@@ -1,0 +1,190 @@
+"""``hhra-phys compare``: the paper's identification comparison (Table 3) on one dataset."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from hhra_phys.errors import HHRAError, ParameterError
+
+#: Words accepted as DATA for the built-in records.
+PUBLIC_WORDS = ("public",)
+RIG_WORDS = ("rig",)
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    if not names:
+        raise argparse.ArgumentTypeError("give at least one method name")
+    return names
+
+
+def _split(text: str) -> float | int:
+    """'0.5' -> fraction, '512' -> sample index."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction in (0, 1) or a sample index, got {text!r}"
+        ) from None
+    if 0.0 < value < 1.0:
+        return value
+    if value >= 1.0 and value.is_integer():
+        return int(value)
+    raise argparse.ArgumentTypeError(
+        f"expected a fraction in (0, 1) or a positive integer sample index, got {text!r}"
+    )
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``compare`` sub-command to the ``hhra-phys`` parser."""
+    p = subparsers.add_parser(
+        "compare",
+        help="compare LS, RLS, FFRLS, PSO, GWO, H-GWO and FFRLS+H-GWO (and plug-ins) on data",
+        description=(
+            "Fit every method on the estimation part of a record, simulate each model in free "
+            "run from the measured input on both parts, and score MSE, RMSE, VAF, ITAE, FIT "
+            "(the reference paper's Table 3). DATA is a .csv/.tsv/.mat/.npz file, the word "
+            "'public' (the public hydraulic-actuator record, split at sample 512 by default), "
+            "or nothing / 'rig' (the simulated rig). Prints a Markdown table."
+        ),
+    )
+    p.add_argument("data", nargs="?", metavar="DATA", help="data file, 'public' or 'rig'")
+    p.add_argument("--public", action="store_true", help="use the public actuator record")
+    p.add_argument("--u", metavar="SPEC", help="input column/variable of DATA (see docs/data.md)")
+    p.add_argument("--y", metavar="SPEC", help="output column/variable of DATA")
+    p.add_argument(
+        "--split",
+        type=_split,
+        default=None,
+        help="estimation fraction in (0, 1) or split sample index (default 0.5; public: 512)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the methods and the rig")
+    p.add_argument(
+        "--methods",
+        type=_methods,
+        default=None,
+        help="comma-separated method names (default: every registered method)",
+    )
+    p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
+    p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
+    p.add_argument("--na", type=int, default=3, help="ARX output order (default 3)")
+    p.add_argument("--nb", type=int, default=3, help="ARX input order (default 3)")
+    p.add_argument("--nk", type=int, default=1, help="ARX input delay (default 1)")
+    p.add_argument(
+        "--box",
+        type=float,
+        nargs=2,
+        default=(-5.0, 5.0),
+        metavar=("LO", "HI"),
+        help="search box of PSO, GWO and H-GWO for every coefficient (default -5 5)",
+    )
+    p.add_argument(
+        "--zeta", type=float, default=0.5, help="expansion gain of the hybrid's box (default 0.5)"
+    )
+    p.add_argument(
+        "--duration", type=float, default=20.0, help="rig record length in s (default 20)"
+    )
+    p.add_argument(
+        "--plugin",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import MODULE first (it registers more methods); repeatable",
+    )
+    p.add_argument("--json", metavar="OUT", help="write the JSON report")
+    p.add_argument(
+        "--plot",
+        metavar="OUT.png",
+        help="figure of measured vs simulated output; convergence goes to OUT_convergence.png",
+    )
+    p.add_argument("--report", metavar="OUT.md", help="write the Markdown table")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.set_defaults(func=run)
+
+
+def _load(args: argparse.Namespace) -> Any:
+    from hhra_phys.data import load, load_public_actuator
+    from hhra_phys.rig import simulate_rig
+
+    word = (args.data or "").lower()
+    if args.public and args.data and word not in PUBLIC_WORDS:
+        raise ParameterError(f"give DATA ({args.data!r}) or --public, not both")
+    if args.public or word in PUBLIC_WORDS:
+        return load_public_actuator(), 512  # the usual split of that record (its README)
+    if not args.data or word in RIG_WORDS:
+        if not args.duration > 0:
+            raise ParameterError(f"--duration must be positive, got {args.duration}")
+        return simulate_rig(seed=args.seed, duration=args.duration), 0.5
+    kw = {k: v for k, v in (("u", args.u), ("y", args.y)) if v is not None}
+    return load(args.data, **kw), 0.5
+
+
+def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
+    plot = Path(args.plot) if args.plot else None
+    paths = {
+        "json": Path(args.json) if args.json else None,
+        "plot": plot,
+        "convergence": plot.with_name(f"{plot.stem}_convergence{plot.suffix or '.png'}")
+        if plot
+        else None,
+        "report": Path(args.report) if args.report else None,
+    }
+    if not args.overwrite:
+        taken = [str(p) for p in paths.values() if p is not None and p.exists()]
+        if taken:
+            raise ParameterError(f"output exists: {', '.join(taken)} (use --overwrite)")
+    return paths
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the comparison described by ``args``; returns the exit code (2 on bad input)."""
+    from hhra_phys import compare as C
+
+    say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    try:
+        paths = _outputs(args)  # before any work, so a clash fails fast
+        registered = C.load_plugins(args.plugin)
+        unknown = [m for m in args.methods or () if m not in registered]
+        if unknown:  # checked before the data are loaded or simulated
+            raise ParameterError(
+                f"--methods: unknown {unknown}; registered: {', '.join(registered)}"
+            )
+        dataset, default_split = _load(args)
+        split = default_split if args.split is None else args.split
+        if say:
+            say(f"compare: {dataset!r}, split {split}")
+        comp = C.run_comparison(
+            dataset,
+            split=split,
+            methods=args.methods,
+            seed=args.seed,
+            pop_size=args.pop,
+            max_iter=args.iters,
+            progress=say or False,
+            na=args.na,
+            nb=args.nb,
+            nk=args.nk,
+            zeta_s=args.zeta,
+            bounds=tuple(args.box),
+        )
+        report = comp.to_dict()
+        table = C.markdown_table(report)
+        if paths["json"]:
+            C.write_json(report, paths["json"], overwrite=args.overwrite)
+        if paths["report"]:
+            p = paths["report"]
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_text(f"# Identification comparison: {report['dataset']}\n\n{table}")
+        if paths["plot"]:
+            C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
+            if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
+                C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
+    except HHRAError as exc:
+        print(f"hhra-phys compare: error: {exc}", file=sys.stderr)
+        return 2
+    print(table)
+    return 0
