@@ -236,8 +236,8 @@ def _ipopt_multiple_shooting(
         length = b - a if last else b - a + 1  # one more sample gives the end state
         traj = sim.trajectory_function(length, states=not last)
         U = sim.input_matrix(problem.u[a:a + length])
-        out = traj(starts[i], p_full, ca.DM(U))
-        residuals.append(ca.vec(out[0][: b - a]) - ca.DM(problem.y[a:b]))
+        out = traj.call([starts[i], p_full, ca.DM(U)])
+        residuals.append(ca.vec(out[0])[: b - a] - ca.DM(problem.y[a:b]))
         if not last:
             X = out[1]
             gaps.append(X[:, b - a] - S[i])

@@ -1,0 +1,56 @@
+"""The command-line interface, run in-process with small settings."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hhra_phys.cli import main
+from hhra_phys.data import load_csv
+
+
+def test_simulate_writes_csv_and_sidecar_and_never_overwrites(tmp_path, capsys):
+    out = tmp_path / "rig.csv"
+    assert main(["simulate", "--out", str(out), "--seed", "3", "--duration", "4",
+                 "--noise", "0.1"]) == 0
+    ds = load_csv(out)
+    assert len(ds) == 1000 and ds.fs == pytest.approx(250.0)
+    assert np.abs(ds.y).max() <= 90.0
+    assert ds.metadata["noise_deg"] == 0.1 and "true_params" in ds.metadata
+    assert (tmp_path / "rig.json").exists()
+    assert main(["simulate", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_fit_on_a_csv_writes_json_and_plot(tmp_path, capsys):
+    data = tmp_path / "rig.csv"
+    main(["simulate", "--out", str(data), "--duration", "4"])
+    js, png = tmp_path / "fit.json", tmp_path / "fit.png"
+    rc = main(["fit", str(data), "--pop", "8", "--iters", "3", "--seed", "1", "--json", str(js),
+               "--plot", str(png), "--quiet", "--fix", "g_leak=6.4"])
+    assert rc == 0
+    d = json.loads(js.read_text())
+    assert d["params"]["g_leak"]["value"] == 6.4 and d["params"]["g_leak"]["ci95"] is None
+    assert d["params"]["g_valve"]["ci95"][0] < d["params"]["g_valve"]["value"]
+    for key in ("rmse", "vaf", "mse", "itae"):
+        assert key in d["est"] and key in d["val"]
+    assert [s["name"] for s in d["stages"]] == ["hgwo", "ipopt"] and d["seed"] == 1
+    assert png.stat().st_size > 1000
+    out = capsys.readouterr().out
+    assert "95 % CI" in out
+    assert main(["fit", str(data), "--fix", "nonsense"]) == 2
+    assert main(["fit", str(data), "--free", "g_valve,bogus", "--json", str(tmp_path / "x.json"),
+                 "--quiet", "--pop", "4", "--iters", "1"]) == 2
+    assert "unknown parameter 'bogus'" in capsys.readouterr().err
+
+
+def test_demo_quick_runs_end_to_end(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--quick", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "physical H-GWO+IPOPT" in text and "in CI" in text
+    for name in ("demo_fit.png", "demo_fit.json", "demo_rig.csv"):
+        assert (out / name).exists()
+    assert main(["demo", "--quick", "--out", str(out)]) == 2  # never overwrites

@@ -1,0 +1,160 @@
+"""Physical fitting: recovery, derivatives, refiners, uncertainty, persistence."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import ClassVar
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from hhra_phys import HHRAModel
+from hhra_phys.data import Dataset, DataError
+from hhra_phys.fit import fit, fit_many
+from hhra_phys.parameters import Parameter
+from hhra_phys.parts import Context, Part
+from hhra_phys.problem import Problem
+from hhra_phys.refine import least_squares_cost, refine_ipopt, refine_nlopt
+from hhra_phys.result import FitResult
+from hhra_phys.rig import simulate_rig
+
+GROUPS = ["g_valve", "g_compress", "g_leak", "g_torque", "g_damping"]
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return simulate_rig(seed=2, noise=0.0, duration=6.0)
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return simulate_rig(seed=4, noise=0.05, duration=6.0)
+
+
+def _perturbed(problem: Problem, data: Dataset, factors: np.ndarray) -> np.ndarray:
+    truth = np.array([data.metadata["true_params"][n] for n in GROUPS])
+    return problem.to_z(np.append(truth * factors, np.radians(data.y[0])))
+
+
+def test_recovers_truth_from_noise_free_data(clean):
+    res = fit(clean, pop_size=20, max_iter=25, seed=3)
+    truth = clean.metadata["true_params"]
+    for name in GROUPS:
+        assert res.values[name] == pytest.approx(truth[name], rel=0.01), name
+    assert res.metrics["val"]["rmse"] < 0.01
+    names = [s["name"] for s in res.stages]
+    assert names == ["hgwo", "ipopt"]
+
+
+def test_residual_jacobian_matches_finite_differences(noisy):
+    est, _ = noisy.split(0.5)
+    problem = Problem(HHRAModel(), est, initial_state="fit")
+    z = _perturbed(problem, noisy, np.array([1.1, 0.9, 1.2, 0.95, 1.05]))
+    z_sym = ca.MX.sym("z", problem.n_free)
+    r = problem.residual_function()(z_sym)
+    J = np.array(ca.Function("J", [z_sym], [ca.jacobian(r, z_sym)])(z))
+    r0 = np.array(problem.residual_function()(z)).ravel()
+    np.testing.assert_allclose(r0, problem.simulate_values(problem.from_z(z)) - est.y, atol=1e-9)
+    for i in range(problem.n_free):
+        h = 1e-6
+        zp, zm = z.copy(), z.copy()
+        zp[i] += h
+        zm[i] -= h
+        fd = (problem.simulate_values(problem.from_z(zp))
+              - problem.simulate_values(problem.from_z(zm))) / (2 * h)
+        np.testing.assert_allclose(J[:, i], fd, rtol=1e-4, atol=1e-5 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("refiner", ["ipopt", "ipopt-ms", "LD_LBFGS", "LN_BOBYQA"])
+def test_refiners_improve_a_perturbed_start(noisy, refiner):
+    est, _ = noisy.split(0.5)
+    problem = Problem(HHRAModel(), est, initial_state="fit")
+    z0 = _perturbed(problem, noisy, np.array([1.15, 1.1, 0.8, 0.9, 1.3]))
+    before = least_squares_cost(problem, z0)
+    if refiner == "ipopt":
+        st = refine_ipopt(problem, z0)
+    elif refiner == "ipopt-ms":
+        st = refine_ipopt(problem, z0, shooting="multiple", segments=4)
+    else:
+        st = refine_nlopt(problem, z0, algorithm=refiner, max_eval=300)
+    assert st.cost_before == pytest.approx(before)
+    assert st.cost < 0.2 * before
+    assert st.nfev > 0 and st.seconds > 0
+
+
+def test_fixed_parameters_stay_fixed(noisy):
+    truth = noisy.metadata["true_params"]
+    res = fit(noisy, fixed={"g_leak": 5.0, "g_damping": truth["g_damping"]},
+              pop_size=10, max_iter=5, seed=1)
+    assert res.values["g_leak"] == 5.0
+    assert res.values["g_damping"] == truth["g_damping"]
+    assert "g_leak" not in res.free and "g_leak" not in res.ci95
+    assert res.values["g_spring"] == 0.0 and res.values["g_load"] == 0.0
+
+
+def test_confidence_intervals_shrink_with_more_data():
+    widths = []
+    for duration in (4.0, 16.0):
+        data = simulate_rig(seed=7, noise=0.05, duration=duration)
+        truth = data.metadata["true_params"]
+        res = fit(data, optimizer="none", start={n: truth[n] for n in GROUPS}, split=1.0)
+        widths.append(np.array([np.log(res.ci95[n][1] / res.ci95[n][0]) for n in GROUPS]))
+    assert np.all(widths[1] < widths[0])
+
+
+def test_save_load_round_trip_reproduces_predictions(noisy, tmp_path):
+    res = fit(noisy, pop_size=10, max_iter=5, seed=0)
+    path = res.save(tmp_path / "fit.json")
+    with pytest.raises(FileExistsError, match="exists"):
+        res.save(path)
+    again = FitResult.load(path)
+    u = simulate_rig(seed=9, duration=2.0).u
+    x0 = {"theta": 0.1}
+    np.testing.assert_allclose(again.simulate(u, x0=x0), res.simulate(u, x0=x0), atol=1e-12)
+    assert again.ci95 == pytest.approx(res.ci95)
+    d = again.to_json()
+    for key in ("params", "tf", "est", "val", "stages", "seed"):
+        assert key in d
+    assert set(d["tf"]) >= {"a", "b", "c", "kv"}
+    assert d["params"]["g_valve"]["unit"] == "1/(s*mA)"
+
+
+@dataclass(frozen=True)
+class ValveScale(Part):
+    """A second valve gain: only the product g_valve * k_extra is identifiable."""
+
+    stage: ClassVar[str] = "flow"
+    name: ClassVar[str] = "valve_scale"
+
+    @property
+    def parameters(self):
+        return (Parameter("k_extra", "-", 1.0, 0.1, 10.0, "log", "redundant valve gain"),)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.add_rate("p", (ctx.p["k_extra"] - 1.0) * ctx.signal("flow", self.name))
+
+
+def test_product_of_two_parameters_triggers_identifiability_warning(noisy):
+    model = HHRAModel(effects=[ValveScale()])
+    truth = noisy.metadata["true_params"]
+    res = fit(noisy, model, optimizer="none", start={n: truth[n] for n in GROUPS}, seed=0)
+    text = " ".join(res.warnings)
+    assert "k_extra" in text and "g_valve" in text
+    assert "not identifiable" in text or "correlated" in text
+
+
+def test_short_or_flat_data_gives_clear_errors():
+    with pytest.raises(DataError, match="too few"):
+        Problem(HHRAModel(), simulate_rig(seed=0, duration=0.16))
+    with pytest.raises(DataError, match="excit|constant"):
+        Dataset.from_arrays(np.full(500, 0.3), np.zeros(500), fs=250.0)
+
+
+def test_fit_many_through_an_executor(clean):
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        results = fit_many(seeds=[0, 1], executor=ex, data=clean, pop_size=8, max_iter=3,
+                           refine="none")
+    assert len(results) == 2
+    assert results[0].seed == 0 and results[1].seed == 1
