@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hhra_phys import HHRAModel
-from hhra_phys.data import Dataset, DataError
+from hhra_phys.data import DataError, Dataset
 from hhra_phys.fit import fit, fit_many
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part

@@ -375,6 +375,13 @@ def test_tent_map_points_fill_the_unit_cube():
     )
 
 
+def test_tent_map_populations_do_not_collapse():
+    # a phi shared by all dimensions collapses about 1 population in 60 (phi near 0 or 1)
+    rng = np.random.default_rng(1)
+    spread = [np.std(tent_map_unit(rng, 30, 30), axis=0).mean() for _ in range(300)]
+    assert min(spread) > 0.15  # a uniform population has about 0.28
+
+
 def test_bad_x0_is_refused():
     with pytest.raises(ParameterError, match="x0"):
         minimize(shifted_sphere, BOX5, "gwo", 4, 2, vectorized=True, x0=np.full(5, 9.0))
