@@ -66,6 +66,7 @@ __all__ = [
     "MethodOutcome",
     "MethodResult",
     "aggregate",
+    "arx_outcome",
     "available_methods",
     "compare",
     "load_plugins",
@@ -317,8 +318,17 @@ def _history_fields(fit: arx.ARXFit) -> dict[str, Any]:
     }
 
 
-def _arx_outcome(fit: arx.ARXFit, est: Dataset, val: Dataset) -> MethodOutcome:
-    """Free-run the fitted ARX on both parts (initial conditions: module docstring)."""
+def arx_outcome(fit: arx.ARXFit, est: Dataset, val: Dataset) -> MethodOutcome:
+    """A :class:`MethodOutcome` from an ARX fit: free runs on both parts (initial conditions:
+    module docstring), with the model, its poles and the fit's details in ``info``.
+
+    Parameters
+    ----------
+    fit : hhra_phys.arx.ARXFit
+        The fitted model.
+    est, val : Dataset
+        Estimation and validation parts.
+    """
     model = fit.model
     y_est = model.simulate(est.u, y_init=est.y[0], u_init=0.0)
     y_val = model.simulate(val.u, y_init=est.y, u_init=est.u)
@@ -351,18 +361,18 @@ def _method_ls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", arx.ConditioningWarning)
         fit = arx.fit_ls(est.u, est.y, **_orders(s))
-    out = _arx_outcome(fit, est, val)
+    out = arx_outcome(fit, est, val)
     if caught:
         out.info["warnings"] = [str(w.message) for w in caught]
     return out
 
 
 def _method_rls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return _arx_outcome(arx.fit_rls(est.u, est.y, **_orders(s)), est, val)
+    return arx_outcome(arx.fit_rls(est.u, est.y, **_orders(s)), est, val)
 
 
 def _method_ffrls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return _arx_outcome(arx.fit_ffrls(est.u, est.y, **_orders(s)), est, val)
+    return arx_outcome(arx.fit_ffrls(est.u, est.y, **_orders(s)), est, val)
 
 
 def _metaheuristic(method: str) -> MethodFn:
@@ -380,7 +390,7 @@ def _metaheuristic(method: str) -> MethodFn:
             progress=s.progress,
             **_orders(s),
         )
-        return _arx_outcome(fit, est, val)
+        return arx_outcome(fit, est, val)
 
     run.__name__ = f"_method_{method}"
     run.__doc__ = f"ARX coefficients by {METHOD_LABELS[method]} minimising the free-run ITAE."
@@ -400,7 +410,7 @@ def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> Method
         progress=s.progress,
         **_orders(s),
     )
-    return _arx_outcome(fit, est, val)
+    return arx_outcome(fit, est, val)
 
 
 register_method("ls", _method_ls)
@@ -832,7 +842,7 @@ def aggregate(reports: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 def markdown_summary(agg: Mapping[str, Any], paper: bool = True) -> str:
     """An :func:`aggregate` result as a Markdown table: mean +- standard deviation [min, max]."""
 
-    def ms(st: Mapping[str, Any], digits: int = 3) -> str:
+    def ms(st: Mapping[str, Any], digits: int = 4) -> str:
         if not st or st.get("n", 0) == 0:
             return "-"
         return f"{_fmt(st['mean'], digits)} ± {_fmt(st['std'], 2)}"
@@ -952,12 +962,26 @@ def plot_convergence(
     comparison: Comparison | Sequence[Comparison],
     path: str | Path | None = None,
     *,
+    methods: Sequence[str] | None = None,
     overwrite: bool = False,
     dpi: int = 80,
 ) -> Any:
     """Best fitness per iteration and per evaluation for every method with a history (Fig. 16).
 
-    Several comparisons (e.g. seeds) are drawn as thin lines of one colour per method.
+    Several comparisons (e.g. seeds) are drawn as lines of one colour per method.
+
+    Parameters
+    ----------
+    comparison : Comparison or sequence of Comparison
+        From :func:`run_comparison`.
+    path : path, optional
+        Save the figure there.
+    methods : sequence of str, optional
+        Which methods (default every one with a history).
+    overwrite : bool
+        Replace an existing file.
+    dpi : int
+        Resolution of the saved file.
 
     Returns
     -------
@@ -973,7 +997,7 @@ def plot_convergence(
     for comp in comps:
         for name, r in comp.results.items():
             o = r.outcome
-            if o is None or o.history is None:
+            if o is None or o.history is None or (methods is not None and name not in methods):
                 continue
             fitness = fitness or o.fitness
             colour = colours.setdefault(name, f"C{len(colours)}")
