@@ -269,35 +269,8 @@ class Problem:
     def fit_initial_state(
         self, data: Dataset, p: np.ndarray, x0: np.ndarray, iterations: int = 4
     ) -> np.ndarray:
-        """Least-squares estimate of the whole initial state on ``data``, parameters fixed.
-
-        Like initial-condition estimation when comparing models on validation
-        data (MATLAB's ``compare``): a validation record cut from the middle of a
-        motion starts with unknown velocity and pressure, and its first noisy
-        sample would set a constant offset that the free-run angle never forgets.
-        A few Gauss-Newton steps with central differences through the compiled
-        simulator (``2*nx + 1`` trajectories per step, one population call); the
-        model parameters are untouched.
-        """
-        nx = self.model.nx
-        sim = self.simulator_for(data)
-        step = 1e-4
-        x = x0.astype(float).copy()
-        for _ in range(iterations):
-            X = np.tile(x, (2 * nx + 1, 1))
-            for i in range(nx):
-                X[1 + 2 * i, i] -= step
-                X[2 + 2 * i, i] += step
-            Y = sim.simulate(data.u, np.tile(p, (2 * nx + 1, 1)), x0=X)
-            if not np.isfinite(Y).all():
-                return x0
-            r = Y[0] - data.y
-            J = (Y[2::2] - Y[1::2]).T / (2 * step)
-            delta, *_ = np.linalg.lstsq(J, -r, rcond=1e-10)
-            x += delta
-            if np.all(np.abs(delta) < 1e-8):
-                break
-        return x
+        """Estimate the whole initial state on ``data`` (see :func:`estimate_initial_state`)."""
+        return estimate_initial_state(self.simulator_for(data), data.u, data.y, p, x0, iterations)
 
     def simulator_for(self, data: Dataset) -> Simulator:
         """The problem's simulator, or one at ``data``'s sample rate if it differs."""
@@ -375,3 +348,74 @@ class Problem:
         r = ca.vec(y_sim[: self.y.size]) - ca.DM(self.y)
         self._residual_fn = ca.Function("residual", [z], [r], ["z"], ["r"])
         return self._residual_fn
+
+
+def estimate_initial_state(
+    sim: Simulator,
+    u: np.ndarray,
+    y: np.ndarray,
+    p: np.ndarray,
+    x0: np.ndarray,
+    iterations: int = 4,
+) -> np.ndarray:
+    """Least-squares estimate of the whole initial state of a record, parameters fixed.
+
+    Like initial-condition estimation when comparing models on validation data
+    (MATLAB's ``compare``): a record cut from the middle of a motion starts with
+    unknown velocity and pressure, and its first noisy sample would set a
+    constant offset that a free-run angle never forgets. A few Gauss-Newton
+    steps with central differences through the compiled simulator
+    (``2*nx + 1`` trajectories per step, one population call); the model
+    parameters are untouched.
+
+    Parameters
+    ----------
+    sim : Simulator
+        Simulator of the model at the record's sample rate.
+    u, y : ndarray, shape (N,)
+        Input and measured output of the record.
+    p : ndarray, shape (n_params,)
+        Model parameters.
+    x0 : ndarray, shape (nx,)
+        Initial guess.
+    iterations : int
+        Gauss-Newton steps.
+
+    Returns
+    -------
+    ndarray, shape (nx,)
+        The estimate (the guess itself if a step fails).
+    """
+    nx = x0.size
+    step = 1e-4
+    x = np.asarray(x0, dtype=float).copy()
+    for _ in range(iterations):
+        X = np.tile(x, (2 * nx + 1, 1))
+        for i in range(nx):
+            X[1 + 2 * i, i] -= step
+            X[2 + 2 * i, i] += step
+        Y = sim.simulate(u, np.tile(p, (2 * nx + 1, 1)), x0=X)
+        if not np.isfinite(Y).all():
+            return np.asarray(x0, dtype=float)
+        r = Y[0] - y
+        J = (Y[2::2] - Y[1::2]).T / (2 * step)
+        delta, *_ = np.linalg.lstsq(J, -r, rcond=1e-10)
+        x += delta
+        if np.all(np.abs(delta) < 1e-8):
+            break
+    return x
+
+
+def initial_guess(model: Model, y0: float, p: np.ndarray) -> np.ndarray:
+    """Rest state with the observed state set from the first output sample ``y0``.
+
+    Angle output: ``theta = radians(y0)``; pressure output: ``p = (y0 - p_offset)/p_gain``.
+    """
+    x = model.x0()
+    names = model.params.names
+    if model.has_part("angle_output"):
+        x[model.state_names.index("theta")] = math.radians(y0)
+    elif model.has_part("pressure_output"):
+        x[model.state_names.index("p")] = (y0 - p[names.index("p_offset")]) / p[
+            names.index("p_gain")]
+    return x

@@ -201,6 +201,31 @@ class FitResult:
             x0 = x
         return sim.simulate(np.asarray(u, dtype=float), self.parameter_vector(), x0=x0)
 
+    def predict(self, data: Any, estimate_x0: bool = True) -> np.ndarray:
+        """Free-run prediction of a record's output from its input.
+
+        Parameters
+        ----------
+        data : Dataset
+            Any record of the same actuator (e.g. unseen validation data).
+        estimate_x0 : bool
+            Estimate the initial state on the record by least squares with the
+            parameters fixed (default), or start at rest from the first sample.
+
+        Returns
+        -------
+        ndarray, shape (N,)
+        """
+        from hhra_phys.problem import estimate_initial_state, initial_guess
+
+        model = self.model
+        sim = Simulator(model, fs=data.fs, substeps=self.settings.get("substeps", "auto"))
+        p = self.parameter_vector()
+        x0 = initial_guess(model, float(data.y[0]), p)
+        if estimate_x0:
+            x0 = estimate_initial_state(sim, data.u, data.y, p, x0)
+        return sim.simulate(data.u, p, x0=x0)
+
     @property
     def params(self) -> dict[str, dict[str, Any]]:
         """``{name: {"value", "unit", "ci95", "free"}}`` for every parameter."""

@@ -1,0 +1,70 @@
+"""Physical-model rows of the method comparison (``hhra-phys compare``).
+
+Registers, in :mod:`hhra_phys.compare`'s method registry (through the entry
+point ``hhra_phys.compare_methods``), the physical HHRA fits so they are scored
+on the same split and by the same free-run metrics as the ARX methods:
+
+=====================  ============================================================
+``phys_hgwo``          H-GWO over the groups (population and iterations of the comparison)
+``phys_hgwo_ipopt``    the same, refined with IPOPT (exact CasADi derivatives)
+``phys_hgwo_nlopt``    the same, refined with NLopt ``LD_LBFGS`` (CasADi gradient)
+``phys_ipopt``         IPOPT alone from the nominal values (no global search)
+=====================  ============================================================
+
+The model is :class:`~hhra_phys.model.HHRAModel` with the orifice valve and an
+angle output, or a pressure output when the record's output is a pressure. The
+validation output is a free-run simulation from the validation input with the
+initial state estimated on the validation record (parameters fixed).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from hhra_phys.compare import CompareSettings, MethodOutcome, register_method
+from hhra_phys.data import Dataset
+from hhra_phys.fit import fit
+from hhra_phys.model import HHRAModel
+
+ROWS: dict[str, tuple[str, str | None, str]] = {
+    "phys_hgwo": ("hgwo", None, "physical H-GWO"),
+    "phys_hgwo_ipopt": ("hgwo", "ipopt", "physical H-GWO+IPOPT"),
+    "phys_hgwo_nlopt": ("hgwo", "nlopt", "physical H-GWO+NLopt"),
+    "phys_ipopt": ("none", "ipopt", "physical IPOPT from nominal"),
+}
+
+
+def _method(optimizer: str, refine: str | None) -> Any:
+    def run(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
+        t0 = time.perf_counter()
+        output = "pressure" if est.output_name == "pressure" else "angle"
+        extra = dict(s.extra.get("physical", {})) if s.extra else {}
+        model = extra.pop("model", None) or HHRAModel(output=output)  # type: ignore[arg-type]
+        res = fit(est, model, validation=val, optimizer=optimizer, refine=refine or "none",
+                  pop_size=s.pop_size, max_iter=s.max_iter, seed=s.seed,
+                  progress=s.progress, **extra)
+        seconds = time.perf_counter() - t0
+        glob = next((st for st in res.stages if st["name"] == optimizer), None)
+        nfev = sum(int(st["nfev"]) for st in res.stages)
+        return MethodOutcome(
+            y_est=res.predict(est), y_val=res.predict(val),
+            noi=(glob or {}).get("info", {}).get("noi"),
+            nfev=nfev, seconds=seconds,
+            history=res.history or None,
+            fitness=f"{res.settings['cost'].upper()} of the free-run output (estimation part)",
+            info={"params": {n: res.values[n] for n in res.free if n in res.values},
+                  "ci95": {n: list(v) for n, v in res.ci95.items()},
+                  "stages": res.stages, "warnings": res.warnings},
+        )
+
+    return run
+
+
+def register() -> None:
+    """Register the physical rows (idempotent)."""
+    for name, (optimizer, refine, label) in ROWS.items():
+        register_method(name, _method(optimizer, refine), label=label, replace=True)
+
+
+register()
