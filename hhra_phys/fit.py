@@ -39,11 +39,44 @@ from hhra_phys.metrics import score
 from hhra_phys.model import HHRAModel, Model
 from hhra_phys.optim import minimize
 from hhra_phys.physical import PhysicalParameters
-from hhra_phys.problem import Problem
+from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
 from hhra_phys.refine import Stage, _Derivatives, refine_ipopt, refine_nlopt
 from hhra_phys.result import FitResult, tf_of, uncertainty
 
 OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
+
+#: Sample rate whose time scale the nominal groups describe (the rig's) [Hz].
+NOMINAL_FS = 250.0
+#: Box of every positive group, as a factor around its nominal, for records in sample units.
+SAMPLE_UNIT_SPAN = 100.0
+
+
+def default_model(
+    data: Dataset, valve: str = "orifice"
+) -> tuple[Model, dict[str, tuple[float, float]]]:
+    """The HHRA model (and bounds) :func:`fit` uses for a record when none is given.
+
+    Angle output in degrees, or a pressure output when the record's output is
+    called ``pressure``. A record in sample units (unknown sample time, such as
+    the public hydraulic-actuator data) is fitted per sample: the nominal groups
+    are rescaled from seconds to 4 ms samples (the rig's 250 Hz) and every
+    positive group may range over a factor of 100 either way, because nothing
+    is known of that actuator; a pressure output's gain and offset get boxes of
+    10 and 1 times the largest measured value.
+    """
+    output = "pressure" if data.output_name == "pressure" else "angle"
+    model: Model = HHRAModel(valve=valve, output=output)  # type: ignore[arg-type]
+    bounds: dict[str, tuple[float, float]] = {}
+    if data.metadata.get("time_unit") == "samples":
+        model = model.time_scaled(1.0 / NOMINAL_FS)
+        for par in model.params:
+            if par.scale == "log":
+                bounds[par.name] = (par.nominal / SAMPLE_UNIT_SPAN, par.nominal * SAMPLE_UNIT_SPAN)
+    if output == "pressure":
+        peak = float(np.max(np.abs(data.y)))
+        bounds["p_gain"] = (-10 * peak, 10 * peak)
+        bounds["p_offset"] = (-peak, peak)
+    return model, bounds
 
 
 def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
@@ -97,8 +130,9 @@ def fit(
     data : Dataset, optional
         The whole record (default: the built-in simulated rig, seed 0).
     model : Model, optional
-        Model to fit (default: :class:`~hhra_phys.model.HHRAModel` with the
-        orifice valve, and a pressure output if the data's output is pressure).
+        Model to fit (default: :func:`default_model`: the HHRA with the orifice
+        valve, a pressure output if the data's output is pressure, rescaled to
+        sample units for records without a sample time).
     optimizer : {"hgwo", "gwo", "pso", "de", "none"}
         Global search (``"none"``: start the refiners from the nominal values or
         ``start``).
@@ -156,8 +190,10 @@ def fit(
         est, val = data, validation
     if problem is None:
         if model is None:
-            output = "pressure" if data.output_name == "pressure" else "angle"
-            model = HHRAModel(output=output)  # type: ignore[arg-type]
+            model, auto_bounds = default_model(data)
+            chosen = set(free) if free is not None else set(default_free(model, fixed))
+            auto_bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
+            bounds = {**auto_bounds, **(bounds or {})}
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                           bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                           start=start)

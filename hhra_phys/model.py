@@ -219,24 +219,30 @@ class PressureOutput(Part):
     """Measured output: the load pressure, ``y = p_gain * p + p_offset``.
 
     ``p_gain`` is the supply pressure in the output's units (for a sensor in Pa,
-    ``p_s``; for rescaled raw data, whatever scale the data has) and ``p_offset``
-    the sensor's zero.
+    ``p_s``; for rescaled raw data, whatever scale the data has), signed: a
+    negative gain means the sensor's positive direction is the other chamber's
+    (so the model needs no assumption on the sign convention of the data).
+    ``p_offset`` is the sensor's zero. Both are linear-scale parameters.
+
+    With only a pressure measured, the angle's scale is not observable: scaling
+    ``theta`` by ``b`` and dividing ``g_compress`` by ``b`` (and multiplying
+    ``g_torque`` by ``b``) changes nothing measured, so fits keep ``g_compress``
+    fixed for such models (:mod:`hhra_phys.problem`).
     """
 
     gain_nominal: float = 1.0
-    gain_bounds: tuple[float, float] = (1e-3, 1e3)
-    offset_bounds: tuple[float, float] = (-1e3, 1e3)
+    gain_limit: float = 1e3
+    offset_limit: float = 1e3
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "pressure_output"
 
     @property
     def parameters(self) -> Sequence[Parameter]:
-        lo, hi = self.gain_bounds
-        olo, ohi = self.offset_bounds
         return (
-            Parameter("p_gain", "out", self.gain_nominal, lo, hi, "log",
-                      "supply pressure in output units"),
-            Parameter("p_offset", "out", 0.0, olo, ohi, "linear", "pressure sensor offset"),
+            Parameter("p_gain", "out", self.gain_nominal, -self.gain_limit, self.gain_limit,
+                      "linear", "supply pressure in output units (signed)"),
+            Parameter("p_offset", "out", 0.0, -self.offset_limit, self.offset_limit, "linear",
+                      "pressure sensor offset"),
         )
 
     def apply(self, ctx: Context) -> None:
@@ -428,6 +434,26 @@ class Model:
                 change["upper"] = value * GROUP_SPAN if par.scale == "log" else value + abs(value)
         return self._derive(self.parts, overrides)
 
+    def time_scaled(self, factor: float) -> Model:
+        """A new model whose nominal values and bounds describe time in units of ``1/factor`` s.
+
+        Parameters whose unit is a power of seconds are scaled accordingly
+        (``1/s`` by ``factor``, ``1/s^2`` by ``factor**2``, ``s`` by ``1/factor``).
+        Used to fit records in sample units: with ``factor = 1/250`` the rig's
+        nominal values become values per 4 ms sample.
+        """
+        if not (np.isfinite(factor) and factor > 0):
+            raise ModelError(f"time scale factor must be positive, got {factor}")
+        overrides = {k: dict(v) for k, v in self._overrides.items()}
+        for par in self.params:
+            power = _time_power(par.unit)
+            if power == 0:
+                continue
+            k = factor ** power
+            lo, hi = sorted((par.lower * k, par.upper * k))
+            overrides[par.name] = {"nominal": par.nominal * k, "lower": lo, "upper": hi}
+        return self._derive(self.parts, overrides)
+
     # -- symbolic assembly -----------------------------------------------------------
     def symbols(self) -> tuple[ca.SX, ca.SX, ca.SX]:
         """Fresh symbols ``(x, u_lags, p)`` of shapes (nx,), (n_lags+1,), (n_params,)."""
@@ -561,6 +587,17 @@ class Model:
         new = Model.__new__(target)
         Model.__init__(new, parts, spec.get("name", "model"), spec.get("overrides"))
         return new
+
+
+def _time_power(unit: str) -> int:
+    """Power of 1/s in a unit string: ``"1/s"`` -> 1, ``"rad/s^2"`` -> 2, ``"s"`` -> -1."""
+    u = unit.replace(" ", "")
+    if u == "s":
+        return -1
+    for pattern, power in (("/s^2", 2), ("/(s^2", 2), ("/s", 1), ("/(s*", 1), ("/(s)", 1)):
+        if pattern in u:
+            return power
+    return 0
 
 
 def _jsonable(obj: Any) -> Any:

@@ -44,6 +44,18 @@ COSTS: tuple[str, ...] = ("itae", "mse", "rmse", "ssr")
 DEFAULT_FIXED: tuple[str, ...] = ("g_spring", "g_load")
 
 
+def default_free(model: Model, fixed: Mapping[str, float] | None = None) -> list[str]:
+    """Parameters a fit frees by default: all but ``g_spring``, ``g_load`` and ``fixed``.
+
+    For a model whose only output is a pressure, ``g_compress`` is held too: the
+    angle's scale is not observable from pressure alone.
+    """
+    held = set(DEFAULT_FIXED) | set(fixed or {})
+    if model.has_part("pressure_output") and not model.has_part("angle_output"):
+        held.add("g_compress")
+    return [n for n in model.params.names if n not in held]
+
+
 class Problem:
     """Model + estimation data + cost + free/fixed parameters and their scaling.
 
@@ -59,7 +71,9 @@ class Problem:
         minimise the (smooth) sum of squares.
     free : sequence of str, optional
         Names of the free parameters (default: all except ``g_spring`` and
-        ``g_load``, which stay at their nominal 0 unless named here).
+        ``g_load``, which stay at their nominal 0 unless named here, and, for a
+        pressure output alone, ``g_compress``, which fixes the unobservable scale
+        of the angle).
     fixed : dict, optional
         ``{name: value}``: parameters held at the given value (e.g. from a
         datasheet). A name both free and fixed is an error.
@@ -113,7 +127,7 @@ class Problem:
         for name in fixed:
             model.params.index(name)  # clear error for unknown names
         if free is None:
-            free = [n for n in names if n not in DEFAULT_FIXED and n not in fixed]
+            free = default_free(model, fixed)
         free = list(free)
         for name in free:
             model.params.index(name)

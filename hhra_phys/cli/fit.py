@@ -56,19 +56,22 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the fit; returns the exit code."""
-    from hhra_phys.model import HHRAModel
+    from hhra_phys.fit import default_free, default_model
 
     try:
         check_outputs([args.json, args.plot], args.overwrite)
         data = load_data(args)
-        output = "pressure" if data.output_name == "pressure" else "angle"
-        model = HHRAModel(valve=args.valve, output=output)
+        model, auto_bounds = default_model(data, valve=args.valve)
+        free = parse_names(args.free)
+        fixed = parse_fixed(args.fix)
+        chosen = set(free) if free is not None else set(default_free(model, fixed))
+        bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
         refine = [r for r in args.refine.split("+")] if args.refine else None
         print(f"fitting {data.name or data.source or 'record'} ({len(data)} samples) with "
               f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}",
               file=sys.stderr)
         res = fit(data, model, optimizer=args.optimizer, refine=refine,
-                  free=parse_names(args.free), fixed=parse_fixed(args.fix), split=args.split,
+                  free=free, fixed=fixed, bounds=bounds, split=args.split,
                   seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
                   lam=args.lam, progress=not args.quiet)
     except (HHRAError, FileExistsError) as exc:
