@@ -46,6 +46,7 @@ from typing import Any, Literal
 import casadi as ca
 import control as ct
 import numpy as np
+import scipy.signal
 
 from hhra_phys.arx import ARXFit, ARXModel
 from hhra_phys.errors import ModelError, ParameterError
@@ -496,13 +497,15 @@ def loop_margins(
     Returns
     -------
     dict of ndarray, one entry per plant
-        ``gm`` gain margin [dB] (inf if none), ``pm`` phase margin [deg],
-        ``wcg`` phase-crossover and ``wcp`` gain-crossover frequencies [rad/s],
+        ``gm`` gain margin [dB] (inf if none), ``pm`` phase margin [deg] (the
+        worst gain crossover's), ``sm`` stability (vector) margin ``min |1 + L|``
+        [-] (unambiguous when the loop crosses 0 dB several times), ``wcg``
+        phase-crossover and ``wcp`` gain-crossover frequencies [rad/s],
         ``stable`` whether the closed loop is stable.
     """
     plants = [plants] if isinstance(plants, ct.LTI) else list(plants)
     cdt = controller.dt
-    out: dict[str, list[float]] = {k: [] for k in ("gm", "pm", "wcg", "wcp", "stable")}
+    out: dict[str, list[float]] = {k: [] for k in ("gm", "pm", "sm", "wcg", "wcp", "stable")}
     for plant in plants:
         if cdt and ct.isctime(plant, strict=True):
             plant = discretize(ct.ss(plant), float(cdt), "zoh")
@@ -510,12 +513,15 @@ def loop_margins(
         with warnings.catch_warnings():
             # python-control notes when it falls back to its frequency-response method.
             warnings.filterwarnings("ignore", message="stability_margins: Falling back")
-            gm, pm, _, wcg, wcp, _ = ct.stability_margins(loop, method="best")
+            # ... and scipy warns about the conditioning of the high-order polynomials.
+            warnings.filterwarnings("ignore", category=scipy.signal.BadCoefficients)
+            gm, pm, sm, wcg, wcp, _ = ct.stability_margins(loop, method="best")
         cl = ct.feedback(loop, 1)
         poles = cl.poles()
         stable = bool(np.all(np.abs(poles) < 1.0)) if cdt else bool(np.all(poles.real < 0))
         out["gm"].append(20 * math.log10(gm) if np.isfinite(gm) and gm > 0 else math.inf)
         out["pm"].append(float(pm))
+        out["sm"].append(float(sm))
         out["wcg"].append(float(wcg))
         out["wcp"].append(float(wcp))
         out["stable"].append(stable)
