@@ -535,3 +535,15 @@ def test_cli_rejects_unknown_function(capsys):
 
     assert main(["benchmark", "--functions", "f10", "--quiet"]) == 2
     assert "functions" in capsys.readouterr().err
+
+
+def test_study_in_two_processes_matches_one():
+    from hhra_phys.optim.study import StudySettings, run_study
+
+    s = StudySettings(runs=2, max_iter=3, functions=("f7", "f9"), tables=("results", "shifted"))
+    one, two = run_study(s, jobs=1), run_study(s, jobs=2)
+    for table in ("results", "shifted"):
+        for f in ("f7", "f9"):
+            for m, cell in one[table][f].items():
+                assert cell["mean"] == two[table][f][m]["mean"]
+                assert cell["nfev"] == two[table][f][m]["nfev"]
