@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -74,10 +73,6 @@ class Box:
         """``upper - lower``, shape ``(d,)``."""
         return self.upper - self.lower
 
-    def as_pairs(self) -> list[tuple[float, float]]:
-        """The box as ``[(lo, hi), ...]``."""
-        return [(float(a), float(b)) for a, b in zip(self.lower, self.upper, strict=True)]
-
     def uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """``n`` points drawn uniformly in the box, shape ``(n, d)``."""
         return self.lower + rng.random((n, self.dim)) * self.width
@@ -124,8 +119,3 @@ def as_points(x: Any, dim: int, name: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"{name}: every component must be finite")
     return arr
-
-
-def describe_bounds(bounds: Sequence[tuple[float, float]]) -> str:
-    """Short text form of bounds for messages and reports."""
-    return ", ".join(f"[{lo:g}, {hi:g}]" for lo, hi in bounds)
