@@ -15,14 +15,15 @@ Tables (each a ``{function: {method: cell}}`` mapping):
 ``shifted_equal_budget``
     Both changes at once.
 ``variants``
-    H-GWO with ``lam = 1`` and with ``target_vector = "previous"`` beside the default, on the
-    original and the shifted functions, at the equal budget.
+    H-GWO with ``lam = 1`` and with ``target_vector = "previous"`` beside the default and GWO,
+    and PSO with Mirjalili's decreasing inertia (0.9 to 0.2), on the original and the shifted
+    functions (rows ``f1`` and ``f1_shifted`` ...), at the equal budget.
 
-Every table also has SciPy's ``differential_evolution`` (its default best1bin strategy) at the
-equal budget as an external reference (``"scipy_de"``). A cell holds the mean and sample
-standard deviation (ddof = 1) of the best cost over the runs, the evaluations per run
-(``nfev``), the wall time per run (``seconds``), and the median NOI (first iteration within
-0.1 % of the run's final best, :func:`hhra_phys.optim.history.noi`).
+Every table but ``variants`` also has SciPy's ``differential_evolution`` (its default best1bin
+strategy) at the equal budget as an external reference (``"scipy_de"``). A cell holds the mean
+and sample standard deviation (ddof = 1) of the best cost over the runs, the evaluations per
+run (``nfev``), the wall time per run (``seconds``), and the median NOI (first iteration
+within 0.1 % of the run's final best, :func:`hhra_phys.optim.history.noi`).
 
 Seeds: run ``r`` of function ``f`` uses ``SeedSequence(seed, spawn_key=(f, r, k))`` with
 ``k = 0`` for the optimiser, 1 for f3's noise and 2 for the shift, so every method sees the same
@@ -174,6 +175,8 @@ class StudySettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ParameterError(f"{name}: expected a positive integer, got {value!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ParameterError(f"seed: expected a non-negative integer, got {self.seed!r}")
         self.functions = tuple(self.functions)
         self.methods = tuple(self.methods)
         self.tables = tuple(self.tables)
