@@ -47,7 +47,7 @@ def _check_layout(report: dict, methods: tuple[str, ...]) -> None:
 
 
 def test_compare_layout_and_free_run_scoring(rig: Dataset):
-    report = C.compare(rig, split=0.5, seed=1, **SMALL)
+    report = C.compare(rig, split=0.5, seed=1, methods=C.ARX_METHODS, **SMALL)
     _check_layout(report, C.ARX_METHODS)
     assert report["dataset"] == "rig-seed3" and report["split"] == 0.5
     assert report["split_index"] == report["n_est"] == 500
@@ -156,6 +156,7 @@ def test_aggregate_statistics(rig: Dataset):
 def test_cli_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     out = tmp_path / "r.json"
     args = "compare --duration 4 --seed 2 --pop 8 --iters 3 --box -1.5 1.5".split()
+    args += ["--methods", ",".join(C.ARX_METHODS)]  # plug-ins (physical fits) are slower
     args += ["--json", str(out), "--plot", str(tmp_path / "f.png")]
     args += ["--report", str(tmp_path / "r.md")]
     assert main(args) == 0
