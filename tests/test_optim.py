@@ -472,6 +472,16 @@ def test_bad_input_names_the_parameter(kwargs, name):
 def test_wrong_cost_shape_from_vectorised_fun():
     with pytest.raises(ParameterError, match="fun"):
         minimize(lambda x: np.zeros(3), BOX5, "gwo", 5, 2, vectorized=True)
+    with pytest.raises(ParameterError, match="fun"):
+        minimize(lambda x: "cost", BOX5, "gwo", 5, 2, vectorized=True)
+
+
+def test_bad_seed_and_failed_evaluations():
+    with pytest.raises(ParameterError, match="seed"):
+        minimize(shifted_sphere, BOX5, "gwo", 5, 2, seed="abc", vectorized=True)
+    # None from a scalar objective is a failed evaluation: the worst cost, not an error
+    res = minimize(lambda x: None if x[0] < 0 else float(shifted_sphere(x)[0]), BOX5, "de", 8, 5)
+    assert np.isfinite(res.fun) and res.x[0] >= 0
 
 
 def test_pso_options_checked():

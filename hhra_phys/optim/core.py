@@ -112,7 +112,11 @@ class Optimiser(ABC):
     ) -> None:
         self.box = Box.from_bounds(bounds)
         self.pop_size = check_int(pop_size, "pop_size", self.min_pop_size)
-        self.rng = np.random.default_rng(seed)
+        try:
+            self.rng = np.random.default_rng(seed)
+        except (TypeError, ValueError) as exc:
+            msg = f"seed: expected an int, a Generator or None, got {seed!r}"
+            raise ParameterError(msg) from exc
         self.x0 = None if x0 is None else as_points(x0, self.box.dim, "x0")
         if self.x0 is not None:
             if self.x0.shape[0] > self.pop_size:

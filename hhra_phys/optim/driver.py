@@ -85,6 +85,15 @@ def make_optimiser(
     )
 
 
+def _as_costs(values: Any) -> np.ndarray:
+    """Costs as a float array. ``None`` becomes NaN (a failed evaluation, so the worst cost);
+    anything else that is not a number is the caller's error."""
+    try:
+        return np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"fun: must return numbers (costs), got {values!r:.80}") from exc
+
+
 def _evaluator(
     fun: Callable[..., Any], vectorized: bool, executor: Executor | None
 ) -> Callable[[np.ndarray], np.ndarray]:
@@ -92,7 +101,7 @@ def _evaluator(
     if vectorized:
 
         def evaluate(points: np.ndarray) -> np.ndarray:
-            out = np.asarray(fun(points), dtype=float)
+            out = _as_costs(fun(points))
             if out.ndim == 2 and out.shape[1] == 1:
                 out = out[:, 0]
             if out.shape != (points.shape[0],):
@@ -105,12 +114,12 @@ def _evaluator(
     elif executor is not None:
 
         def evaluate(points: np.ndarray) -> np.ndarray:
-            return np.array([float(c) for c in executor.map(fun, points)])
+            return _as_costs(list(executor.map(fun, points)))
 
     else:
 
         def evaluate(points: np.ndarray) -> np.ndarray:
-            return np.array([float(fun(p)) for p in points])
+            return _as_costs([fun(p) for p in points])
 
     return evaluate
 
