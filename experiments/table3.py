@@ -20,12 +20,17 @@ Controls (registered here, so they appear as extra rows):
 
 Writes to ``--out`` (default ``out/table3``, ignored by git): one JSON report per record
 (``rig_seed<k>.json``, ``public_seed<k>.json``), ``summary.json`` (mean, spread and range over
-seeds), ``tables.md``, and the figures ``*_outputs.png`` (measured against simulated output, seed
-of ``--figure-seed``) and ``*_convergence.png`` (every seed). With ``--figures DIR`` the four
-figures are also written as ``DIR/identification_<record>_<kind>.png``. The numbers in
-``docs/identification.md`` come from::
+seeds), ``tables.md``, and per record the figures ``*_outputs.png`` (measured against
+simulated output) and ``*_errors.png`` (simulation error), both for the seed ``--figure-seed``,
+and ``*_convergence.png`` (every seed). Controls are left out of the figures. With
+``--figures DIR`` the figures are also written as ``DIR/identification_<record>_<kind>.png``.
+By default every registered method runs, which includes the physical-model rows when their
+plug-in is installed (minutes per record); ``--methods`` restricts the list (controls are
+added unless ``--no-controls``). The numbers in ``docs/identification.md`` come from::
 
-    python experiments/table3.py --out out/table3 --figures docs/figures
+    python experiments/table3.py --out out/table3 --figures docs/figures \
+        --methods ls,rls,ffrls,pso,gwo,hgwo,ffrls_hgwo
+    python experiments/table3.py --out out/table3_phys --seeds 0 --no-controls
 
 Existing outputs are never replaced unless ``--overwrite`` is given.
 """
@@ -51,6 +56,8 @@ from hhra_phys.rig import simulate_rig
 
 #: Rows of the paper's table plus plain H-GWO, in this order.
 PAPER_ROWS = C.ARX_METHODS
+#: Figures per record.
+FIGURES = ("outputs", "errors", "convergence")
 #: Control rows registered by this script.
 CONTROLS = ("pso_2x", "gwo_2x", "ffrls_hgwo_ws", "ffrls_hgwo_z01", "ffrls_hgwo_z1")
 
@@ -152,6 +159,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--pop", type=int, default=100, help="population (paper: 100)")
     parser.add_argument("--iters", type=int, default=200, help="iterations (paper: 200)")
     parser.add_argument("--records", default="rig,public", help="rig, public or both")
+    parser.add_argument(
+        "--methods", help="comma-separated methods (default: every registered one); controls added"
+    )
     parser.add_argument("--no-controls", action="store_true", help="only the registered methods")
     parser.add_argument("--figure-seed", type=int, default=0, help="seed of the output figures")
     parser.add_argument("--figures", metavar="DIR", help="also write figures for the docs here")
@@ -176,17 +186,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         C.load_plugins(args.plugin)
         if not args.no_controls:
             register_controls()
-        methods = list(C.available_methods())
+        if args.methods:
+            methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+        else:
+            methods = [m for m in C.available_methods() if m not in CONTROLS]
+        if not args.no_controls:
+            methods += [m for m in CONTROLS if m not in methods]
         out = Path(args.out)
         fig_dir = Path(args.figures) if args.figures else None
         planned = [out / f"{r}_seed{s}.json" for r in records for s in seeds]
         planned += [out / "summary.json", out / "tables.md"]
         for r in records:
-            planned += [out / f"{r}_outputs.png", out / f"{r}_convergence.png"]
+            planned += [out / f"{r}_{k}.png" for k in FIGURES]
             if fig_dir:
-                planned += [
-                    fig_dir / f"identification_{r}_{k}.png" for k in ("outputs", "convergence")
-                ]
+                planned += [fig_dir / f"identification_{r}_{k}.png" for k in FIGURES]
         _check_free(planned, args.overwrite)
         out.mkdir(parents=True, exist_ok=True)
 
@@ -230,12 +243,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             extra_rows = [m for m in shown.results if m not in PAPER_ROWS and m not in CONTROLS]
             for target in [out] + ([fig_dir] if fig_dir else []):
                 prefix = "" if target == out else "identification_"
-                C.plot_outputs(
-                    shown,
-                    paper_rows + extra_rows,
-                    target / f"{prefix}{record}_outputs.png",
-                    overwrite=args.overwrite,
-                )
+                for kind in ("outputs", "errors"):
+                    C.plot_outputs(
+                        shown,
+                        paper_rows + extra_rows,
+                        target / f"{prefix}{record}_{kind}.png",
+                        errors=kind == "errors",
+                        overwrite=args.overwrite,
+                    )
                 C.plot_convergence(
                     comps,
                     target / f"{prefix}{record}_convergence.png",

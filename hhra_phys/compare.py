@@ -905,6 +905,7 @@ def plot_outputs(
     methods: Sequence[str] | None = None,
     path: str | Path | None = None,
     *,
+    errors: bool = False,
     overwrite: bool = False,
     dpi: int = 80,
 ) -> Any:
@@ -918,6 +919,8 @@ def plot_outputs(
         Which methods (default all that succeeded).
     path : path, optional
         Save the figure there (PNG by suffix).
+    errors : bool
+        Plot the simulation error ``y - yhat`` instead (readable when the outputs overlap).
     overwrite : bool
         Replace an existing file.
     dpi : int
@@ -938,20 +941,26 @@ def plot_outputs(
     for ax, name in zip(axes, names, strict=True):
         r = comparison.results[name]
         assert r.outcome is not None
-        ax.plot(ds.t, ds.y, color="0.55", lw=1.6, label="measured")
-        ax.plot(est.t, r.outcome.y_est, color="C0", lw=0.8, label="simulated (est)")
-        ax.plot(val.t, r.outcome.y_val, color="C3", lw=0.8, label="simulated (val)")
+        if errors:
+            ax.plot(est.t, est.y - r.outcome.y_est, color="C0", lw=0.6, label="error (est)")
+            ax.plot(val.t, val.y - r.outcome.y_val, color="C3", lw=0.6, label="error (val)")
+            ax.axhline(0.0, color="0.5", lw=0.5)
+        else:
+            ax.plot(ds.t, ds.y, color="0.55", lw=1.6, label="measured")
+            ax.plot(est.t, r.outcome.y_est, color="C0", lw=0.8, label="simulated (est)")
+            ax.plot(val.t, r.outcome.y_val, color="C3", lw=0.8, label="simulated (val)")
+            lo, hi = float(ds.y.min()), float(ds.y.max())
+            pad = 0.15 * (hi - lo)
+            ax.set_ylim(lo - pad, hi + pad)  # a diverged run must not squash the measured trace
         ax.axvline(val.t[0], color="k", ls="--", lw=0.7)
-        lo, hi = float(ds.y.min()), float(ds.y.max())
-        pad = 0.15 * (hi - lo)
-        ax.set_ylim(lo - pad, hi + pad)  # a diverged run must not squash the measured trace
         ax.set_title(
-            f"{_label(name)}: val MSE {_fmt(r.val['mse'], 3)}, VAF {_fmt(r.val['vaf'], 3)} %",
+            f"{_label(name)}: val MSE {_fmt(r.val['mse'], 3)}, VAF {_fmt(r.val['vaf'], 4)} %",
             fontsize=8,
             loc="left",
         )
         ax.tick_params(labelsize=7)
-        ax.set_ylabel(f"{ds.output_name} [{ds.output_unit}]", fontsize=7)
+        unit = f"[{ds.output_unit}]"
+        ax.set_ylabel(f"error {unit}" if errors else f"{ds.output_name} {unit}", fontsize=7)
     axes[0].legend(fontsize=6, ncol=3, loc="upper right")
     axes[-1].set_xlabel(f"t [{ds.time_unit}]", fontsize=7)
     _save(fig, path, overwrite, dpi)
