@@ -10,9 +10,11 @@ Construction (CasADi):
 
 1. ``step``: an SX function advancing one *block* of ``block`` samples (RK4
    substeps unrolled; blocking amortises the per-call overhead of the loop);
-2. ``mapaccum`` of the step over the blocks of a record: one trajectory;
+2. ``mapaccum`` of the step over the blocks of a chunk (250 samples by default),
+   returning the outputs and the final state, so records of any length are
+   simulated chunk after chunk;
 3. ``map(n_pop, "thread")`` over the population, the input shared by all;
-4. C code generation, compiled once per (record length, population size) by
+4. C code generation, compiled once per population size by
    :mod:`hhra_phys.compile` and cached on disk.
 
 Without a C compiler the same CasADi functions run in CasADi's virtual machine.
@@ -76,7 +78,11 @@ class Simulator:
     lanes : int
         Population members advanced together in one straight-line step, so the
         CPU overlaps their latency-bound arithmetic (populations are padded to a
-        multiple of it; single simulations use one lane).
+        multiple of ``lanes * threads``; single simulations use one lane).
+    chunk : int
+        Blocks per compiled call. Records of any length are simulated chunk
+        after chunk, so one compiled function per population size serves every
+        record length.
     backend : {"auto", "native", "casadi"}
         ``"native"`` compiles with the C compiler (error if impossible),
         ``"casadi"`` uses CasADi's virtual machine, ``"auto"`` compiles when a
@@ -106,6 +112,7 @@ class Simulator:
         threads: int = 2,
         block: int = 10,
         lanes: int = 4,
+        chunk: int = 25,
         backend: str = "auto",
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
@@ -135,6 +142,10 @@ class Simulator:
             self.substeps = int(substeps)
         self.h = self.dt / self.substeps
         self.lanes = int(lanes)
+        if int(chunk) < 1:
+            raise ParameterError("chunk must be a positive number of blocks")
+        #: Samples per compiled call; records are simulated chunk after chunk.
+        self.chunk = int(chunk) * self.block
         self._steps: dict[tuple[bool, int], ca.Function] = {}
         self._compiled: dict[tuple[int, int, bool], _Compiled] = {}
         self._stab: dict[int, CompiledFunction | ca.Function] = {}
@@ -193,7 +204,9 @@ class Simulator:
         # (e.g. the valve's smoothed sign): about 13 % fewer instructions.
         return ca.Function("step", [x, p, U], outs, {"cse": True})
 
-    def trajectory_function(self, n: int, states: bool = False, lanes: int = 1) -> ca.Function:
+    def trajectory_function(
+        self, n: int, states: bool = False, lanes: int = 1, final: bool = False
+    ) -> ca.Function:
         """CasADi function of ``lanes`` trajectories over ``n`` samples (for AD and IPOPT).
 
         Returns
@@ -201,10 +214,11 @@ class Simulator:
         casadi.Function
             ``(x0[nx, lanes], p[n_params, lanes], U[(n_lags+1)*block, n_blocks]) -> y``
             with ``y`` of shape (1, n_blocks*block) for one lane (raw block layout
-            otherwise, see :meth:`_unpack`), plus the states ``X[nx, n_blocks*block]``
-            if ``states`` (one lane only). Build ``U`` with :meth:`input_matrix`. The
-            function is symbolic (MX), so it can be embedded in cost functions and
-            differentiated.
+            otherwise, see :meth:`_unpack`), then the states ``X[nx, n_blocks*block]``
+            if ``states`` (one lane only), then the state after the last sample
+            ``xf[nx, lanes]`` if ``final``. Build ``U`` with :meth:`input_matrix`.
+            The function is symbolic (MX), so it can be embedded in cost functions
+            and differentiated.
         """
         if states and lanes != 1:
             raise ParameterError("state trajectories are available for one lane only")
@@ -219,10 +233,14 @@ class Simulator:
         U = ca.MX.sym("U", (self.model.n_lags + 1) * self.block, nb)
         res = acc(x0, ca.repmat(p, 1, nb), U)
         y = ca.reshape(res[1], 1, nb * self.block) if lanes == 1 else res[1]  # (lanes, block*nb)
-        outs = [y]
+        outs, names = [y], ["y"]
         if states:
             outs.append(ca.reshape(res[2], self.model.nx, nb * self.block))
-        return ca.Function("traj", [x0, p, U], outs, ["x0", "p", "U"], ["y", "X"][: len(outs)])
+            names.append("X")
+        if final:
+            outs.append(res[0][:, -lanes:])
+            names.append("xf")
+        return ca.Function("traj", [x0, p, U], outs, ["x0", "p", "U"], names)
 
     def _unpack(self, raw: np.ndarray, n_members: int, lanes: int, nb: int) -> np.ndarray:
         """Population output in block layout -> (n_members, nb*block).
@@ -254,15 +272,28 @@ class Simulator:
         lags = np.stack([padded[nl - j: nl - j + nb * self.block] for j in range(nl + 1)])
         return lags.T.reshape(nb, self.block * (nl + 1)).T
 
-    def _population_function(self, n: int, n_pop: int, states: bool) -> _Compiled:
-        key = (n, n_pop, states)
+    def _layout(self, n_pop: int, states: bool) -> tuple[int, int]:
+        """(lanes, padded population): populations are padded to whole groups per thread."""
+        if n_pop == 1:
+            return 1, 1
+        lanes = 1 if states else self.lanes
+        unit = lanes * self.threads
+        return lanes, -(-n_pop // unit) * unit
+
+    def _population_function(self, n_members: int, lanes: int, states: bool) -> _Compiled:
+        """Compiled simulation of one chunk of ``chunk`` samples for a padded population.
+
+        The function maps (initial states, parameters, input chunk) to (outputs,
+        [states,] final states), so any record length is simulated by chaining
+        chunks: one compiled function per population size serves every record.
+        """
+        key = (n_members, lanes, states)
         if key in self._compiled:
             return self._compiled[key]
-        lanes = 1 if (states or n_pop == 1) else min(self.lanes, n_pop)
-        groups = -(-n_pop // lanes)
-        traj = self.trajectory_function(n, states=states, lanes=lanes)
+        groups = n_members // lanes
+        traj = self.trajectory_function(self.chunk, states=states, lanes=lanes, final=True)
         threads = max(1, min(self.threads, groups))
-        name = f"hhra_sim_{'x' if states else 'y'}_{n_pop}"
+        name = f"hhra_sim_{'x' if states else 'y'}_{n_members}_{lanes}"
         if groups == 1:
             pop = ca.Function(name, traj.mx_in(), traj.call(traj.mx_in()))
         else:
@@ -274,7 +305,7 @@ class Simulator:
             compiled = compile_function(pop, quiet=self.backend == "auto")
             if compiled is None and self.backend == "native":
                 raise SimulationError("backend='native' but the simulator could not be compiled")
-        entry = _Compiled(compiled if compiled is not None else pop, groups * lanes, lanes,
+        entry = _Compiled(compiled if compiled is not None else pop, n_members, lanes,
                           compiled is not None)
         self._compiled[key] = entry
         return entry
@@ -412,26 +443,38 @@ class Simulator:
         n, n_pop = u.size, P.shape[0]
         rho = self.stability_index(P, float(np.max(np.abs(u))))
         status = np.where(rho > self.rho_max, STATUS_UNSTABLE, STATUS_OK)
-        entry = self._population_function(n, n_pop, states)
-        U = self.input_matrix(u)
-        nb = U.shape[1]
-        pad = entry.n_members - n_pop
-        if pad:  # fill the last group of lanes with copies of the last member
+        lanes, n_members = self._layout(n_pop, states)
+        entry = self._population_function(n_members, lanes, states)
+        pad = n_members - n_pop
+        if pad:  # fill the last groups with copies of the last member
             X0 = np.hstack([X0, np.repeat(X0[:, -1:], pad, axis=1)])
             Pin = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
         else:
             Pin = P
+        U = self.input_matrix(u)
+        cb = self.chunk // self.block  # blocks per chunk
+        n_chunks = -(-U.shape[1] // cb)
+        U = np.hstack([U, np.repeat(U[:, -1:], n_chunks * cb - U.shape[1], axis=1)])
+        Ys, Xs = [], []
+        x = X0
+        PT = np.ascontiguousarray(Pin.T)
         with np.errstate(all="ignore"):
-            if entry.native:
-                outs = entry.fn(X0, Pin.T, U)  # type: ignore[operator]
-            else:
-                raw = entry.fn(X0, Pin.T, U)  # type: ignore[operator]
-                raw = raw if isinstance(raw, (list, tuple)) else [raw]
-                outs = [np.array(o) for o in raw]
-            if entry.lanes == 1:
-                Y = np.asarray(outs[0]).reshape(entry.n_members, nb * self.block)
-            else:
-                Y = self._unpack(outs[0], entry.n_members, entry.lanes, nb)
+            for c in range(n_chunks):
+                Uc = U[:, c * cb:(c + 1) * cb]
+                if entry.native:
+                    outs = entry.fn(x, PT, Uc)  # type: ignore[operator]
+                else:
+                    raw = entry.fn(x, PT, Uc)  # type: ignore[operator]
+                    outs = [np.array(o) for o in raw]
+                if lanes == 1:
+                    Ys.append(np.asarray(outs[0]).reshape(n_members, self.chunk))
+                else:
+                    Ys.append(self._unpack(outs[0], n_members, lanes, cb))
+                if states:
+                    Xs.append(np.asarray(outs[1]).reshape(
+                        self.model.nx, n_members, self.chunk, order="F"))
+                x = np.asarray(outs[-1])
+            Y = np.hstack(Ys) if len(Ys) > 1 else Ys[0]
             if Y.shape != (n_pop, n):
                 Y = np.ascontiguousarray(Y[:n_pop, :n])
             # One pass: NaN, Inf and runaway values all fail "peak <= limit".
@@ -440,9 +483,7 @@ class Simulator:
         Y[status != STATUS_OK] = np.nan
         self.last_status, self.last_rho = status, rho
         if states:
-            nx = self.model.nx
-            X = np.asarray(outs[1]).reshape(nx, n_pop, nb * self.block, order="F")
-            X = X.transpose(1, 2, 0)[:, :n, :].copy()
+            X = np.concatenate(Xs, axis=2).transpose(1, 2, 0)[:n_pop, :n, :].copy()
             X[status != STATUS_OK] = np.nan
             return (Y[0], X[0]) if single else (Y, X)
         return Y[0] if single else Y
