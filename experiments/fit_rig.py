@@ -51,7 +51,8 @@ def part_clean(n: int, pop: int, iters: int) -> dict[str, Any]:
         res = fit(data, pop_size=pop, max_iter=iters, seed=k)
         truth = _truth(data)
         err = {g: res.values[g] / truth[g] - 1 for g in GROUPS}
-        rows.append({"seed": 100 + k, "rel_err": err, "max_abs_rel_err": max(map(abs, err.values())),
+        rows.append({"seed": 100 + k, "rel_err": err,
+                     "max_abs_rel_err": max(map(abs, err.values())),
                      "val_rmse": res.metrics["val"]["rmse"], "seconds": time.perf_counter() - t0})
         print(f"clean {k}: max |rel err| {rows[-1]['max_abs_rel_err']:.2e}", file=sys.stderr)
     return {"rows": rows, "worst": max(r["max_abs_rel_err"] for r in rows),
@@ -145,7 +146,8 @@ def summary_markdown(results: dict[str, Any]) -> str:
                   "| quantity | value | target |", "|---|---|---|",
                   f"| smallest validation VAF | {m['val_vaf_min']:.4f} % | >= 99.5 % |",
                   f"| mean validation RMSE | {m['val_rmse_mean']:.4f} deg | <= 0.055 deg |",
-                  f"| largest validation RMSE / noise | {m['val_rmse_over_noise_max']:.3f} | <= 1.10 |",
+                  f"| largest validation RMSE / noise | {m['val_rmse_over_noise_max']:.3f} "
+                  "| <= 1.10 |",
                   f"| records with every group inside its 95 % CI | "
                   f"{100 * m['coverage_all_groups']:.0f} % | - |"]
         for g, cov in m["coverage"].items():
@@ -167,7 +169,8 @@ def summary_markdown(results: dict[str, Any]) -> str:
     if "lam" in results:
         lam = results["lam"]["summary"]
         lines += ["### H-GWO lambda: paper's 0.25 against 1", "",
-                  "| lambda | median global ITAE | median final validation RMSE | worst group error |",
+                  "| lambda | median global ITAE | median final validation RMSE "
+                  "| worst group error |",
                   "|---|---|---|---|"]
         for k, v in lam.items():
             lines.append(f"| {k} | {v['median_global_cost']:.4g} | "
