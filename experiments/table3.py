@@ -52,7 +52,9 @@ from hhra_phys import arx
 from hhra_phys import compare as C
 from hhra_phys.data import Dataset, load_public_actuator
 from hhra_phys.errors import HHRAError, ParameterError
-from hhra_phys.rig import simulate_rig
+from hhra_phys.metrics import mse
+from hhra_phys.model import HHRAModel
+from hhra_phys.rig import DEFAULT_NOISE_DEG, simulate_rig
 
 #: Rows of the paper's table plus plain H-GWO, in this order.
 PAPER_ROWS = C.ARX_METHODS
@@ -122,6 +124,64 @@ def register_controls() -> None:
         C.register_method(name, fn, label=labels[name], replace=True)
 
 
+def tustin_check(seed: int) -> tuple[list[dict[str, Any]], str]:
+    """LS fits mapped back to the continuous ``kv / (a s^3 + b s^2 + c s)`` on the rig.
+
+    The exact Tustin structure ARX(3, 4, 0) and the paper's eq. 13, ARX(3, 3, 1), fitted by LS on
+    the rig's estimation half without noise and with its default noise, then
+    :func:`~hhra_phys.arx.tustin_inverse` with ``rtol = inf`` (the nearest continuous model; the
+    deviations say how far the fit is from an exact Tustin image) and the continuous poles.
+    """
+    tf = HHRAModel().tf_coefficients()  # theta [rad] per I [mA]; the rig measures degrees
+    truth_poles = np.roots([tf["a"], tf["b"], tf["c"], 0.0])
+    rows: list[dict[str, Any]] = [
+        {
+            "case": "truth (linearised at rest)",
+            "b": tf["b"],
+            "c": tf["c"],
+            "kv": float(np.degrees(tf["kv"])),
+            "poles": truth_poles,
+        }
+    ]
+    for noise in (0.0, DEFAULT_NOISE_DEG):
+        est, val = simulate_rig(seed=seed, noise=noise).split(0.5)
+        for na, nb, nk in ((3, 4, 0), (3, 3, 1)):
+            model = arx.fit_ls(est.u, est.y, na, nb, nk, on_ill_conditioned="ignore").model
+            b_full, a_full = model.filter_coefficients()
+            inv = arx.tustin_inverse(b_full, a_full, est.dt, rtol=np.inf)
+            rows.append(
+                {
+                    "case": f"noise {noise:g} deg, ARX({na},{nb},{nk})",
+                    "val_mse": mse(val.y, model.simulate(val.u, y_init=est.y, u_init=est.u)),
+                    "b": inv["b"],
+                    "c": inv["c"],
+                    "kv": inv["kv"],
+                    "den_dev": inv["den_deviation"],
+                    "num_dev": inv["num_deviation"],
+                    "poles": model.continuous_poles(est.dt),
+                }
+            )
+    lines = [
+        "| case | val MSE [deg^2] | b/a [1/s] | c/a [1/s^2] | kv/a [deg/(mA s^3)] | "
+        "continuous poles [1/s] | den. dev. | num. dev. |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        poles = ", ".join(
+            f"{p.real:.4g}" + (f" ± {abs(p.imag):.4g}j" if p.imag else "")
+            for p in sorted(r["poles"], key=lambda z: (z.real, z.imag))
+            if p.imag >= 0
+        )
+        lines.append(
+            f"| {r['case']} | {C._fmt(r.get('val_mse'))} | {r['b']:.4g} | {r['c']:.4g} | "
+            f"{r['kv']:.4g} | {poles} | {C._fmt(r.get('den_dev'), 2)} | "
+            f"{C._fmt(r.get('num_dev'), 2)} |"
+        )
+    for r in rows:
+        r["poles"] = [[float(p.real), float(p.imag)] for p in r["poles"]]
+    return rows, "\n".join(lines) + "\n"
+
+
 def stable_fraction(
     box: tuple[float, float], na: int, draws: int = 200_000, seed: int = 0
 ) -> float:
@@ -158,7 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated seeds")
     parser.add_argument("--pop", type=int, default=100, help="population (paper: 100)")
     parser.add_argument("--iters", type=int, default=200, help="iterations (paper: 200)")
-    parser.add_argument("--records", default="rig,public", help="rig, public or both")
+    parser.add_argument("--records", default="rig,public,tustin", help="any of rig, public, tustin")
     parser.add_argument(
         "--methods", help="comma-separated methods (default: every registered one); controls added"
     )
@@ -179,8 +239,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
         records = [r.strip() for r in args.records.split(",") if r.strip()]
-        if not seeds or not records or set(records) - {"rig", "public"}:
-            raise ParameterError("--seeds needs integers; --records is rig, public or both")
+        if not seeds or not records or set(records) - {"rig", "public", "tustin"}:
+            raise ParameterError("--seeds needs integers; --records: rig, public, tustin")
         if args.figure_seed not in seeds:
             raise ParameterError(f"--figure-seed {args.figure_seed} is not among --seeds")
         C.load_plugins(args.plugin)
@@ -194,9 +254,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             methods += [m for m in CONTROLS if m not in methods]
         out = Path(args.out)
         fig_dir = Path(args.figures) if args.figures else None
-        planned = [out / f"{r}_seed{s}.json" for r in records for s in seeds]
+        comparisons = [r for r in records if r != "tustin"]
+        planned = [out / f"{r}_seed{s}.json" for r in comparisons for s in seeds]
         planned += [out / "summary.json", out / "tables.md"]
-        for r in records:
+        for r in comparisons:
             planned += [out / f"{r}_{k}.png" for k in FIGURES]
             if fig_dir:
                 planned += [fig_dir / f"identification_{r}_{k}.png" for k in FIGURES]
@@ -216,7 +277,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             "records": {},
         }
         tables = []
-        for record in records:
+        if "tustin" in records:
+            rows, table = tustin_check(args.figure_seed)
+            summary["tustin"] = rows
+            tables.append(
+                f"## Tustin inverse map of LS fits (rig seed {args.figure_seed})\n\n{table}"
+            )
+        for record in comparisons:
             comps = []
             for seed in seeds:
                 if record == "rig":

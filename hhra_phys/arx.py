@@ -243,7 +243,8 @@ def tustin_inverse(num: Any, den: Any, dt: float, rtol: float = 1e-6) -> dict[st
     dict
         ``{"a": 1.0, "b": .., "c": .., "kv": ..}`` normalised to ``a = 1`` (as
         :meth:`hhra_phys.model.HHRAModel.tf_coefficients`): ``b`` [1/s], ``c`` [1/s^2], ``kv``
-        [output unit / (input unit s^3)].
+        [output unit / (input unit s^3)]; plus ``den_deviation`` and ``num_deviation``, the
+        relative deviations of the two structure checks.
 
     Raises
     ------
@@ -282,6 +283,8 @@ def tustin_inverse(num: Any, den: Any, dt: float, rtol: float = 1e-6) -> dict[st
         "b": float(abc[1] * dt**2 / 4.0 / a),
         "c": float(abc[2] * dt / 2.0 / a),
         "kv": float(gain / a),
+        "den_deviation": den_dev,
+        "num_deviation": num_dev,
     }
 
 
