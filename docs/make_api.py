@@ -1,0 +1,129 @@
+"""Write docs/api.md, the API reference, from the docstrings of the hhra_phys package.
+
+Usage::
+
+    python docs/make_api.py            # (re)write docs/api.md
+    python docs/make_api.py --check    # exit 1 if docs/api.md is not current
+    python docs/make_api.py --out FILE
+
+Every public module of ``hhra_phys`` (not the ``cli`` package, whose reference is
+``hhra-phys COMMAND --help``) gets a section with its docstring, then its public classes
+(with their public methods and properties) and functions, each with its signature and
+docstring. Public means: listed in the module's ``__all__`` if it has one, otherwise not
+starting with ``_`` and defined in that module. The output depends only on the code, so
+``--check`` (run by ``tests/test_guide.py``) tells whether it was regenerated after the
+docstrings changed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import pkgutil
+import re
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "api.md"
+PACKAGE = "hhra_phys"
+SKIP = ("hhra_phys.cli",)
+
+
+def _modules() -> list[str]:
+    pkg = importlib.import_module(PACKAGE)
+    names = [PACKAGE]
+    for info in pkgutil.walk_packages(pkg.__path__, PACKAGE + "."):
+        parts = info.name.split(".")
+        if any(p.startswith("_") for p in parts[1:]) or info.name.startswith(SKIP):
+            continue
+        names.append(info.name)
+    return sorted(names)
+
+
+def _public(module) -> list[tuple[str, object]]:
+    names = getattr(module, "__all__", None)
+    out = []
+    for name, obj in vars(module).items():
+        if names is not None:
+            if name not in names:
+                continue
+        elif name.startswith("_") or getattr(obj, "__module__", None) != module.__name__:
+            continue
+        if inspect.isclass(obj) or inspect.isfunction(obj):
+            out.append((name, obj))
+    return sorted(out, key=lambda item: item[0].lower())
+
+
+def _signature(obj: object) -> str:
+    try:
+        sig = str(inspect.signature(obj))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return "(...)"
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", sig)
+
+
+def _doc(obj: object) -> str:
+    doc = inspect.getdoc(obj) or "(no docstring)"
+    return "```text\n" + doc.strip() + "\n```\n"
+
+
+def _members(cls: type) -> list[tuple[str, object]]:
+    out = []
+    for name, obj in vars(cls).items():
+        if name.startswith("_"):
+            continue
+        if isinstance(obj, property) or inspect.isfunction(obj) or isinstance(
+                obj, (classmethod, staticmethod)):
+            out.append((name, obj))
+    return sorted(out, key=lambda item: item[0].lower())
+
+
+def render() -> str:
+    lines = [
+        "# API reference",
+        "",
+        "Generated from the docstrings by `python docs/make_api.py`; do not edit by hand.",
+        "The user's guide is [guide.md](guide.md).",
+        "",
+    ]
+    modules = _modules()
+    lines += [f"- [`{m}`](#{m.replace('.', '')})" for m in modules] + [""]
+    for mname in modules:
+        module = importlib.import_module(mname)
+        lines += [f"## {mname}", "", _doc(module)]
+        for name, obj in _public(module):
+            if inspect.isclass(obj):
+                lines += [f"### class `{name}{_signature(obj)}`", "", _doc(obj)]
+                for mem, val in _members(obj):
+                    if isinstance(val, property):
+                        lines += [f"#### property `{name}.{mem}`", "", _doc(val)]
+                    else:
+                        fn = val.__func__ if isinstance(val, (classmethod, staticmethod)) else val
+                        lines += [f"#### `{name}.{mem}{_signature(fn)}`", "", _doc(fn)]
+            else:
+                lines += [f"### `{name}{_signature(obj)}`", "", _doc(obj)]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="write the API reference from the docstrings")
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output file (docs/api.md)")
+    ap.add_argument("--check", action="store_true", help="exit 1 if the file is not current")
+    args = ap.parse_args(argv)
+    text = render()
+    if args.check:
+        current = args.out.read_text() if args.out.exists() else ""
+        if current != text:
+            print(f"{args.out} is out of date: run python docs/make_api.py", file=sys.stderr)
+            return 1
+        print(f"{args.out} is current")
+        return 0
+    args.out.write_text(text)
+    print(f"wrote {args.out} ({len(text.splitlines())} lines)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

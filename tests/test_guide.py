@@ -1,0 +1,100 @@
+"""Run every shell and Python block of docs/guide.md, in order, in an empty directory.
+
+A block preceded by ``<!-- guide-test: repo -->`` runs in the repository's root instead.
+The installation block (``<!-- guide-test: install -->``) is not re-run (it would modify
+the environment and needs the network); the test checks instead that the package it
+installs is this checkout, installed editable, with the ``test`` extra declared.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+GUIDE = REPO / "docs" / "guide.md"
+BLOCK = re.compile(
+    r"(?:<!-- guide-test: (?P<mode>[\w-]+) -->\n)?```(?P<lang>bash|python)\n(?P<code>.*?)```",
+    re.S,
+)
+TIMEOUT = 300
+
+
+def guide_blocks() -> list[tuple[int, str, str, str]]:
+    """(line, language, mode, code) of every bash/python block of the guide."""
+    text = GUIDE.read_text()
+    out = []
+    for m in BLOCK.finditer(text):
+        line = text.count("\n", 0, m.start("code")) + 1
+        out.append((line, m["lang"], m["mode"] or "tmp", m["code"]))
+    return out
+
+
+BLOCKS = guide_blocks()
+
+
+def test_guide_has_the_sections_and_blocks():
+    text = GUIDE.read_text()
+    for heading in ("Installation", "Quick start", "Preparing your own data", "Fitting",
+                    "Reading the result and its uncertainty", "Comparing methods",
+                    "The diagnosis loop", "Controller design", "A model of another actuator",
+                    "Running on several machines", "API reference"):
+        assert f"## {heading}\n" in text, heading
+    assert sum(lang == "bash" for _, lang, _, _ in BLOCKS) >= 5
+    assert sum(lang == "python" for _, lang, _, _ in BLOCKS) >= 8
+    # Every fenced block is one the test runs (or an explicit text block).
+    fences = re.findall(r"^```(\w*)$", text, re.M)
+    langs = [f for f in fences if f]
+    assert set(langs) <= {"bash", "python", "text"}, set(langs)
+    assert len([f for f in langs if f in ("bash", "python")]) == len(BLOCKS)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    return tmp_path_factory.mktemp("guide")
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["MPLBACKEND"] = "Agg"
+    # The examples' fits show no progress bars; keep the child's output small anyway.
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+@pytest.mark.parametrize(("line", "lang", "mode", "code"), BLOCKS,
+                         ids=[f"line{b[0]}-{b[1]}" for b in BLOCKS])
+def test_guide_block(line, lang, mode, code, workdir):
+    if mode == "install":
+        _check_install(code)
+        return
+    cwd = REPO if mode == "repo" else workdir
+    if lang == "bash":
+        cmd = ["bash", "-euo", "pipefail", "-c", code]
+    else:
+        script = workdir / f"guide_line{line}.py"
+        script.write_text(code)
+        cmd = [sys.executable, str(script)]
+    proc = subprocess.run(cmd, cwd=cwd, env=_env(), capture_output=True, text=True,
+                          timeout=TIMEOUT)
+    assert proc.returncode == 0, (
+        f"docs/guide.md block at line {line} ({lang}) failed with exit {proc.returncode}\n"
+        f"--- stdout ---\n{proc.stdout[-3000:]}\n--- stderr ---\n{proc.stderr[-3000:]}"
+    )
+
+
+def _check_install(code: str) -> None:
+    assert 'pip install -e ".[test]"' in code
+    import hhra_phys
+
+    # The installed package is this checkout (editable install).
+    assert Path(hhra_phys.__file__).resolve().is_relative_to(REPO)
+    pyproject = (REPO / "pyproject.toml").read_text()
+    assert re.search(r"^test\s*=", pyproject, re.M), "pyproject.toml has no 'test' extra"
+    proc = subprocess.run(["hhra-phys", "--help"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and "fit" in proc.stdout
