@@ -1,0 +1,538 @@
+"""Residual analysis of a fitted model, and ranking of the effects it may lack.
+
+Given a fitted model and its (estimation) record, :func:`analyse` computes
+
+* whiteness: the residual autocorrelation with its 95 % band ``+-1.96/sqrt(N)``
+  and the Ljung-Box statistic (``scipy.stats.chi2`` tail);
+* the cross-correlation of the residual with the input, and the lag at which
+  measured and simulated output *changes* line up best (a delay estimate);
+* correlations of the residual and of its rate with candidate regressors: the
+  sign of the simulated velocity, small ``|input|``, the simulated angle, recent
+  direction reversals, the input level, ``|input|``, input changes and time, with
+  a band widened for the residual's own correlation;
+* the residual spectrum (Welch);
+* for every library effect (:mod:`hhra_phys.effects`) its *evidence*: the effect's
+  declared first-order change at its entry point, propagated through the model
+  linearised at the fit, with what the model's own free parameters can already
+  absorb projected out (their finite-difference output sensitivities), and then
+  compared with the residual. ``score`` is the fraction of the residual
+  variance it can explain to first order; ``detectability`` is the RMS output
+  change a probe-size effect leaves after that projection, over the noise level.
+  An effect whose detectability is below 1 is flagged *not identifiable from
+  these data*: at a plausible size it leaves less than the noise (a fast spool
+  lag in 250 Hz angle data is the classic case).
+
+The ranking orders and explains candidates; it does not decide. Residual
+statistics alone can mislead (a refit may show an effect "not indicated" here to be
+the most useful one), so :mod:`hhra_phys.loop` refits candidates and scores them
+on validation data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal as sps
+from scipy import stats
+
+from hhra_phys.data import Dataset
+from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
+from hhra_phys.errors import ParameterError
+from hhra_phys.problem import Problem
+
+#: Detectability (probe-size output change over noise) below which an effect is
+#: reported as not identifiable from the record.
+DETECTABLE = 1.0
+
+
+@dataclass
+class EffectEvidence:
+    """Evidence for one candidate effect.
+
+    Attributes
+    ----------
+    name : str
+        Library name.
+    score : float
+        Fraction of the residual variance the effect explains to first order
+        (after the model's own parameters absorb what they can), 0..1.
+    detectability : float
+        RMS output change after that projection, of a probe-size effect or of the
+        size the residual suggests (the larger), over the noise standard deviation
+        (below 1: not identifiable from these data).
+    estimate : dict
+        First-order estimate of the effect's parameters (a linearisation; the
+        refit gives the real value).
+    identifiable : bool
+        ``detectability >= DETECTABLE``.
+    signature : str
+        What the effect is expected to leave in the residual.
+    regressors : dict
+        Correlations of the residual with the generic regressors the effect relates to.
+    note : str
+        Why it was skipped or flagged, if it was.
+    """
+
+    name: str
+    score: float
+    detectability: float
+    estimate: dict[str, float]
+    identifiable: bool
+    signature: str
+    regressors: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able dictionary."""
+        return _clean(asdict(self))
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`analyse`. Arrays are kept for plots; :meth:`to_json` summarises."""
+
+    n: int
+    rmse: float
+    noise: float
+    whiteness: dict[str, Any]
+    xcorr_input: dict[str, Any]
+    delay_samples: float
+    regressors: dict[str, dict[str, float]]
+    spectrum: dict[str, Any]
+    evidence: list[EffectEvidence]
+    residual: np.ndarray
+    t: np.ndarray
+    series: dict[str, np.ndarray]
+
+    def ranked(self) -> list[EffectEvidence]:
+        """Evidence of the applicable effects, best first (identifiable ones before others)."""
+        ok = [e for e in self.evidence if not e.note.startswith("skipped")]
+        return sorted(ok, key=lambda e: (not e.identifiable, -e.score))
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able summary (no long arrays)."""
+        return _clean({
+            "n": self.n,
+            "rmse": self.rmse,
+            "noise": self.noise,
+            "whiteness": {k: v for k, v in self.whiteness.items() if k != "acf"},
+            "xcorr_input": {k: v for k, v in self.xcorr_input.items() if k != "values"},
+            "delay_samples": self.delay_samples,
+            "regressors": self.regressors,
+            "spectrum": {k: v for k, v in self.spectrum.items() if k not in ("f", "pxx")},
+            "evidence": [e.to_json() for e in self.ranked()],
+        })
+
+    def summary(self) -> str:
+        """Short text: whiteness, delay, and the ranked effects with their evidence."""
+        w = self.whiteness
+        lines = [
+            f"residual RMSE {self.rmse:.4g}, noise estimate {self.noise:.3g}, "
+            f"Ljung-Box Q={w['ljung_box_q']:.4g} (p={w['ljung_box_p']:.2g}, {w['lags']} lags), "
+            f"{100 * w['fraction_outside']:.0f} % of autocorrelations outside the band",
+            f"input cross-correlation peak at lag {self.xcorr_input['peak_lag']} "
+            f"(r={self.xcorr_input['peak']:.2f}); output changes align at "
+            f"{self.delay_samples:+.2f} samples",
+        ]
+        for e in self.ranked():
+            flag = "" if e.identifiable else "  [not identifiable from these data]"
+            lines.append(f"  {e.name:18s} score {e.score:.3f}  detectability "
+                         f"{e.detectability:.3g}{flag}")
+        return "\n".join(lines)
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+# --- statistics ---------------------------------------------------------------------
+
+
+def noise_level(residual: np.ndarray) -> float:
+    """Robust white-noise standard deviation from the sample-to-sample differences.
+
+    Differencing removes the slow model error, so ``MAD(diff(r)) / 0.6745 / sqrt(2)``
+    estimates the measurement noise even when the residual is not white.
+    """
+    d = np.diff(np.asarray(residual, dtype=float))
+    return float(stats.median_abs_deviation(d, scale="normal") / math.sqrt(2))
+
+
+def whiteness(residual: np.ndarray, lags: int | None = None) -> dict[str, Any]:
+    """Autocorrelation with its 95 % band and the Ljung-Box test.
+
+    Returns
+    -------
+    dict
+        ``acf`` (lags 0..m), ``band`` (1.96/sqrt(N)), ``lags`` m,
+        ``ljung_box_q``, ``ljung_box_p`` (chi-square tail with m degrees of
+        freedom), ``fraction_outside`` (share of lags 1..m outside the band),
+        ``white`` (p > 0.05).
+    """
+    r = np.asarray(residual, dtype=float) - np.mean(residual)
+    n = r.size
+    m = int(lags or min(40, max(5, n // 5)))
+    full = sps.correlate(r, r, mode="full", method="fft")[n - 1:n + m]
+    acf = full / full[0] if full[0] > 0 else np.zeros(m + 1)
+    k = np.arange(1, m + 1)
+    q = float(n * (n + 2) * np.sum(acf[1:] ** 2 / (n - k)))
+    band = 1.96 / math.sqrt(n)
+    p = float(stats.chi2.sf(q, m))
+    return {"acf": acf, "band": band, "lags": m, "ljung_box_q": q, "ljung_box_p": p,
+            "fraction_outside": float(np.mean(np.abs(acf[1:]) > band)), "white": p > 0.05}
+
+
+def cross_correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised cross-correlation ``corr(a[n], b[n - lag])`` for lags ``-max_lag..max_lag``."""
+    a = np.asarray(a, dtype=float) - np.mean(a)
+    b = np.asarray(b, dtype=float) - np.mean(b)
+    n = a.size
+    full = sps.correlate(a, b, mode="full", method="fft")
+    lags = sps.correlation_lags(n, n, mode="full")
+    keep = np.abs(lags) <= max_lag
+    denom = math.sqrt(float(np.dot(a, a) * np.dot(b, b))) or 1.0
+    return lags[keep], full[keep] / denom
+
+
+def output_delay(y: np.ndarray, yhat: np.ndarray, max_lag: int = 20) -> float:
+    """Lag [samples] by which measured output changes follow simulated ones.
+
+    Peak of the cross-correlation of ``diff(y)`` and ``diff(yhat)``, refined by a
+    parabola through the peak and its neighbours (a fractional lag).
+    """
+    lags, c = cross_correlation(np.diff(y), np.diff(yhat), max_lag)
+    i = int(np.argmax(c))
+    if 0 < i < c.size - 1:
+        den = c[i - 1] - 2 * c[i] + c[i + 1]
+        frac = 0.5 * (c[i - 1] - c[i + 1]) / den if den != 0 else 0.0
+        return float(lags[i] + frac)
+    return float(lags[i])
+
+
+def _effective_band(residual: np.ndarray) -> float:
+    """95 % band of a correlation with an autocorrelated residual (lag-1 ESS)."""
+    n = residual.size
+    rho = float(np.corrcoef(residual[:-1], residual[1:])[0, 1]) if n > 3 else 0.0
+    rho = min(max(rho, 0.0), 0.999)
+    n_eff = max(3.0, n * (1 - rho) / (1 + rho))
+    return 1.96 / math.sqrt(n_eff)
+
+
+def generic_regressors(
+    u: np.ndarray, t: np.ndarray, theta: np.ndarray | None, omega: np.ndarray | None,
+    fs: float,
+) -> dict[str, np.ndarray]:
+    """Candidate regressors from the input and the simulated motion.
+
+    ``sign_velocity`` (sign of the simulated velocity), ``small_input`` (1 where
+    ``|u| < 0.3 max|u|``), ``angle`` (simulated, deg), ``reversals`` (1 within 0.1 s
+    or 5 samples after a reversal of the simulated velocity), ``input_level``,
+    ``abs_input``, ``input_change`` (``|du|`` held 5 samples) and ``time``.
+    """
+    out: dict[str, np.ndarray] = {}
+    umax = float(np.max(np.abs(u))) or 1.0
+    out["input_level"] = u
+    out["abs_input"] = np.abs(u)
+    out["small_input"] = (np.abs(u) < 0.3 * umax).astype(float)
+    hold = max(5, int(round(0.1 * fs)))
+    du = np.abs(np.diff(u, prepend=u[0]))
+    out["input_change"] = sps.lfilter(np.ones(hold), [1.0], du)
+    out["time"] = t - t[0]
+    if omega is not None:
+        scale = 0.01 * (float(np.max(np.abs(omega))) or 1.0)
+        s = np.sign(np.where(np.abs(omega) > scale, omega, 0.0))
+        out["sign_velocity"] = s
+        flips = np.zeros(u.size)
+        nz = np.flatnonzero(s)
+        if nz.size > 1:
+            change = nz[1:][s[nz[1:]] != s[nz[:-1]]]
+            flips[change] = 1.0
+        out["reversals"] = np.minimum(sps.lfilter(np.ones(hold), [1.0], flips), 1.0)
+    if theta is not None:
+        out["angle"] = np.degrees(theta)
+    return out
+
+
+def regressor_table(
+    residual: np.ndarray, regressors: Mapping[str, np.ndarray], fs: float
+) -> dict[str, dict[str, float]]:
+    """Correlation of the residual and of its rate with each regressor.
+
+    The rate is a Savitzky-Golay derivative: an effect acting on the velocity
+    (friction, a dead zone) shows in the rate of the angle residual more clearly
+    than in the residual itself. ``band`` is the 95 % band for the residual
+    with its own autocorrelation taken into account (lag-1 effective sample size).
+    """
+    r = np.asarray(residual, dtype=float)
+    win = min(r.size - (1 - r.size % 2), max(5, int(round(0.05 * fs)) | 1))
+    rate = sps.savgol_filter(r, win, 2, deriv=1) if win >= 5 else np.gradient(r)
+    band_r, band_d = _effective_band(r), _effective_band(rate)
+    out = {}
+    for name, x in regressors.items():
+        if np.std(x) == 0:
+            continue
+        out[name] = {
+            "r_residual": float(np.corrcoef(r, x)[0, 1]),
+            "r_rate": float(np.corrcoef(rate, x)[0, 1]),
+            "band_residual": band_r,
+            "band_rate": band_d,
+        }
+    return out
+
+
+# --- first-order effect evidence -------------------------------------------------------
+
+
+def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarray,
+                     umax: float) -> np.ndarray:
+    """Output response (N, k) of the model linearised at the fit to ``cols`` at ``entry``."""
+    model = problem.model
+    dt = problem.sim.dt
+    if entry == "output":
+        return cols
+    names = model.state_names
+    A, B, C, _ = model.linearize(p=P, u=0.5 * umax, dt=dt)
+    if entry == "command":
+        # Average the two directions: the orifice law and dead zones are odd in u.
+        A2, B2, _, _ = model.linearize(p=P, u=-0.5 * umax, dt=dt)
+        A, B = 0.5 * (A + A2), 0.5 * (B + B2)
+        Dm = np.zeros((1, 1))
+    elif entry == "accel":
+        B = np.zeros((len(names), 1))
+        B[names.index("omega"), 0] = 1.0
+        Dm = np.zeros((1, 1))
+    else:
+        raise ParameterError(f"unknown entry point {entry!r}")
+    Ad, Bd, Cd, Dd, _ = sps.cont2discrete((A, B, C, Dm), dt, method="zoh")
+    out = np.empty_like(cols)
+    for j in range(cols.shape[1]):
+        _, y, _ = sps.dlsim((Ad, Bd, Cd, Dd, dt), cols[:, j])
+        out[:, j] = np.ravel(y)
+    return out
+
+
+def _sensitivities(problem: Problem, values: np.ndarray, y0: np.ndarray) -> np.ndarray:
+    """Finite-difference output sensitivities to the free parameters, (N, n_free)."""
+    z = problem.to_z(values)
+    h = 1e-4
+    Z = z[None, :] + h * np.eye(z.size)
+    Y = problem.simulate_values(problem.from_z(Z))
+    J = (Y - y0[None, :]).T / h
+    J[~np.isfinite(J)] = 0.0
+    return J
+
+
+def analyse(
+    problem: Problem,
+    values: np.ndarray,
+    candidates: Iterable[str] | None = None,
+    effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Diagnosis:
+    """Analyse the residual of a fitted problem and rank candidate effects.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitting problem (model and estimation data) of the fit.
+    values : array, shape (n_free,)
+        Fitted free values (physical units), in ``problem.free_names`` order.
+    candidates : iterable of str, optional
+        Library names to rank (default: all of :data:`~hhra_phys.effects.EFFECTS`
+        not already in the model).
+    effect_kw : dict, optional
+        ``{name: {field: value}}`` passed to :func:`~hhra_phys.effects.make_effect`.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    data = problem.data
+    values = np.asarray(values, dtype=float)
+    P = problem.full(values)
+    X0 = problem.initial_states(values)[0]
+    yhat, X = problem.sim.simulate(data.u, P, x0=X0, states=True)
+    if not np.isfinite(yhat).all():
+        raise ParameterError("the fitted model cannot be simulated on its record")
+    r = data.y - yhat
+    fs = data.fs
+    names = problem.model.state_names
+    theta = X[:, names.index("theta")] if "theta" in names else None
+    omega = X[:, names.index("omega")] if "omega" in names else None
+    noise = noise_level(r)
+    white = whiteness(r)
+    max_lag = int(min(50, data.n // 10))
+    lags, xc = cross_correlation(r, data.u, max_lag)
+    ip = int(np.argmax(np.abs(xc)))
+    xcorr = {"lags": lags.tolist(), "values": xc, "peak_lag": int(lags[ip]),
+             "peak": float(xc[ip]), "band": 1.96 / math.sqrt(data.n)}
+    delay = output_delay(data.y, yhat, max_lag=min(20, max_lag))
+    regs = generic_regressors(data.u, data.t, theta, omega, fs)
+    table = regressor_table(r, regs, fs)
+    f, pxx = sps.welch(r - r.mean(), fs=fs, nperseg=min(256, max(16, data.n // 4)))
+    low = f <= 0.1 * fs / 2
+    spectrum = {"f": f, "pxx": pxx, "peak_frequency": float(f[int(np.argmax(pxx[1:])) + 1]),
+                "low_fraction": float(pxx[low].sum() / pxx.sum()) if pxx.sum() > 0 else 0.0,
+                "unit": "Hz" if data.time_unit != "samples" else "1/sample"}
+
+    # Nuisance: what the model's own parameters can absorb, plus a constant.
+    J = _sensitivities(problem, values, yhat)
+    N = np.column_stack([np.ones(data.n), J])
+    N = N / np.maximum(np.linalg.norm(N, axis=0), 1e-300)
+    Q, R = np.linalg.qr(N)
+    keep = np.abs(np.diag(R)) > 1e-8
+    Q = Q[:, keep]
+
+    def perp(M: np.ndarray) -> np.ndarray:
+        return M - Q @ (Q.T @ M)
+
+    r_p = perp(r[:, None])[:, 0]
+    r_norm2 = float(r_p @ r_p) or 1e-300
+    sig = Signals(u=data.u, dt=data.dt, theta=theta, omega=omega,
+                  output="angle" if problem.model.has_part("angle_output") else
+                  ("pressure" if problem.model.has_part("pressure_output") else "other"))
+    fitted = problem.model.params.as_dict(P)
+    names_c = list(candidates) if candidates is not None else list(EFFECTS)
+    umax = float(np.max(np.abs(data.u))) or 1.0
+    evidence = []
+    for name in names_c:
+        kw = dict((effect_kw or {}).get(name, {}))
+        eff: Effect = make_effect(name, data=data, values=fitted, **kw)
+        why = eff.applicable(problem.model)
+        if why:
+            evidence.append(EffectEvidence(name, 0.0, 0.0, {}, False, eff.signature,
+                                           note=f"skipped: {why}"))
+            continue
+        rel = {k: table[k]["r_rate" if eff.entry != "output" else "r_residual"]
+               for k in eff.regressors if k in table}
+        try:
+            cols = eff.first_order(sig)
+            S = _linear_response(problem, P, eff.entry, cols, umax)
+        except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
+            evidence.append(EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,
+                                           rel, note=f"no first-order signature: {exc}"))
+            continue
+        S_p = perp(S)
+        rms_raw = float(np.sqrt(np.mean(S ** 2)))
+        rms_p = float(np.max(np.sqrt(np.mean(S_p ** 2, axis=0))))
+        shown = 0.0
+        if rms_p <= 1e-6 * max(rms_raw, 1e-300):
+            score, est = 0.0, {}
+            note = "its output signature is absorbed by the model's own parameters"
+        else:
+            beta, *_ = np.linalg.lstsq(S_p, r_p, rcond=None)
+            fit_p = S_p @ beta
+            score = float(np.clip(fit_p @ fit_p / r_norm2, 0.0, 1.0))
+            shown = float(np.sqrt(np.mean(fit_p ** 2)))
+            probe = eff.probe()
+            pnames = [p.name for p in eff.parameters]
+            est = {}
+            if len(pnames) >= cols.shape[1]:
+                for j in range(cols.shape[1]):
+                    est[pnames[j]] = float(beta[j] * probe[pnames[j]])
+            note = ""
+        # Detectable if either a plausible (probe) size or the size the residual
+        # itself suggests changes the output by more than the noise.
+        detect = max(rms_p, shown) / noise if noise > 0 else float("inf")
+        ident = detect >= DETECTABLE
+        if not ident:
+            note = (note + "; " if note else "") + (
+                f"a probe-size effect changes the output by {rms_p:.2g} RMS and the residual "
+                f"shows {shown:.2g} of it after the base parameters absorb what they can, "
+                f"below the noise {noise:.2g}: not identifiable from these data")
+        evidence.append(EffectEvidence(name, score, detect, est, ident, eff.signature, rel, note))
+    series = {"yhat": yhat, "y": data.y, "u": data.u}
+    if theta is not None:
+        series["angle"] = np.degrees(theta)
+    if omega is not None:
+        series["omega"] = omega
+    return Diagnosis(
+        n=data.n, rmse=float(np.sqrt(np.mean(r ** 2))), noise=noise, whiteness=white,
+        xcorr_input=xcorr, delay_samples=delay, regressors=table, spectrum=spectrum,
+        evidence=evidence, residual=r, t=data.t, series=series,
+    )
+
+
+def diagnose_fit(result: Any, data: Dataset, split: float | None = None,
+                 candidates: Sequence[str] | None = None) -> Diagnosis:
+    """Analyse a :class:`~hhra_phys.result.FitResult` on (the estimation part of) ``data``.
+
+    Parameters
+    ----------
+    result : FitResult
+        A fit (its model, free parameters and values are used).
+    data : Dataset
+        The whole record; its first ``split`` fraction (the fit's by default) is used.
+    split : float, optional
+        Estimation fraction (default: ``result.settings["split"]``).
+    candidates : sequence of str, optional
+        Effects to rank (default: all).
+    """
+    frac = float(split if split is not None else result.settings.get("split", 0.5))
+    est = data.split(frac)[0] if frac < 1 else data
+    model = result.model
+    free = [n for n in result.free if not n.startswith("x0_")]
+    fixed = {k: v for k, v in result.values.items() if k not in free}
+    init = result.settings.get("initial_state", "fit")
+    problem = Problem(model, est, free=free, fixed=fixed, initial_state=init,
+                      start=result.values)
+    vals = [result.values[n] if not n.startswith("x0_") else result.x0_param(n)
+            for n in problem.free_names]
+    return analyse(problem, np.array(vals), candidates=candidates)
+
+
+def plot_residuals(diag: Diagnosis, path: str, title: str = "", overwrite: bool = False) -> str:
+    """Four-panel residual figure (residual, autocorrelation, input cross-correlation,
+    spectrum) saved as PNG; returns the path.
+
+    Raises
+    ------
+    FileExistsError
+        ``path`` exists and ``overwrite`` is False.
+    """
+    import os
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if os.path.exists(path) and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    fig, ax = plt.subplots(2, 2, figsize=(10, 6.5))
+    ax[0, 0].plot(diag.t, diag.residual, lw=0.7)
+    ax[0, 0].set(title=f"residual (RMSE {diag.rmse:.3g}, noise {diag.noise:.2g})",
+                 xlabel="time")
+    w = diag.whiteness
+    lag = np.arange(w["acf"].size)
+    ax[0, 1].vlines(lag, 0, w["acf"])
+    ax[0, 1].axhspan(-w["band"], w["band"], color="C1", alpha=0.3)
+    ax[0, 1].set(title=f"autocorrelation (Ljung-Box p={w['ljung_box_p']:.2g})", xlabel="lag")
+    xc = diag.xcorr_input
+    ax[1, 0].plot(xc["lags"], xc["values"])
+    ax[1, 0].axhspan(-xc["band"], xc["band"], color="C1", alpha=0.3)
+    ax[1, 0].set(title="residual vs input cross-correlation", xlabel="lag [samples]")
+    sp = diag.spectrum
+    ax[1, 1].semilogy(sp["f"][1:], sp["pxx"][1:])
+    ax[1, 1].set(title="residual spectrum (Welch)", xlabel=f"frequency [{sp['unit']}]")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,0 +1,635 @@
+"""Library of effects a physical model may lack, as model parts.
+
+Each effect is a :class:`~hhra_phys.parts.Part` with named parameters (units,
+bounds, fitting scale), a smooth formulation wherever derivatives are taken,
+and a declared *signature*: the way it shows up in the residual of a model that
+lacks it. :mod:`hhra_phys.diagnose` ranks effects by that signature and
+:mod:`hhra_phys.loop` adds, refits and scores them.
+
+Library names (stable, read by outside checks)::
+
+    coulomb_friction  valve_deadzone  valve_saturation  input_delay  valve_dynamics
+    gravity_load      backlash        sensor_offset     asymmetric_valve
+
+Effects work on any composed model whose parts provide what they read: input
+stage effects transform the ``"command"`` signal, ``asymmetric_valve`` the
+``"flow"`` signal, motion effects add to the rate of state ``omega`` (and read
+``theta``), output effects change ``"y"``. For example, on a user's own model::
+
+    from hhra_phys.model import Model, CurrentCommand, LinearValve, ChamberPressure, ...
+    model = Model([CurrentCommand(), LinearValve(), ChamberPressure(), RotaryMotion(),
+                   AngleOutput()]).with_parts(make_effect("coulomb_friction"))
+
+Scaling. Bounds of input-stage effects are relative to ``u_scale`` (typical input
+magnitude, default 1 mA), of motion effects to ``accel_scale`` (the model's
+``g_torque``, default the rig's), of time constants to ``dt`` (sample period);
+:func:`make_effect` sets them from a record and a fit so the same library works on
+the rig (mA, deg, 250 Hz) and on records in raw units and sample time.
+
+First-order signature. :meth:`Effect.first_order` returns, for a probe size of
+the effect, the change it makes at its entry point (``"command"``: the valve
+command, ``"accel"``: the angular acceleration, ``"output"``: the output) given the
+signals of a simulation without it. Propagated through the linearised model this
+is the direction in which the effect moves the output, which the diagnosis
+compares with the residual.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+from scipy import signal as sps
+
+from hhra_phys.errors import ModelError, ParameterError
+from hhra_phys.model import RAD2DEG, Model, register_part
+from hhra_phys.parameters import Parameter
+from hhra_phys.parts import Context, Part, State, smooth_relu, smooth_sign
+
+#: The rig's g_torque [rad/s^2]: default scale of accelerations of motion effects.
+RIG_ACCEL = 175.58
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Signals of a simulation without the effect, for first-order signatures.
+
+    Attributes
+    ----------
+    u : ndarray
+        Input (input units), shape (N,).
+    dt : float
+        Sample period [s] (or samples for records in sample time).
+    theta, omega : ndarray or None
+        Simulated angle [rad] and velocity [rad/s] (None when the model has none).
+    output : str
+        ``"angle"`` (degrees) or ``"pressure"`` or ``"other"``.
+    """
+
+    u: np.ndarray
+    dt: float
+    theta: np.ndarray | None = None
+    omega: np.ndarray | None = None
+    output: str = "angle"
+
+
+@dataclass(frozen=True)
+class Effect(Part):
+    """Base class of library effects: a part plus its residual signature.
+
+    Class attributes
+    ----------------
+    entry : {"command", "accel", "output"}
+        Where the effect enters the model (for its first-order signature).
+    signature : str
+        What the effect leaves in the residual of a model without it.
+    regressors : tuple of str
+        Names of the generic regressors of :mod:`hhra_phys.diagnose` it relates to.
+    position_dependent : bool
+        Whether it depends on the angle (then it may extrapolate badly).
+    """
+
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = ""
+    regressors: ClassVar[tuple[str, ...]] = ()
+    position_dependent: ClassVar[bool] = False
+
+    def applicable(self, model: Model) -> str | None:
+        """``None`` if the effect can be added to ``model``, else the reason why not."""
+        names = {p.name for p in model.params}
+        clash = names & {p.name for p in self.parameters}
+        if clash:
+            return f"model already has parameters {sorted(clash)}"
+        if self.name in model.part_names():
+            return "already in the model"
+        if self.entry == "accel" and "omega" not in model.state_names:
+            return "model has no angular velocity state 'omega'"
+        return None
+
+    def probe(self) -> dict[str, float]:
+        """Parameter values of a small but relevant size of the effect."""
+        return {p.name: p.nominal for p in self.parameters}
+
+    def first_order(self, sig: Signals) -> np.ndarray:  # pragma: no cover - abstract
+        """Change at :attr:`entry` made by the effect at its probe size, shape (N, k)."""
+        raise NotImplementedError
+
+
+def _register(cls: type[Effect]) -> type[Effect]:
+    register_part(cls)
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+#: Registry: library name -> effect class.
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
+    return v / np.sqrt(v * v + eps * eps)
+
+
+# --- motion stage -----------------------------------------------------------------
+
+
+@_register
+@dataclass(frozen=True)
+class CoulombFriction(Effect):
+    """Coulomb friction torque, optionally with a Stribeck term.
+
+    ``domega/dt -= level * sgn(omega)``, ``level = g_coulomb +
+    g_stribeck*exp(-(omega/v_stribeck)^2)``, with the smooth sign
+    ``omega/sqrt(omega^2 + width^2)``. Accelerations in rad/s^2
+    (friction torque over inertia).
+
+    Parameters
+    ----------
+    stribeck : bool
+        Add the Stribeck term (parameters ``g_stribeck`` [rad/s^2] and
+        ``v_stribeck`` [rad/s]).
+    eps : float
+        Width of the smooth sign [rad/s] for small friction. The width used is
+        ``eps + level*dt/2`` so that the stiffness the friction adds at rest,
+        ``level/width``, stays below ``2/dt`` whatever the level: the fixed-step
+        integrator (at least 2 substeps per sample) then resolves it.
+    dt : float
+        Sample period [s].
+    accel_scale : float
+        Typical acceleration [rad/s^2] (the model's ``g_torque``); sets the bounds.
+    """
+
+    stribeck: bool = False
+    eps: float = 0.05
+    dt: float = 0.004
+    accel_scale: float = RIG_ACCEL
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "coulomb_friction"
+    entry: ClassVar[str] = "accel"
+    signature: ClassVar[str] = (
+        "residual follows the sign of the simulated velocity; the error grows after "
+        "each direction reversal and is largest at small inputs"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("sign_velocity", "reversals", "small_input")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        a = self.accel_scale
+        out = [Parameter("g_coulomb", "rad/s^2", 0.03 * a, 1e-4 * a, 0.6 * a, "log",
+                         "Coulomb friction torque over inertia")]
+        if self.stribeck:
+            out += [
+                Parameter("g_stribeck", "rad/s^2", 0.01 * a, 1e-4 * a, 0.6 * a, "log",
+                          "extra breakaway (Stribeck) friction over inertia"),
+                Parameter("v_stribeck", "rad/s", 0.1, 1e-3, 2.0, "log",
+                          "Stribeck velocity"),
+            ]
+        return tuple(out)
+
+    def apply(self, ctx: Context) -> None:
+        w = ctx.x["omega"]
+        level = ctx.p["g_coulomb"]
+        if self.stribeck:
+            level = level + ctx.p["g_stribeck"] * ca.exp(-(w / ctx.p["v_stribeck"]) ** 2)
+        width = self.eps + 0.5 * self.dt * level
+        ctx.add_rate("omega", -level * smooth_sign(w, width))
+
+    def probe(self) -> dict[str, float]:
+        return {p.name: p.nominal for p in self.parameters}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        if sig.omega is None:
+            raise ModelError("coulomb_friction needs the simulated velocity")
+        g = self.probe()["g_coulomb"]
+        return -g * _smooth_np(sig.omega, self.eps + 0.5 * self.dt * g)[:, None]
+
+
+@_register
+@dataclass(frozen=True)
+class GravityLoad(Effect):
+    """Angle-dependent load torque, such as an offset mass on the shaft.
+
+    ``domega/dt -= g_grav_cos*cos(theta) + g_grav_sin*sin(theta)`` [rad/s^2]: a
+    mass ``m`` at radius ``r`` whose lowest point is at angle ``theta_m`` gives
+    ``m g r / J * sin(theta - theta_m)``, i.e. amplitude
+    ``hypot(g_grav_cos, g_grav_sin)`` and phase ``atan2``. The two linear
+    coefficients are used instead of amplitude and phase because they are
+    identified without a phase ambiguity.
+    """
+
+    accel_scale: float = RIG_ACCEL
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "gravity_load"
+    entry: ClassVar[str] = "accel"
+    signature: ClassVar[str] = (
+        "residual drifts with the simulated angle (sin/cos of theta); it is absent "
+        "where the shaft rests and may extrapolate badly outside the angles seen"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("angle",)
+    position_dependent: ClassVar[bool] = True
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        a = 0.6 * self.accel_scale
+        return (
+            Parameter("g_grav_cos", "rad/s^2", 0.0, -a, a, "linear",
+                      "load torque over inertia at theta = 0"),
+            Parameter("g_grav_sin", "rad/s^2", 0.0, -a, a, "linear",
+                      "load torque over inertia at theta = 90 deg"),
+        )
+
+    def apply(self, ctx: Context) -> None:
+        th = ctx.x["theta"]
+        ctx.add_rate("omega", -(ctx.p["g_grav_cos"] * ca.cos(th)
+                                + ctx.p["g_grav_sin"] * ca.sin(th)))
+
+    def applicable(self, model: Model) -> str | None:
+        if "theta" not in model.state_names:
+            return "model has no angle state 'theta'"
+        return super().applicable(model)
+
+    def probe(self) -> dict[str, float]:
+        return {"g_grav_cos": 0.03 * self.accel_scale, "g_grav_sin": 0.03 * self.accel_scale}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        if sig.theta is None:
+            raise ModelError("gravity_load needs the simulated angle")
+        a = 0.03 * self.accel_scale
+        return -a * np.column_stack([np.cos(sig.theta), np.sin(sig.theta)])
+
+
+# --- input stage ------------------------------------------------------------------
+
+
+@_register
+@dataclass(frozen=True)
+class ValveDeadzone(Effect):
+    """No flow for ``|command| < i_dead``: ``c -> relu(c - d) - relu(-c - d)`` (smooth).
+
+    Parameters
+    ----------
+    u_scale : float
+        Typical input magnitude (input units; 1 mA on the rig); sets the bounds.
+    eps : float
+        Smoothing width relative to ``u_scale``.
+    """
+
+    u_scale: float = 1.0
+    eps: float = 0.01
+    stage: ClassVar[str] = "input"
+    name: ClassVar[str] = "valve_deadzone"
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = (
+        "residual grows during small inputs (no motion where the model moves) and the "
+        "apparent gain depends on the input level"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("small_input", "input_level")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        s = self.u_scale
+        return (Parameter("i_dead", "input", 0.05 * s, 1e-3 * s, 0.9 * s, "log",
+                          "half width of the valve dead zone"),)
+
+    def apply(self, ctx: Context) -> None:
+        c = ctx.signal("command", self.name)
+        d = ctx.p["i_dead"]
+        e = self.eps * self.u_scale
+        ctx.signals["command"] = smooth_relu(c - d, e) - smooth_relu(-c - d, e)
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        d = self.probe()["i_dead"]
+        return -np.clip(sig.u, -d, d)[:, None]
+
+
+@_register
+@dataclass(frozen=True)
+class ValveSaturation(Effect):
+    """Spool or current limit: ``c -> clip(c, -i_sat, i_sat)`` (smooth corners)."""
+
+    u_scale: float = 1.0
+    eps: float = 0.01
+    stage: ClassVar[str] = "input"
+    name: ClassVar[str] = "valve_saturation"
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = (
+        "the apparent gain falls at the largest inputs (the residual follows the input "
+        "level at its extremes only)"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("input_level",)
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        s = self.u_scale
+        return (Parameter("i_sat", "input", 0.8 * s, 0.05 * s, 3.0 * s, "log",
+                          "largest effective valve command"),)
+
+    def apply(self, ctx: Context) -> None:
+        c = ctx.signal("command", self.name)
+        s = ctx.p["i_sat"]
+        e = self.eps * self.u_scale
+        ctx.signals["command"] = c - smooth_relu(c - s, e) + smooth_relu(-c - s, e)
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        s = 0.8 * float(np.max(np.abs(sig.u)))
+        return (np.clip(sig.u, -s, s) - sig.u)[:, None]
+
+
+@_register
+@dataclass(frozen=True)
+class InputDelay(Effect):
+    """Transport delay of the command, fractional, in samples.
+
+    ``command(t) = u(t - delay*dt)`` with the held input samples interpolated
+    linearly between neighbouring lags (``u_lags``): for ``delay = k + f`` the
+    command is ``(1-f)*u[n-k] + f*u[n-k-1]``. The weights are the hat functions
+    ``max(0, 1 - |delay - k|)``: continuous in ``delay``, with kinks at integers.
+
+    Parameters
+    ----------
+    max_delay : int
+        Largest delay the part can represent [samples] (the upper bound).
+    """
+
+    max_delay: int = 8
+    stage: ClassVar[str] = "input"
+    name: ClassVar[str] = "input_delay"
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = (
+        "the measured response lags the simulated one: the cross-correlation of measured "
+        "and simulated output changes peaks at a positive lag; residual follows the "
+        "input's changes"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("input_change",)
+
+    def __post_init__(self) -> None:
+        if int(self.max_delay) != self.max_delay or self.max_delay < 1:
+            raise ParameterError(f"max_delay must be a positive integer, got {self.max_delay}")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        return (Parameter("delay", "samples", 1.0, 0.0, float(self.max_delay), "linear",
+                          "transport delay of the valve command"),)
+
+    @property
+    def n_lags(self) -> int:
+        return int(self.max_delay) + 1
+
+    def apply(self, ctx: Context) -> None:
+        d = ctx.p["delay"]
+        out = ca.SX(0)
+        for k in range(self.n_lags + 1):
+            out = out + ca.fmax(0, 1 - ca.fabs(d - k)) * ctx.u_lags[k]
+        # The delay acts on the measured input, wherever it sits in the input
+        # stage: earlier input parts (dead zone, saturation, spool lag) see the
+        # delayed input, so substitute it for the current input in what they built.
+        u0 = ctx.u_lags[0]
+        if "command" not in ctx.signals:
+            ctx.signals["command"] = u0
+        for key, expr in ctx.signals.items():
+            ctx.signals[key] = ca.substitute(expr, u0, out)
+        for key, expr in ctx.rates.items():
+            ctx.rates[key] = ca.substitute(expr, u0, out)
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        u = sig.u
+        return (np.concatenate([u[:1], u[:-1]]) - u)[:, None]
+
+
+@_register
+@dataclass(frozen=True)
+class ValveDynamics(Effect):
+    """First-order lag of the valve spool: ``tau_spool * dx_spool/dt = command - x_spool``.
+
+    Parameters
+    ----------
+    dt : float
+        Sample period [s]; the bounds are ``0.3*dt .. 50*dt`` (faster lags are
+        invisible at this sampling and too stiff for the integrator).
+    """
+
+    dt: float = 0.004
+    stage: ClassVar[str] = "input"
+    name: ClassVar[str] = "valve_dynamics"
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = (
+        "the response to each input step starts late and rounded; high-frequency residual "
+        "after input changes (an integrating output hides it)"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("input_change",)
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        return (Parameter("tau_spool", "s", 2.5 * self.dt, 0.3 * self.dt, 50 * self.dt, "log",
+                          "valve spool time constant"),)
+
+    @property
+    def states(self) -> Sequence[State]:
+        return (State("x_spool", "input", 0.0, "spool position in input units"),)
+
+    def apply(self, ctx: Context) -> None:
+        c = ctx.signal("command", self.name)
+        ctx.add_rate("x_spool", (c - ctx.x["x_spool"]) / ctx.p["tau_spool"])
+        ctx.signals["command"] = ctx.x["x_spool"]
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        tau = self.probe()["tau_spool"]
+        a = math.exp(-sig.dt / tau)
+        lagged = sps.lfilter([1 - a], [1, -a], sig.u, zi=[a * sig.u[0]])[0]
+        return (lagged - sig.u)[:, None]
+
+
+# --- valve stage --------------------------------------------------------------------
+
+
+@_register
+@dataclass(frozen=True)
+class AsymmetricValve(Effect):
+    """Different flow gains for the two directions: ``flow *= 1 + asym*sgn(command)``.
+
+    ``asym`` [-] is half the relative difference of the gains (+0.1: 10 % more flow
+    for a positive command, 10 % less for a negative one). Runs in the ``valve``
+    stage after the valve part, on its ``"flow"`` signal.
+    """
+
+    u_scale: float = 1.0
+    eps: float = 0.01
+    stage: ClassVar[str] = "valve"
+    name: ClassVar[str] = "asymmetric_valve"
+    entry: ClassVar[str] = "command"
+    signature: ClassVar[str] = (
+        "residual drifts in proportion to the integral of |input| (time-growing drift "
+        "whatever the direction)"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("time", "abs_input")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        return (Parameter("asym", "-", 0.0, -0.8, 0.8, "linear",
+                          "relative flow-gain difference between directions (half)"),)
+
+    def apply(self, ctx: Context) -> None:
+        c = ctx.signal("command", self.name)
+        flow = ctx.signal("flow", self.name)
+        ctx.signals["flow"] = flow * (1 + ctx.p["asym"] * smooth_sign(c, self.eps * self.u_scale))
+
+    def probe(self) -> dict[str, float]:
+        return {"asym": 0.05}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        return 0.05 * np.abs(sig.u)[:, None]
+
+
+# --- output stage -------------------------------------------------------------------
+
+
+@_register
+@dataclass(frozen=True)
+class Backlash(Effect):
+    """Play between piston and shaft as seen by the encoder.
+
+    State ``gap`` [rad] = shaft angle minus encoder angle, starting at 0 (centred in
+    the play). ``dgap/dt = omega * (1 - sigma((sgn(omega)*gap - play/2)/e + 3))``
+    with the logistic ``sigma``: the gap follows the motion freely inside the play and
+    stops growing at contact, so the encoder is carried along. ``e = 0.1*play +
+    0.03 deg`` is the width of the contact transition: it bounds the stiffness
+    ``|omega|/(4e)`` for the integrator; the offset 3 puts 95 % contact at the play.
+    Output ``y -= gap`` in degrees.
+
+    Notes
+    -----
+    The smooth contact makes the effective play grow slowly (logarithmically) during
+    long motions by a few ``e``; fits recover ``play`` of this model, not of an ideal
+    dead-band operator.
+    """
+
+    eps_omega: float = 0.01
+    stage: ClassVar[str] = "output"
+    name: ClassVar[str] = "backlash"
+    entry: ClassVar[str] = "output"
+    signature: ClassVar[str] = (
+        "output residual jumps by about the play at each direction reversal and stays "
+        "constant while the direction holds (follows the sign of the velocity)"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("sign_velocity", "reversals")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        return (Parameter("play", "deg", 0.5, 0.02, 10.0, "log",
+                          "total play between piston and shaft"),)
+
+    @property
+    def states(self) -> Sequence[State]:
+        return (State("gap", "rad", 0.0, "shaft angle minus encoder angle"),)
+
+    def applicable(self, model: Model) -> str | None:
+        if not model.has_part("angle_output"):
+            return "backlash is seen by an angle encoder; the model has no angle output"
+        return super().applicable(model)
+
+    def apply(self, ctx: Context) -> None:
+        w, gap = ctx.x["omega"], ctx.x["gap"]
+        half = 0.5 * ctx.p["play"] / RAD2DEG
+        e = (0.1 * ctx.p["play"] + 0.03) / RAD2DEG
+        x = (smooth_sign(w, self.eps_omega) * gap - half) / e + 3.0
+        contact = 1 / (1 + ca.exp(-x))
+        ctx.add_rate("gap", w * (1 - contact))
+        ctx.signals["y"] = ctx.signal("y", self.name) - RAD2DEG * gap
+
+    def probe(self) -> dict[str, float]:
+        return {"play": 0.5}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        if sig.omega is None:
+            raise ModelError("backlash needs the simulated velocity")
+        return -0.25 * _smooth_np(sig.omega, self.eps_omega)[:, None]
+
+
+@_register
+@dataclass(frozen=True)
+class SensorOffset(Effect):
+    """Constant bias of the measured output: ``y += y_offset`` (output units).
+
+    With an integrating output (the HHRA angle without spring or load) it cannot be
+    told from the initial angle: the diagnosis reports it as not identifiable.
+    """
+
+    y_scale: float = 1.0
+    stage: ClassVar[str] = "output"
+    name: ClassVar[str] = "sensor_offset"
+    entry: ClassVar[str] = "output"
+    signature: ClassVar[str] = "constant residual mean"
+    regressors: ClassVar[tuple[str, ...]] = ("constant",)
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        a = 10 * self.y_scale
+        return (Parameter("y_offset", "out", 0.0, -a, a, "linear", "sensor zero offset"),)
+
+    def applicable(self, model: Model) -> str | None:
+        if model.has_part("pressure_output"):
+            return "the pressure output already has an offset p_offset"
+        return super().applicable(model)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.signals["y"] = ctx.signal("y", self.name) + ctx.p["y_offset"]
+
+    def probe(self) -> dict[str, float]:
+        return {"y_offset": 0.1 * self.y_scale}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        return np.full((sig.u.size, 1), 0.1 * self.y_scale)
+
+
+# --- construction -------------------------------------------------------------------
+
+
+def make_effect(
+    name: str,
+    *,
+    data: Any | None = None,
+    values: Mapping[str, float] | None = None,
+    **kw: Any,
+) -> Effect:
+    """Build library effect ``name``, scaled to a record and a fit.
+
+    Parameters
+    ----------
+    name : str
+        Library name (see :data:`EFFECTS`).
+    data : Dataset, optional
+        Record the effect will be fitted to: sets ``u_scale`` (largest
+        ``|input|``), ``dt`` (sample period) and ``y_scale`` (output st. dev.).
+    values : dict, optional
+        Fitted values of the model it is added to: ``g_torque`` sets ``accel_scale``.
+    **kw
+        Fields of the effect class (explicit ones win).
+
+    Raises
+    ------
+    ModelError
+        Unknown name or field.
+    """
+    cls = EFFECTS.get(name)
+    if cls is None:
+        raise ModelError(f"unknown effect {name!r}; library: {', '.join(sorted(EFFECTS))}")
+    fields = set(cls.__dataclass_fields__)
+    auto: dict[str, Any] = {}
+    if data is not None:
+        auto["u_scale"] = float(np.max(np.abs(data.u))) or 1.0
+        auto["dt"] = float(data.dt)
+        auto["y_scale"] = float(np.std(data.y)) or 1.0
+    if values and values.get("g_torque", 0) > 0:
+        auto["accel_scale"] = float(values["g_torque"])
+    args = {k: v for k, v in auto.items() if k in fields}
+    unknown = set(kw) - fields
+    if unknown:
+        raise ModelError(
+            f"effect {name!r} has no field(s) {sorted(unknown)}; fields: {sorted(fields)}"
+        )
+    args.update(kw)
+    return cls(**args)
+
