@@ -278,6 +278,20 @@ def _result(
         ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
 
+    bz = problem.bounds_z()
+    span = bz[:, 1] - bz[:, 0]
+    for i, name in enumerate(problem.free_names):
+        if min(z[i] - bz[i, 0], bz[i, 1] - z[i]) <= 1e-6 * span[i]:
+            side = "lower" if z[i] - bz[i, 0] <= bz[i, 1] - z[i] else "upper"
+            warnings.append(
+                f"{name} ended at its {side} bound: the data push it out of the box, so its value "
+                "and interval are not meaningful (widen the bound or fix it)"
+            )
+        elif problem.free_params[i].scale == "log" and sd[i] > 0.5:
+            warnings.append(
+                f"{name} is poorly determined by these data: its 95 % interval spans a factor of "
+                f"{10 ** (2 * 1.96 * sd[i]):.3g}"
+            )
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
     y_est = problem.simulate_values(values_free)
