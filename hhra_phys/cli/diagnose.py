@@ -1,0 +1,160 @@
+"""``hhra-phys diagnose``: fit, find what the model lacks, add it, report before/after."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from hhra_phys.cli._common import add_data_arguments, check_outputs, load_data
+from hhra_phys.errors import HHRAError
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``diagnose`` sub-command to the ``hhra-phys`` parser."""
+    p = subparsers.add_parser(
+        "diagnose",
+        help="residual diagnosis and model augmentation with the effect library",
+        description=(
+            "Fit the physical model, analyse the residual, add effects of the library "
+            "(friction, dead zone, delay, ...) one at a time, refit, and keep an effect only if "
+            "the validation error falls clearly and BIC agrees. Writes a JSON summary and a "
+            "Markdown report with residual plots before and after."
+        ),
+    )
+    add_data_arguments(p)
+    p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
+    p.add_argument("--report", metavar="OUT.md",
+                   help="write the Markdown report here (figures beside it)")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--top", type=int, default=3,
+                   help="candidates refitted per round (default 3)")
+    p.add_argument("--effects", default=None,
+                   help="comma-separated library effects to consider (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
+    p.add_argument("--split", type=float, default=None,
+                   help="estimation fraction (default 0.5)")
+    p.add_argument("--pop", type=int, default=30, help="base fit population (default 30)")
+    p.add_argument("--iters", type=int, default=40, help="base fit iterations (default 40)")
+    p.add_argument("--margin", type=float, default=0.1,
+                   help="required relative fall of the validation RMSE (default 0.1)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the loop and write the outputs; 0 on success, 1 on a user error."""
+    from hhra_phys.cli._common import parse_names
+    from hhra_phys.loop import augment, base_model_for
+
+    figs: list[str | None] = []
+    if args.report:
+        stem = Path(args.report).with_suffix("")
+        figs = [f"{stem}_before.png", f"{stem}_after.png"]
+    try:
+        check_outputs([args.json, args.report, *figs], args.overwrite)
+        if args.max_effects < 0:
+            raise HHRAError(f"--max-effects must be >= 0, got {args.max_effects}")
+        data = load_data(args)
+        model, bounds = base_model_for(data)
+        split = args.split if args.split is not None else 0.5
+        print(f"diagnosing {data.name or data.source or 'record'} ({len(data)} samples, "
+              f"split {split})", file=sys.stderr)
+        res = augment(
+            data, model, split=split, candidates=parse_names(args.effects),
+            max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
+            max_iter=args.iters, seed=args.seed, margin=args.margin, bounds=bounds,
+            progress=lambda s: print(s, file=sys.stderr, flush=True),
+        )
+    except (HHRAError, OSError, ValueError) as exc:
+        print(f"hhra-phys diagnose: error: {exc}", file=sys.stderr)
+        return 1
+    out = res.to_json()
+    print(f"chosen: {', '.join(res.chosen) or 'none'}")
+    for part in ("est", "val"):
+        b, f = out["base"].get(part, {}), out["final"].get(part, {})
+        print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
+              f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2))
+        print(f"wrote {args.json}")
+    if args.report:
+        from hhra_phys.diagnose import plot_residuals
+
+        paths = [plot_residuals(res.diagnoses[0], figs[0], "before (base model)",
+                                args.overwrite) if res.diagnoses else None,
+                 plot_residuals(res.final_diagnosis, figs[1], "after (augmented model)",
+                                args.overwrite) if res.final_diagnosis else None]
+        Path(args.report).write_text(markdown_report(res, paths, args.report))
+        print(f"wrote {args.report}")
+    return 0
+
+
+def _fmt(v: Any, digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return f"{v:.{digits}g}"
+
+
+def markdown_report(res: Any, figures: list[str | None], report_path: str) -> str:
+    """The Markdown report of a :class:`~hhra_phys.loop.LoopResult`."""
+    out = res.to_json()
+    ds = res.settings["data"]
+    lines = [f"# Residual diagnosis of {ds['name'] or 'the record'}", "",
+             f"{ds['n']} samples, estimation fraction {res.settings['split']}, seed "
+             f"{res.settings['seed']}; accept an effect when the validation RMSE falls by "
+             f"{100 * res.settings['margin']:.0f} % or more and "
+             f"{res.settings['criterion'].upper()} on estimation agrees.", "",
+             f"**Chosen effects:** {', '.join(res.chosen) or 'none'}", "",
+             "## Error before and after", "",
+             "| part | model | RMSE | VAF [%] | MSE | ITAE |", "|---|---|---|---|---|---|"]
+    for part in ("est", "val"):
+        for label, key in (("base", "base"), ("final", "final")):
+            m = out[key].get(part, {})
+            lines.append(f"| {part} | {label} | {_fmt(m.get('rmse'))} | {_fmt(m.get('vaf'))} | "
+                         f"{_fmt(m.get('mse'))} | {_fmt(m.get('itae'))} |")
+    lines += ["", "## Effects tried", "",
+              "| round | effect | evidence score | detectability | val RMSE before -> after | "
+              "accepted | notes |", "|---|---|---|---|---|---|---|"]
+    for s in res.steps:
+        ev = s.evidence
+        notes = "; ".join(s.notes) or ""
+        lines.append(f"| {s.round} | {s.effect} | {_fmt(ev.get('score'), 3)} | "
+                     f"{_fmt(ev.get('detectability'), 3)} | {_fmt(s.val_rmse_before)} -> "
+                     f"{_fmt(s.val.get('rmse'))} | {'yes' if s.accepted else 'no'} | "
+                     f"{s.reason}{'; ' + notes if notes else ''} |")
+    if res.diagnoses:
+        lines += ["", "## Evidence of the first round (base model)", "", "```",
+                  res.diagnoses[0].summary(), "```", ""]
+        for e in res.diagnoses[0].ranked():
+            regs = ", ".join(f"{k} r={v:.2f}" for k, v in e.regressors.items())
+            lines.append(f"- **{e.name}**: {e.signature}. Regressors: {regs or '-'}."
+                         f"{' ' + e.note if e.note else ''}")
+    lines += ["", "## Accepted effects", ""]
+    if not res.chosen:
+        lines.append("None: no candidate lowered the validation error clearly with the "
+                     "information criterion agreeing.")
+    for s in res.steps:
+        if not s.accepted:
+            continue
+        lines.append(f"### {s.effect}")
+        lines += ["", "| parameter | value | 95 % CI |", "|---|---|---|"]
+        for n in s.params:
+            v = res.final.values.get(n, s.params[n])
+            ci = res.final.ci95.get(n, (math.nan, math.nan))
+            lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
+        lines.append("")
+    if res.warnings or res.final.warnings:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in res.warnings + res.final.warnings]
+    lines += ["", "## Residual plots", ""]
+    base = Path(report_path).parent
+    for label, p in zip(("before", "after"), figures, strict=False):
+        if p:
+            rel = Path(p).resolve().relative_to(base.resolve()) if Path(p).resolve().is_relative_to(
+                base.resolve()) else Path(p)
+            lines.append(f"![residual {label}]({rel})")
+            lines.append("")
+    return "\n".join(lines) + "\n"

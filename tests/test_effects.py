@@ -1,0 +1,161 @@
+"""The effect library: names, parameters, behaviour in the HHRA and in a user's own model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
+from hhra_phys.errors import ModelError
+from hhra_phys.model import (
+    AngleOutput,
+    ChamberPressure,
+    CurrentCommand,
+    HHRAModel,
+    LinearValve,
+    Model,
+    RotaryMotion,
+)
+from hhra_phys.simulate import Simulator
+
+REQUIRED = ("coulomb_friction", "valve_deadzone", "valve_saturation", "input_delay",
+            "valve_dynamics", "gravity_load", "backlash", "sensor_offset", "asymmetric_valve")
+
+#: A clearly visible size of each effect (parameter values).
+SIZES = {
+    "coulomb_friction": {"g_coulomb": 30.0},
+    "valve_deadzone": {"i_dead": 0.2},
+    "valve_saturation": {"i_sat": 0.4},
+    "input_delay": {"delay": 3.0},
+    "valve_dynamics": {"tau_spool": 0.05},
+    "gravity_load": {"g_grav_cos": 20.0, "g_grav_sin": 10.0},
+    "backlash": {"play": 2.0},
+    "sensor_offset": {"y_offset": 1.5},
+    "asymmetric_valve": {"asym": 0.2},
+}
+
+
+def _input(n: int = 500) -> np.ndarray:
+    u = np.zeros(n)
+    u[20:150] = 0.6
+    u[150:300] = -0.3
+    u[300:420] = 0.9
+    return u
+
+
+def _sim(model: Model, u: np.ndarray, **values: float) -> np.ndarray:
+    m = model.with_nominal(values) if values else model
+    return Simulator(m, fs=250.0, backend="casadi").simulate(u, m.nominal())
+
+
+def test_library_names_and_registry():
+    for name in REQUIRED:
+        assert name in EFFECTS
+        eff = make_effect(name)
+        assert isinstance(eff, Effect) and eff.name == name
+        assert eff.signature and eff.entry in ("command", "accel", "output")
+        for p in eff.parameters:
+            assert p.unit and p.lower < p.upper and p.description
+
+
+def test_make_effect_errors_name_the_problem():
+    with pytest.raises(ModelError, match="unknown effect 'stiction'"):
+        make_effect("stiction")
+    with pytest.raises(ModelError, match="no field"):
+        make_effect("backlash", u_scale=2.0)
+
+
+def test_make_effect_scales_to_the_record():
+    class D:
+        u = np.array([-5.0, 5.0])
+        y = np.array([0.0, 2.0])
+        dt = 1.0
+
+    eff = make_effect("valve_deadzone", data=D())
+    assert eff.parameters[0].upper == pytest.approx(0.9 * 5.0)
+    fr = make_effect("coulomb_friction", values={"g_torque": 2.0})
+    assert fr.parameters[0].upper == pytest.approx(0.6 * 2.0)
+
+
+@pytest.mark.parametrize("name", REQUIRED)
+def test_each_effect_changes_the_output(name):
+    u = _input()
+    base = _sim(HHRAModel(), u)
+    model = HHRAModel(effects=[make_effect(name)])
+    y = _sim(model, u, **SIZES[name])
+    assert np.isfinite(y).all()
+    assert np.max(np.abs(y - base)) > 0.05, name
+
+
+def test_absent_sizes_leave_the_output_alone():
+    u = _input()
+    base = _sim(HHRAModel(), u)
+    for name, vals in {"valve_deadzone": {"i_dead": 1e-3}, "input_delay": {"delay": 0.0},
+                       "gravity_load": {"g_grav_cos": 0.0, "g_grav_sin": 0.0},
+                       "asymmetric_valve": {"asym": 0.0}}.items():
+        y = _sim(HHRAModel(effects=[make_effect(name)]), u, **vals)
+        assert np.max(np.abs(y - base)) < 0.01 * np.max(np.abs(base)), name
+
+
+def test_integer_delay_equals_a_shifted_input():
+    u = _input()
+    shifted = np.concatenate([np.full(3, u[0]), u[:-3]])
+    y_ref = _sim(HHRAModel(), shifted)
+    y = _sim(HHRAModel(effects=[make_effect("input_delay")]), u, delay=3.0)
+    assert np.allclose(y, y_ref, atol=1e-9)
+
+
+def test_delay_acts_before_a_dead_zone_added_earlier():
+    """The delay substitutes the delayed input into what earlier input parts built."""
+    u = _input()
+    shifted = np.concatenate([np.full(2, u[0]), u[:-2]])
+    dz = make_effect("valve_deadzone")
+    y_ref = _sim(HHRAModel(effects=[dz]), shifted, i_dead=0.2)
+    y = _sim(HHRAModel(effects=[dz, make_effect("input_delay")]), u, i_dead=0.2, delay=2.0)
+    assert np.allclose(y, y_ref, atol=1e-9)
+
+
+def test_fractional_delay_interpolates_linearly():
+    u = _input()
+    y2 = _sim(HHRAModel(effects=[make_effect("input_delay")]), u, delay=2.0)
+    y3 = _sim(HHRAModel(effects=[make_effect("input_delay")]), u, delay=3.0)
+    y25 = _sim(HHRAModel(effects=[make_effect("input_delay")]), u, delay=2.5)
+    # The model is nearly linear in the held input here, so the half-sample delay
+    # lies between the neighbouring integer delays.
+    mid = 0.5 * (y2 + y3)
+    assert np.max(np.abs(y25 - mid)) < 0.05 * np.max(np.abs(y3 - y2)) + 1e-6
+
+
+def test_effects_on_a_users_own_model():
+    """A hand-composed model (linearised valve) takes friction and a delay as parts."""
+    user = Model([CurrentCommand(), LinearValve(), ChamberPressure(), RotaryMotion(),
+                  AngleOutput()], name="mine")
+    aug = user.with_parts(make_effect("coulomb_friction"), make_effect("input_delay"))
+    assert {"g_coulomb", "delay"} <= set(aug.params.names)
+    u = _input()
+    y0 = _sim(user, u)
+    y = _sim(aug, u, g_coulomb=30.0, delay=2.0)
+    assert np.isfinite(y).all() and np.max(np.abs(y - y0)) > 0.1
+    # Friction only slows the motion down: the travelled range shrinks.
+    assert np.ptp(y) < np.ptp(y0)
+    again = Model.from_json(aug.to_json())
+    assert again.params.names == aug.params.names
+    assert np.allclose(_sim(again, u, g_coulomb=30.0, delay=2.0), y)
+
+
+def test_applicability_is_checked():
+    pm = HHRAModel(output="pressure")
+    assert "angle output" in make_effect("backlash").applicable(pm)
+    assert "p_offset" in make_effect("sensor_offset").applicable(pm)
+    dz = make_effect("valve_deadzone")
+    assert "already" in dz.applicable(HHRAModel(effects=[dz]))
+    assert make_effect("gravity_load").applicable(HHRAModel()) is None
+
+
+@pytest.mark.parametrize("name", REQUIRED)
+def test_first_order_signatures_have_the_record_length(name):
+    u = _input()
+    sig = Signals(u=u, dt=0.004, theta=np.linspace(0, 1, u.size),
+                  omega=np.sin(np.linspace(0, 9, u.size)))
+    cols = make_effect(name).first_order(sig)
+    assert cols.shape[0] == u.size and np.isfinite(cols).all()
