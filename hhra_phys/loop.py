@@ -43,7 +43,7 @@ from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.model import HHRAModel, Model
-from hhra_phys.problem import DEFAULT_FIXED, Problem
+from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
 from hhra_phys.simulate import Simulator
 
@@ -310,8 +310,7 @@ def augment(
     t0 = time.perf_counter()
     fitter = _Fitter(data, split, bounds or {}, backend, seed, ipopt_iter)
     _, val = data.split(split)
-    base_free = list(free) if free is not None else [
-        n for n in model.params.names if n not in DEFAULT_FIXED]
+    base_free = list(free) if free is not None else default_free(model)
     say(f"base fit: {', '.join(base_free)} (pop {pop_size}, {max_iter} iterations)")
     prob = fitter.problem(model, base_free, {}, {})
     cur = fitter.run(prob, "hgwo", pop_size, max_iter, warm=False)
@@ -409,40 +408,14 @@ def augment(
     return LoopResult(base, cur, steps, chosen, diagnoses, final_diag, settings, warnings)
 
 
+
 def base_model_for(data: Dataset) -> tuple[Model, dict[str, tuple[float, float]]]:
     """The default base model for a record, and bounds that make sense for it.
 
-    Angle records in seconds: :class:`~hhra_phys.model.HHRAModel` with the rig's
-    nominal groups and bounds. Records in sample time (``time_unit == "samples"``,
-    e.g. the public actuator record, fs = 1): the rig's groups are rescaled in time
-    so that the hydraulic resonance ``sqrt(g_torque*g_compress)`` sits at the
-    record's output spectral peak, the valve gain so that the largest input gives
-    the rig's flow at 1 mA, and a pressure output's gain and offset to the output's
-    spread and mean; each group may then move a factor 30 either way. Without this
-    the rig's rates (hundreds per second) would be hundreds per *sample*: stiff,
-    and far outside anything such a record can show.
+    The fitting module's choice (:func:`hhra_phys.fit.default_model`): the HHRA
+    with an angle or pressure output, rescaled to sample units with wide boxes for
+    records without a sample time (such as the public actuator record).
     """
-    output = "pressure" if data.output_name == "pressure" else "angle"
-    model = HHRAModel(output=output)  # type: ignore[arg-type]
-    if data.time_unit != "samples":
-        return model, {}
-    from scipy import signal as sps
+    from hhra_phys.fit import default_model
 
-    y = data.y - float(np.mean(data.y))
-    f, pxx = sps.welch(y, fs=data.fs, nperseg=min(256, data.n))
-    w_rec = 2 * math.pi * float(f[int(np.argmax(pxx[1:])) + 1])
-    nom = model.params.as_dict(model.nominal())
-    w_rig = math.sqrt(nom["g_torque"] * nom["g_compress"])
-    s = w_rec / w_rig
-    umax = float(np.max(np.abs(data.u))) or 1.0
-    values = {"g_torque": nom["g_torque"] * s * s, "g_damping": nom["g_damping"] * s,
-              "g_leak": nom["g_leak"] * s, "g_valve": nom["g_valve"] * s / umax,
-              "g_compress": nom["g_compress"]}
-    bounds = {k: (v / 30.0, v * 30.0) for k, v in values.items()}
-    if output == "pressure":
-        spread = float(np.max(np.abs(y))) or 1.0
-        values["p_gain"] = 1.25 * spread
-        values["p_offset"] = float(np.mean(data.y))
-        bounds["p_gain"] = (0.3 * spread, 30.0 * spread)
-        bounds["p_offset"] = (float(np.min(data.y)), float(np.max(data.y)))
-    return model.with_nominal(values), bounds
+    return default_model(data)
