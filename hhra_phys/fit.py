@@ -40,7 +40,7 @@ from hhra_phys.model import HHRAModel, Model
 from hhra_phys.optim import minimize
 from hhra_phys.physical import PhysicalParameters
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
-from hhra_phys.refine import Stage, _Derivatives, refine_ipopt, refine_nlopt
+from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
 from hhra_phys.result import FitResult, tf_of, uncertainty
 
 OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
@@ -266,9 +266,7 @@ def _result(
     units.update({p.name: p.unit for p in problem.free_params})
 
     # Uncertainty from the exact residual Jacobian at the optimum.
-    d = _Derivatives(problem)
-    r, J = (np.array(m) for m in d.res_jac(z))
-    r = r.ravel()
+    r, J = CompiledLeastSquares(problem)(z)
     cov, corr, warnings = uncertainty(J, r, problem.free_names)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     ci95: dict[str, tuple[float, float]] = {}

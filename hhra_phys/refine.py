@@ -76,6 +76,129 @@ def _num(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
+class CompiledLeastSquares:
+    """Residual and exact Jacobian of a problem from compiled forward sensitivities.
+
+    ``r(z) = y_sim(z) - y`` and ``J = dr/dz`` in the problem's fitting
+    coordinates, from :class:`~hhra_phys.sensitivity.TrajectorySensitivity`
+    (native code, milliseconds per evaluation) and the chain rule through the
+    coordinate map and the initial-state rule. The last point is cached because
+    IPOPT asks for cost, gradient and Hessian at the same point.
+    """
+
+    def __init__(self, problem: Problem) -> None:
+        from hhra_phys.sensitivity import TrajectorySensitivity
+
+        self.problem = problem
+        self.sens = TrajectorySensitivity(problem.sim)
+        self.n_free = problem.n_free
+        self.n_obs = problem.y.size
+        self._key: bytes | None = None
+        self._value: tuple[np.ndarray, np.ndarray] | None = None
+        self.n_eval = 0
+
+    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = np.asarray(z, dtype=float).ravel()
+        key = z.tobytes()
+        if key == self._key and self._value is not None:
+            return self._value
+        pr = self.problem
+        v = pr.from_z(z)
+        p = pr.full(v)
+        x0 = pr.initial_states(v)[0]
+        y, dy = self.sens(pr.u, p, x0)
+        nx = pr.model.nx
+        # d(x0, p)/dz: analytic for p, central differences for the (cheap) x0 rule.
+        dv = np.where(pr._log, np.log(10.0) * v, pr._scale)
+        dp = np.zeros((pr.model.n_params, self.n_free))
+        for k, j in enumerate(pr._model_free):
+            dp[j, k] = dv[k]
+        dx0 = np.zeros((nx, self.n_free))
+        for k in range(self.n_free):
+            step = 1e-7 * max(1.0, abs(z[k]))
+            zp, zm = z.copy(), z.copy()
+            zp[k] += step
+            zm[k] -= step
+            dx0[:, k] = (pr.initial_states(pr.from_z(zp))[0]
+                         - pr.initial_states(pr.from_z(zm))[0]) / (2 * step)
+        J = dy[:, :nx] @ dx0 + dy[:, nx:] @ dp
+        r = y - pr.y
+        if not (np.isfinite(r).all() and np.isfinite(J).all()):
+            r = np.full_like(r, 1e150)  # IPOPT treats huge values as a failed step
+            J = np.zeros_like(J)
+        self.n_eval += 1
+        self._key, self._value = key, (r, J)
+        return r, J
+
+
+class _ResidualCallback(ca.Callback):
+    """``r(z)`` as a CasADi function, with the compiled Jacobian as its derivative."""
+
+    def __init__(self, engine: CompiledLeastSquares) -> None:
+        ca.Callback.__init__(self)
+        self.engine = engine
+        self._jac: _JacobianCallback | None = None
+        self.construct("residual_compiled", {})
+
+    def get_n_in(self) -> int:
+        return 1
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.engine.n_free, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.engine.n_obs, 1)
+
+    # Buffers instead of DM: converting a 5000-sample residual element by element
+    # cost more than computing it.
+    def has_eval_buffer(self) -> bool:
+        return True
+
+    def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+        z = np.frombuffer(arg[0], dtype=np.float64)
+        np.frombuffer(res[0], dtype=np.float64)[:] = self.engine(z)[0]
+        return 0
+
+    def has_jacobian(self) -> bool:
+        return True
+
+    def get_jacobian(self, name: str, inames: list[str], onames: list[str],
+                     opts: dict[str, Any]) -> ca.Callback:
+        self._jac = _JacobianCallback(self.engine, name, opts)  # kept alive here
+        return self._jac
+
+
+class _JacobianCallback(ca.Callback):
+    def __init__(self, engine: CompiledLeastSquares, name: str, opts: dict[str, Any]) -> None:
+        ca.Callback.__init__(self)
+        self.engine = engine
+        self.construct(name, opts)
+
+    def get_n_in(self) -> int:
+        return 2
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        n = self.engine.n_free if i == 0 else self.engine.n_obs
+        return ca.Sparsity.dense(n, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.engine.n_obs, self.engine.n_free)
+
+    def has_eval_buffer(self) -> bool:
+        return True
+
+    def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+        z = np.frombuffer(arg[0], dtype=np.float64)
+        np.frombuffer(res[0], dtype=np.float64)[:] = self.engine(z)[1].ravel(order="F")
+        return 0
+
+
 class _Derivatives:
     """Residual, Jacobian, cost and gradient functions of a problem (CasADi, cached)."""
 
@@ -107,6 +230,7 @@ def refine_ipopt(
     max_iter: int = 200,
     tol: float = 1e-8,
     verbose: bool = False,
+    derivatives: Literal["compiled", "casadi"] = "compiled",
 ) -> Stage:
     """Refine with IPOPT through ``casadi.nlpsol``.
 
@@ -133,11 +257,19 @@ def refine_ipopt(
         IPOPT convergence tolerance.
     verbose : bool
         Print IPOPT's log.
+    derivatives : {"compiled", "casadi"}
+        Where the exact residual Jacobian comes from: compiled forward
+        sensitivities (:mod:`hhra_phys.sensitivity`, default, milliseconds per
+        evaluation) or CasADi's AD of the symbolic graph in its virtual machine.
+        Both are exact for the discretised model; the exact Hessian and multiple
+        shooting always use the symbolic graph.
 
     Returns
     -------
     Stage
     """
+    if derivatives not in ("compiled", "casadi"):
+        raise ParameterError(f"derivatives must be 'compiled' or 'casadi', got {derivatives!r}")
     if hessian not in ("gauss-newton", "exact", "lbfgs"):
         raise ParameterError(f"hessian must be 'gauss-newton', 'exact' or 'lbfgs', got {hessian!r}")
     if shooting not in ("single", "multiple"):
@@ -148,7 +280,16 @@ def refine_ipopt(
     z0 = np.clip(z0, bz[:, 0], bz[:, 1])
     if shooting == "multiple":
         return _ipopt_multiple_shooting(problem, z0, hessian, segments, max_iter, tol, verbose, t0)
-    d = _Derivatives(problem)
+    use_compiled = derivatives == "compiled" and hessian != "exact"
+    callback = None
+    if use_compiled:
+        callback = _ResidualCallback(CompiledLeastSquares(problem))
+        zsym = ca.MX.sym("z", problem.n_free)
+        r = callback(zsym)
+        d_z, d_f, d_J = zsym, 0.5 * ca.sumsqr(r), ca.jacobian(r, zsym)
+    else:
+        d = _Derivatives(problem)
+        d_z, d_f, d_J = d.z, d.f, d.J
     cost_before = least_squares_cost(problem, z0)
     opts: dict[str, Any] = {
         "ipopt.max_iter": int(max_iter),
@@ -157,9 +298,9 @@ def refine_ipopt(
         "print_time": bool(verbose),
         "ipopt.sb": "yes",
     }
-    nlp = {"x": d.z, "f": d.f}
+    nlp = {"x": d_z, "f": d_f}
     if hessian == "gauss-newton":
-        opts["hess_lag"] = _gauss_newton_hessian(d.z, d.J)
+        opts["hess_lag"] = _gauss_newton_hessian(d_z, d_J)
     elif hessian == "lbfgs":
         opts["ipopt.hessian_approximation"] = "limited-memory"
     solver = ca.nlpsol("refine_ipopt", "ipopt", nlp, opts)
@@ -179,6 +320,7 @@ def refine_ipopt(
             "iterations": int(stats.get("iter_count", 0)),
             "hessian": hessian,
             "shooting": "single",
+            "derivatives": "compiled" if use_compiled else "casadi",
             "n_grad": int(stats.get("n_call_nlp_grad_f", 0)),
         },
     )
@@ -311,7 +453,8 @@ def refine_nlopt(
         Start in fitting coordinates.
     algorithm : str
         NLopt algorithm name (see :data:`NLOPT_ALGORITHMS`): gradient-based
-        ``LD_*`` methods get the exact CasADi gradient; derivative-free ``LN_*``
+        ``LD_*`` methods get the exact gradient ``J^T r`` from the compiled
+        forward sensitivities (CasADi derivatives); derivative-free ``LN_*``
         methods evaluate the compiled simulator only.
     max_eval : int
         Evaluation budget.
@@ -333,17 +476,17 @@ def refine_nlopt(
     bz = problem.bounds_z()
     z0 = np.clip(np.asarray(z0, dtype=float), bz[:, 0], bz[:, 1])
     gradient_based = algorithm.startswith("LD_")
-    d = _Derivatives(problem) if gradient_based else None
+    engine = CompiledLeastSquares(problem) if gradient_based else None
     counter = {"f": 0, "g": 0}
 
     def objective(x: np.ndarray, grad: np.ndarray) -> float:
         counter["f"] += 1
-        if grad.size > 0 and d is not None:
+        if grad.size > 0 and engine is not None:
             counter["g"] += 1
-            fv, gv = d.cost_grad(x)
-            fval = float(fv)
-            g = np.array(gv).ravel()
-            if not (np.isfinite(fval) and np.isfinite(g).all()):
+            r, J = engine(x)
+            fval = 0.5 * float(r @ r)
+            g = J.T @ r
+            if not (np.isfinite(fval) and fval < 1e299 and np.isfinite(g).all()):
                 grad[:] = 0.0
                 return np.inf
             grad[:] = g

@@ -16,7 +16,12 @@ from hhra_phys.fit import fit, fit_many
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part
 from hhra_phys.problem import Problem
-from hhra_phys.refine import least_squares_cost, refine_ipopt, refine_nlopt
+from hhra_phys.refine import (
+    CompiledLeastSquares,
+    least_squares_cost,
+    refine_ipopt,
+    refine_nlopt,
+)
 from hhra_phys.result import FitResult
 from hhra_phys.rig import perturbed_physical, simulate_rig
 
@@ -68,6 +73,18 @@ def test_residual_jacobian_matches_finite_differences(noisy):
         fd = (problem.simulate_values(problem.from_z(zp))
               - problem.simulate_values(problem.from_z(zm))) / (2 * h)
         np.testing.assert_allclose(J[:, i], fd, rtol=1e-4, atol=1e-5 * np.abs(fd).max())
+
+
+def test_compiled_sensitivities_equal_casadi_jacobian(noisy):
+    est, _ = noisy.split(0.5)
+    problem = Problem(HHRAModel(), est, initial_state="fit")
+    z = _perturbed(problem, noisy, np.array([0.9, 1.1, 1.3, 1.05, 0.8]))
+    r, J = CompiledLeastSquares(problem)(z)
+    z_sym = ca.MX.sym("z", problem.n_free)
+    rs = problem.residual_function()(z_sym)
+    J_ad = np.array(ca.Function("J", [z_sym], [ca.jacobian(rs, z_sym)])(z))
+    np.testing.assert_allclose(r, np.array(problem.residual_function()(z)).ravel(), atol=1e-9)
+    np.testing.assert_allclose(J, J_ad, rtol=1e-6, atol=1e-8 * np.abs(J_ad).max())
 
 
 @pytest.mark.parametrize("refiner", ["ipopt", "ipopt-ms", "LD_LBFGS", "LN_BOBYQA"])
