@@ -43,6 +43,10 @@ from hhra_phys.compile import CompiledFunction, compile_function
 from hhra_phys.errors import ParameterError, SimulationError
 from hhra_phys.model import Model
 
+#: Largest number of RK4 steps unrolled in one compiled step function
+#: (substeps x block x lanes); the block and then the lanes shrink to respect it.
+UNROLL_BUDGET = 80
+
 #: Status codes of :attr:`Simulator.last_status`.
 STATUS_OK = 0
 STATUS_UNSTABLE = 1  # spectral radius times substep above rho_max: not simulated reliably
@@ -80,9 +84,9 @@ class Simulator:
         CPU overlaps their latency-bound arithmetic (populations are padded to a
         multiple of ``lanes * threads``; single simulations use one lane).
     chunk : int
-        Blocks per compiled call. Records of any length are simulated chunk
-        after chunk, so one compiled function per population size serves every
-        record length.
+        Samples per compiled call (rounded to a multiple of ``block``). Records of
+        any length are simulated chunk after chunk, so one compiled function per
+        population size serves every record length.
     backend : {"auto", "native", "casadi"}
         ``"native"`` compiles with the C compiler (error if impossible),
         ``"casadi"`` uses CasADi's virtual machine, ``"auto"`` compiles when a
@@ -112,7 +116,7 @@ class Simulator:
         threads: int = 2,
         block: int = 10,
         lanes: int = 4,
-        chunk: int = 25,
+        chunk: int = 250,
         backend: str = "auto",
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
@@ -142,10 +146,19 @@ class Simulator:
             self.substeps = int(substeps)
         self.h = self.dt / self.substeps
         self.lanes = int(lanes)
+        # Keep the unrolled step small: a stiff model needing many substeps would
+        # otherwise generate megabytes of C (slow to compile, no faster to run).
+        while self.substeps * self.block * self.lanes > UNROLL_BUDGET and self.block > 1:
+            self.block = max(1, UNROLL_BUDGET // (self.substeps * self.lanes))
+            if self.substeps * self.block * self.lanes > UNROLL_BUDGET:
+                self.block = 1
+        while self.substeps * self.block * self.lanes > UNROLL_BUDGET and self.lanes > 1:
+            self.lanes //= 2
         if int(chunk) < 1:
-            raise ParameterError("chunk must be a positive number of blocks")
-        #: Samples per compiled call; records are simulated chunk after chunk.
-        self.chunk = int(chunk) * self.block
+            raise ParameterError("chunk must be a positive number of samples")
+        #: Samples per compiled call (a multiple of the block); records are
+        #: simulated chunk after chunk.
+        self.chunk = max(1, int(chunk) // self.block) * self.block
         self._steps: dict[tuple[bool, int], ca.Function] = {}
         self._compiled: dict[tuple[int, int, bool], _Compiled] = {}
         self._stab: dict[int, CompiledFunction | ca.Function] = {}
@@ -297,8 +310,10 @@ class Simulator:
         if groups == 1:
             pop = ca.Function(name, traj.mx_in(), traj.call(traj.mx_in()))
         else:
-            mapped = traj.map("popmap", "thread", groups, [2], [],
-                              {"max_num_threads": threads})
+            # Exactly `threads` threads, each running a serial loop over its groups (a
+            # thread map over all groups would start one thread per group per call).
+            inner = traj.map("popgroups", "serial", groups // threads, [2], [])
+            mapped = inner.map("popmap", "thread", threads, [2], []) if threads > 1 else inner
             pop = ca.Function(name, mapped.mx_in(), mapped.call(mapped.mx_in()))
         compiled = None
         if self.backend in ("auto", "native"):
