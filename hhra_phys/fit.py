@@ -297,7 +297,11 @@ def _result(
     if val is not None:
         y_val = problem.simulate_values(values_free, data=val)
         metrics["val"] = _score(val, y_val)
-        if problem.model.has_part("angle_output"):
+        position_dependent = "g_spring" in problem.free_names or any(
+            getattr(part, "position_dependent", False) or part.name == "gravity_load"
+            for part in problem.model.parts
+        )
+        if position_dependent and problem.model.has_part("angle_output"):
             lo_e, hi_e = float(problem.data.y.min()), float(problem.data.y.max())
             if val.y.min() < lo_e or val.y.max() > hi_e:
                 warnings.append(
