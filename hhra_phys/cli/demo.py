@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
                   "another --out", file=sys.stderr)
             return 2
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
-    n_steps = 4
+    n_steps = 5
     try:
         _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
         data = simulate_rig(seed=args.seed, duration=duration)
@@ -65,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
         res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)
         _step(3, n_steps, "fitting black-box ARX models (LS, RLS, FFRLS) on the same split")
         arx_rows = _arx_rows(data)
-        _step(4, n_steps, f"writing results to {out}/")
+        _step(4, n_steps, "linearising the fitted model for controller design (python-control)")
+        design = _linear_summary(res, data)
+        _step(5, n_steps, f"writing results to {out}/")
         res.save(files["json"], overwrite=args.overwrite)
         est, val = data.split(0.5)
         problem = Problem(res.model, est, initial_state="fit")
@@ -94,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
     for label, e, v in rows:
         print(f"{label:<22} {e['rmse']:>9.4g} {e['vaf']:>10.4f} {v['rmse']:>9.4g} "
               f"{v['vaf']:>10.4f}")
+    if design:
+        print("\nLinear model at rest for controller design (hhra_phys.control.linearize):")
+        for line in design:
+            print("  " + line)
     total = sum(s["seconds"] for s in res.stages)
     print("\nStages: " + "; ".join(f"{s['name']} {s['seconds']:.1f} s ({s['nfev']} evaluations)"
                                   for s in res.stages) + f"; total {total:.1f} s")
@@ -101,6 +107,32 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {w}")
     print(f"\nwrote {files['plot']}, {files['json']}, {files['data']}")
     return 0
+
+
+def _linear_summary(res: Any, data: Any) -> list[str]:
+    """Resonance and damping of the fitted and the true linearised actuator."""
+    import control
+    import numpy as np
+
+    from hhra_phys.control import linearize
+    from hhra_phys.physical import PhysicalParameters
+    from hhra_phys.rig import rig_model
+
+    def resonance(sys: Any) -> tuple[float, float]:
+        wn, zeta, _ = control.damp(sys, doprint=False)
+        i = int(np.argmax(wn))
+        return float(wn[i]) / (2 * np.pi), float(zeta[i])
+
+    f_fit, z_fit = resonance(linearize(res))
+    true_model, p_true = rig_model(PhysicalParameters(**data.metadata["physical"]))
+    f_true, z_true = resonance(linearize(true_model, params=p_true))
+    tf = res.tf
+    return [
+        f"G(s) = kv / (s^3 + b s^2 + c s), theta in rad, current in mA: "
+        f"b = {tf['b']:.4g}, c = {tf['c']:.4g}, kv = {tf['kv']:.4g}",
+        f"hydraulic resonance {f_fit:.3f} Hz (truth {f_true:.3f} Hz), "
+        f"damping ratio {z_fit:.4f} (truth {z_true:.4f})",
+    ]
 
 
 def _arx_rows(data: Any) -> list[tuple[str, dict, dict]]:
