@@ -10,7 +10,7 @@ Construction (CasADi):
 
 1. ``step``: an SX function advancing one *block* of ``block`` samples (RK4
    substeps unrolled; blocking amortises the per-call overhead of the loop);
-2. ``mapaccum`` of the step over the blocks of a chunk (250 samples by default),
+2. ``mapaccum`` of the step over the blocks of a chunk (500 samples by default),
    returning the outputs and the final state, so records of any length are
    simulated chunk after chunk;
 3. ``map(n_pop, "thread")`` over the population, the input shared by all;
@@ -116,7 +116,7 @@ class Simulator:
         threads: int = 2,
         block: int = 10,
         lanes: int = 4,
-        chunk: int = 250,
+        chunk: int = 500,
         backend: str = "auto",
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
