@@ -291,13 +291,7 @@ def refine_ipopt(
         d = _Derivatives(problem)
         d_z, d_f, d_J = d.z, d.f, d.J
     cost_before = least_squares_cost(problem, z0)
-    opts: dict[str, Any] = {
-        "ipopt.max_iter": int(max_iter),
-        "ipopt.tol": float(tol),
-        "ipopt.print_level": 5 if verbose else 0,
-        "print_time": bool(verbose),
-        "ipopt.sb": "yes",
-    }
+    opts = _ipopt_options(max_iter, tol, verbose)
     nlp = {"x": d_z, "f": d_f}
     if hessian == "gauss-newton":
         opts["hess_lag"] = _gauss_newton_hessian(d_z, d_J)
@@ -305,10 +299,33 @@ def refine_ipopt(
         opts["ipopt.hessian_approximation"] = "limited-memory"
     solver = ca.nlpsol("refine_ipopt", "ipopt", nlp, opts)
     sol = solver(x0=z0, lbx=bz[:, 0], ubx=bz[:, 1])
-    stats = solver.stats()
-    z = np.array(sol["x"]).ravel()
+    return _ipopt_stage(problem, z0, cost_before, np.array(sol["x"]).ravel(), solver.stats(),
+                        t0, hessian=hessian, shooting="single",
+                        derivatives="compiled" if use_compiled else "casadi")
+
+
+def _ipopt_options(max_iter: int, tol: float, verbose: bool) -> dict[str, Any]:
+    return {
+        "ipopt.max_iter": int(max_iter),
+        "ipopt.tol": float(tol),
+        "ipopt.print_level": 5 if verbose else 0,
+        "print_time": bool(verbose),
+        "ipopt.sb": "yes",
+    }
+
+
+def _ipopt_stage(
+    problem: Problem,
+    z0: np.ndarray,
+    cost_before: float,
+    z: np.ndarray,
+    stats: dict[str, Any],
+    t0: float,
+    **info: Any,
+) -> Stage:
+    """The IPOPT stage, never handing back something worse than its start."""
     cost = least_squares_cost(problem, z)
-    if not cost <= cost_before:  # never hand back something worse than the start
+    if not cost <= cost_before:
         z, cost = z0, cost_before
     return Stage(
         "ipopt", z, cost_before, cost,
@@ -318,10 +335,8 @@ def refine_ipopt(
             "status": stats.get("return_status"),
             "success": bool(stats.get("success", False)),
             "iterations": int(stats.get("iter_count", 0)),
-            "hessian": hessian,
-            "shooting": "single",
-            "derivatives": "compiled" if use_compiled else "casadi",
             "n_grad": int(stats.get("n_call_nlp_grad_f", 0)),
+            **info,
         },
     )
 
@@ -391,10 +406,7 @@ def _ipopt_multiple_shooting(
     bz = problem.bounds_z()
     lbw = np.concatenate([bz[:, 0], np.full(nx * (segments - 1), -np.inf)])
     ubw = np.concatenate([bz[:, 1], np.full(nx * (segments - 1), np.inf)])
-    opts: dict[str, Any] = {
-        "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol),
-        "ipopt.print_level": 5 if verbose else 0, "print_time": bool(verbose), "ipopt.sb": "yes",
-    }
+    opts = _ipopt_options(max_iter, tol, verbose)
     if hessian == "gauss-newton":
         lam_f = ca.MX.sym("lam_f")
         lam_g = ca.MX.sym("lam_g", g.numel())
@@ -408,24 +420,9 @@ def _ipopt_multiple_shooting(
     solver = ca.nlpsol("refine_ipopt_ms", "ipopt", {"x": w, "f": f, "g": g}, opts)
     cost_before = least_squares_cost(problem, z0)
     sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
-    stats = solver.stats()
     zs = np.array(sol["x"]).ravel()[: problem.n_free]
-    cost = least_squares_cost(problem, zs)
-    if not cost <= cost_before:
-        zs, cost = z0, cost_before
-    return Stage(
-        "ipopt", zs, cost_before, cost,
-        nfev=int(stats.get("n_call_nlp_f", 0)),
-        seconds=time.perf_counter() - t0,
-        info={
-            "status": stats.get("return_status"),
-            "success": bool(stats.get("success", False)),
-            "iterations": int(stats.get("iter_count", 0)),
-            "hessian": hessian,
-            "shooting": "multiple",
-            "segments": segments,
-        },
-    )
+    return _ipopt_stage(problem, z0, cost_before, zs, solver.stats(), t0, hessian=hessian,
+                        shooting="multiple", segments=segments)
 
 
 #: NLopt algorithms offered by name; ``LD_*`` use the CasADi gradient.
