@@ -68,7 +68,7 @@ def default_model(
     model: Model = HHRAModel(valve=valve, output=output)  # type: ignore[arg-type]
     bounds: dict[str, tuple[float, float]] = {}
     if data.metadata.get("time_unit") == "samples":
-        model = model.time_scaled(1.0 / NOMINAL_FS)
+        model = model.time_scaled(1.0 / NOMINAL_FS, time_unit="sample")
         for par in model.params:
             if par.scale == "log":
                 bounds[par.name] = (par.nominal / SAMPLE_UNIT_SPAN, par.nominal * SAMPLE_UNIT_SPAN)

@@ -22,6 +22,7 @@ defined here; :meth:`Model.with_parts` adds effects (friction, dead zone, ...).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Literal
@@ -328,7 +329,7 @@ class Model:
     ) -> None:
         self.parts: tuple[Part, ...] = tuple(parts)
         self.name = name
-        self._overrides: dict[str, dict[str, float]] = {}
+        self._overrides: dict[str, dict[str, Any]] = {}
         for pname, spec in (overrides or {}).items():
             self._overrides[pname] = dict(spec) if isinstance(spec, dict) else {"nominal": spec}
         for part in self.parts:
@@ -434,13 +435,14 @@ class Model:
                 change["upper"] = value * GROUP_SPAN if par.scale == "log" else value + abs(value)
         return self._derive(self.parts, overrides)
 
-    def time_scaled(self, factor: float) -> Model:
+    def time_scaled(self, factor: float, time_unit: str | None = None) -> Model:
         """A new model whose nominal values and bounds describe time in units of ``1/factor`` s.
 
         Parameters whose unit is a power of seconds are scaled accordingly
         (``1/s`` by ``factor``, ``1/s^2`` by ``factor**2``, ``s`` by ``1/factor``).
         Used to fit records in sample units: with ``factor = 1/250`` the rig's
-        nominal values become values per 4 ms sample.
+        nominal values become values per 4 ms sample. ``time_unit`` (e.g.
+        ``"sample"``) replaces ``s`` in those parameters' unit strings.
         """
         if not (np.isfinite(factor) and factor > 0):
             raise ModelError(f"time scale factor must be positive, got {factor}")
@@ -452,6 +454,8 @@ class Model:
             k = factor ** power
             lo, hi = sorted((par.lower * k, par.upper * k))
             overrides[par.name] = {"nominal": par.nominal * k, "lower": lo, "upper": hi}
+            if time_unit:
+                overrides[par.name]["unit"] = re.sub(r"\bs\b", time_unit, par.unit)
         return self._derive(self.parts, overrides)
 
     # -- symbolic assembly -----------------------------------------------------------
@@ -594,9 +598,10 @@ def _time_power(unit: str) -> int:
     u = unit.replace(" ", "")
     if u == "s":
         return -1
-    for pattern, power in (("/s^2", 2), ("/(s^2", 2), ("/s", 1), ("/(s*", 1), ("/(s)", 1)):
-        if pattern in u:
-            return power
+    if re.search(r"/\(?s\^2\b", u):
+        return 2
+    if re.search(r"/\(?s\b", u):
+        return 1
     return 0
 
 
