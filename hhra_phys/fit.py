@@ -122,6 +122,7 @@ def fit(
     progress: bool = False,
     callback: Callable[[Any], bool | None] | None = None,
     problem: Problem | None = None,
+    seed_population: bool | None = None,
 ) -> FitResult:
     """Fit a physical model to a record.
 
@@ -170,6 +171,9 @@ def fit(
         Called after every global iteration (see :func:`hhra_phys.optim.minimize`).
     problem : Problem, optional
         A ready problem (then ``model``, ``free`` ... are taken from it).
+    seed_population : bool, optional
+        Put the start values (``start``, or those of ``problem``) into the global
+        search's first population (warm start). Default: when ``start`` is given.
 
     Returns
     -------
@@ -208,7 +212,8 @@ def fit(
         if optimizer == "hgwo":
             opts.setdefault("lam", lam)
         bz = problem.bounds_z()
-        x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if start else None
+        warm = bool(start) if seed_population is None else seed_population
+        x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
         res = minimize(problem, bz, method=optimizer, pop_size=pop_size, max_iter=max_iter,
                        seed=seed, vectorized=True, options=opts, x0=x0, progress=progress,
                        callback=callback)

@@ -172,23 +172,19 @@ class _Fitter:
             self.substeps = sim.substeps
         bnd = {k: v for k, v in self.bounds.items() if k in free}
         st = {k: v for k, v in start.items() if k in model.params and k not in fixed}
-        prob = Problem(model, self.est, free=list(free), fixed=dict(fixed), bounds=bnd,
+        observed = "theta" if model.has_part("angle_output") else "p"
+        if x0 and observed in x0:  # warm start of the fitted initial state too
+            st[f"x0_{observed}"] = float(x0[observed])
+        return Problem(model, self.est, free=list(free), fixed=dict(fixed), bounds=bnd,
                        initial_state="fit", simulator=sim, start=st)
-        # Warm start of the fitted initial state too (Problem starts it from the data).
-        for i, par in enumerate(prob.free_params):
-            if par.name.startswith("x0_") and x0 and par.name[3:] in x0:
-                value = min(max(float(x0[par.name[3:]]), par.lower), par.upper)
-                prob.free_params[i] = par.with_(nominal=value)
-        return prob
 
     def run(self, problem: Problem, optimizer: str, pop: int, iters: int,
             refine: str = "ipopt", warm: bool = True) -> FitResult:
-        # ``start`` only flags fit() to seed the first population with the
-        # problem's start values (the previous fit); the base fit is not seeded.
+        # A warm start seeds the first population with the problem's start values
+        # (the previous fit); the base fit is not seeded.
         return fit(self.data, problem=problem, split=self.split, optimizer=optimizer,
                    refine=refine, pop_size=pop, max_iter=iters, seed=self.seed,
-                   start={"warm": 1.0} if warm else None,
-                   refine_options={"max_iter": self.ipopt_iter})
+                   seed_population=warm, refine_options={"max_iter": self.ipopt_iter})
 
 
 def _free_values(problem: Problem, res: FitResult) -> np.ndarray:

@@ -87,8 +87,9 @@ class Problem:
         RK4 substeps if a simulator is built here.
     start : dict, optional
         Parameter values to use instead of the model's nominal values for the
-        parameters that are neither free nor fixed, and as the default start of
-        local refiners.
+        parameters that are neither free nor fixed, and as the start of the
+        search (first population member, local refiners). ``x0_<state>`` names
+        start a fitted initial state.
 
     Raises
     ------
@@ -136,8 +137,10 @@ class Problem:
         if len(set(free)) != len(free):
             raise ParameterError(f"free parameters listed twice: {free}")
         self.base = model.nominal()
+        x0_start = {k: float(v) for k, v in (start or {}).items() if k.startswith("x0_")}
         for name, value in (start or {}).items():
-            self.base[model.params.index(name)] = float(value)
+            if not name.startswith("x0_"):
+                self.base[model.params.index(name)] = float(value)
         for name, value in fixed.items():
             if not math.isfinite(float(value)):
                 raise ParameterError(f"fixed value of {name!r} must be finite, got {value}")
@@ -163,8 +166,16 @@ class Problem:
         if initial_state == "fit":
             state, value, span, unit = self._x0_parameter()
             self._x0_state = state
-            params.append(Parameter(f"x0_{state}", unit, value, value - span, value + span,
-                                    "linear", f"initial value of state {state!r}"))
+            name = f"x0_{state}"
+            start_value = x0_start.pop(name, value)
+            lo, hi = min(value, start_value) - span, max(value, start_value) + span
+            params.append(Parameter(name, unit, start_value, lo, hi, "linear",
+                                    f"initial value of state {state!r}"))
+        if x0_start:
+            raise ParameterError(
+                f"start values {sorted(x0_start)} name initial states that are not fitted "
+                "(use initial_state='fit' with an angle or pressure output)"
+            )
         self.free_params = params
         self.free_names = [p.name for p in params]
         self._model_free = [model.params.index(p.name) for p in params
@@ -200,7 +211,8 @@ class Problem:
     def from_z(self, z: np.ndarray) -> np.ndarray:
         """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
         zz = np.asarray(z, dtype=float)
-        return np.where(self._log, 10.0 ** zz, zz * self._scale)
+        with np.errstate(over="ignore"):  # an extreme coordinate gives inf, flagged later
+            return np.where(self._log, 10.0 ** zz, zz * self._scale)
 
     def bounds_z(self) -> np.ndarray:
         """Search box in fitting coordinates, shape (n_free, 2)."""
@@ -403,6 +415,7 @@ def estimate_initial_state(
     nx = x0.size
     step = 1e-4
     x = np.asarray(x0, dtype=float).copy()
+    best = np.inf
     for _ in range(iterations):
         X = np.tile(x, (2 * nx + 1, 1))
         for i in range(nx):
@@ -410,11 +423,23 @@ def estimate_initial_state(
             X[2 + 2 * i, i] += step
         Y = sim.simulate(u, np.tile(p, (2 * nx + 1, 1)), x0=X)
         if not np.isfinite(Y).all():
-            return np.asarray(x0, dtype=float)
+            break
         r = Y[0] - y
+        best = min(best, float(r @ r))
         J = (Y[2::2] - Y[1::2]).T / (2 * step)
         delta, *_ = np.linalg.lstsq(J, -r, rcond=1e-10)
-        x += delta
+        # Damped step: halve until the cost falls (a stiff extra state can make the
+        # linearisation a poor guide far from the guess).
+        for _ in range(8):
+            trial = x + delta
+            y_trial = sim.simulate(u, p, x0=trial)
+            cost = float((y_trial - y) @ (y_trial - y)) if np.isfinite(y_trial).all() else np.inf
+            if cost < best:
+                break
+            delta = delta / 2
+        else:
+            break  # no step lowers the cost: keep x
+        x, best = trial, cost
         if np.all(np.abs(delta) < 1e-8):
             break
     return x
