@@ -291,9 +291,10 @@ def _result(
                 "and interval are not meaningful (widen the bound or fix it)"
             )
         elif problem.free_params[i].scale == "log" and sd[i] > 0.5:
+            decades = 2 * 1.96 * sd[i]
             warnings.append(
-                f"{name} is poorly determined by these data: its 95 % interval spans a factor of "
-                f"{10 ** (2 * 1.96 * sd[i]):.3g}"
+                f"{name} is poorly determined by these data: its 95 % interval spans "
+                f"{decades:.3g} decades"
             )
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
