@@ -79,14 +79,21 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--effects", default=",".join(EFFECTS))
     ap.add_argument("--out", default="docs/figures/diagnosis_closed_loop.json")
+    ap.add_argument("--cases", default="clean,single,pairs",
+                    help="which cases to run: clean, single, pairs (comma-separated)")
+    ap.add_argument("--top", type=int, default=None,
+                    help="candidates refitted per round (default: all identifiable)")
     args = ap.parse_args()
-    loop_kw = {"max_effects": 2, "top_k": 3, "pop_size": 20, "max_iter": 30}
+    loop_kw = {"max_effects": 2, "top_k": args.top, "pop_size": 20, "max_iter": 30}
+    kinds = set(args.cases.split(","))
     rows = []
     seeds = list(range(1, args.seeds + 1))
-    cases: list[dict[str, dict[str, float]]] = [{}] * (2 * len(seeds))
-    for name in args.effects.split(","):
-        cases += [{name: size} for size in SIZES[name]]
-    cases += [{a: SIZES[a][1], b: SIZES[b][1]} for a, b in PAIRS]
+    cases: list[dict[str, dict[str, float]]] = [{}] * (2 * len(seeds)) if "clean" in kinds else []
+    if "single" in kinds:
+        for name in args.effects.split(","):
+            cases += [{name: size} for size in SIZES[name]]
+    if "pairs" in kinds:
+        cases += [{a: SIZES[a][1], b: SIZES[b][1]} for a, b in PAIRS]
     for i, eff in enumerate(cases):
         for seed in seeds if eff else [seeds[i % len(seeds)] + 10 * (i // len(seeds))]:
             row = run_case(eff, seed, args.duration, loop_kw)
