@@ -82,7 +82,7 @@ def main() -> None:
     ap.add_argument("--cases", default="clean,single,pairs",
                     help="which cases to run: clean, single, pairs (comma-separated)")
     ap.add_argument("--top", type=int, default=None,
-                    help="candidates refitted per round (default: all identifiable)")
+                    help="candidates refitted per round (default: all)")
     args = ap.parse_args()
     loop_kw = {"max_effects": 2, "top_k": args.top, "pop_size": 20, "max_iter": 30}
     kinds = set(args.cases.split(","))

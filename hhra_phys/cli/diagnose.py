@@ -31,8 +31,7 @@ def register(subparsers: Any) -> None:
                    help="write the Markdown report here (figures beside it)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
     p.add_argument("--top", type=int, default=None,
-                   help="candidates refitted per round, best ranked first (default: every "
-                        "candidate identifiable from the data)")
+                   help="candidates refitted per round, best ranked first (default: all)")
     p.add_argument("--effects", default=None,
                    help="comma-separated library effects to consider (default: all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
