@@ -11,8 +11,9 @@ on the same split and by the same free-run metrics as the ARX methods:
 ``phys_ipopt``         IPOPT alone from the nominal values (no global search)
 =====================  ============================================================
 
-The model is :class:`~hhra_phys.model.HHRAModel` with the orifice valve and an
-angle output, or a pressure output when the record's output is a pressure. The
+The model is :func:`hhra_phys.fit.default_model`: the HHRA with the orifice
+valve and an angle output, or a pressure output when the record's output is a
+pressure, rescaled per sample for records without a sample time. The
 validation output is a free-run simulation from the validation input with the
 initial state estimated on the validation record (parameters fixed).
 """
@@ -25,7 +26,6 @@ from typing import Any
 from hhra_phys.compare import CompareSettings, MethodOutcome, register_method
 from hhra_phys.data import Dataset
 from hhra_phys.fit import fit
-from hhra_phys.model import HHRAModel
 
 ROWS: dict[str, tuple[str, str | None, str]] = {
     "phys_hgwo": ("hgwo", None, "physical H-GWO"),
@@ -38,9 +38,9 @@ ROWS: dict[str, tuple[str, str | None, str]] = {
 def _method(optimizer: str, refine: str | None) -> Any:
     def run(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
         t0 = time.perf_counter()
-        output = "pressure" if est.output_name == "pressure" else "angle"
         extra = dict(s.extra.get("physical", {})) if s.extra else {}
-        model = extra.pop("model", None) or HHRAModel(output=output)  # type: ignore[arg-type]
+        # No model given: fit.default_model (pressure output, per-sample time scale).
+        model = extra.pop("model", None)
         res = fit(est, model, validation=val, optimizer=optimizer, refine=refine or "none",
                   pop_size=s.pop_size, max_iter=s.max_iter, seed=s.seed,
                   progress=s.progress, **extra)
