@@ -34,6 +34,7 @@ population evaluation.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import casadi as ca
@@ -173,7 +174,16 @@ class Simulator:
         u = np.zeros(self.model.n_lags + 1)
         jac = np.array(self._fns["jac"](x, u, self.model.nominal()))
         rho = float(np.max(np.abs(np.linalg.eigvals(jac)))) if jac.size else 0.0
-        return max(2, math.ceil(rho * self.dt / 0.25))
+        n = max(2, math.ceil(rho * self.dt / 0.25))
+        if n > 16:
+            # Usually a unit mismatch: nominal values per second on data in samples.
+            warnings.warn(
+                f"the model's fastest eigenvalue ({rho:.3g} 1/s) needs {n} RK4 substeps per "
+                f"{self.dt:.3g} s sample; check that the model's time units match the data's "
+                "(Model.time_scaled for records in sample units)",
+                RuntimeWarning, stacklevel=3,
+            )
+        return n
 
     def _build_step(self, states: bool, lanes: int = 1) -> ca.Function:
         """SX function advancing ``block`` samples of ``lanes`` members.
