@@ -35,8 +35,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--free", default=None, metavar="NAMES",
                    help="comma-separated free parameters (default: all groups but g_spring, "
                         "g_load)")
-    p.add_argument("--fix", action="append", default=None, metavar="NAME=VALUE",
-                   help="hold a parameter at a value (repeatable)")
+    p.add_argument("--fix", action="extend", nargs="+", default=None, metavar="NAME=VALUE",
+                   help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable)")
     p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
     p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
