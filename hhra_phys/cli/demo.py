@@ -119,7 +119,8 @@ def _linear_summary(res: Any, data: Any) -> list[str]:
     from hhra_phys.rig import rig_model
 
     def resonance(sys: Any) -> tuple[float, float]:
-        wn, zeta, _ = control.damp(sys, doprint=False)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the integrator's pole at 0
+            wn, zeta, _ = control.damp(sys, doprint=False)
         i = int(np.argmax(wn))
         return float(wn[i]) / (2 * np.pi), float(zeta[i])
 
