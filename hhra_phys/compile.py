@@ -168,13 +168,10 @@ def compile_function(fn: ca.Function, quiet: bool = True) -> CompiledFunction | 
     with tempfile.TemporaryDirectory() as tmp:
         cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
         cg.add(fn)
-        cwd = os.getcwd()
-        try:
-            os.chdir(tmp)  # CodeGenerator writes into the working directory
-            cg.generate()
-        finally:
-            os.chdir(cwd)
-        source = Path(tmp, f"{name}.c").read_bytes()
+        # Write into the temporary directory by prefix: changing the working
+        # directory would break other threads (and a deleted cwd breaks the process).
+        path = Path(cg.generate(tmp + os.sep))
+        source = path.read_bytes()
     digest = hashlib.sha256(source + " ".join((compiler,) + CFLAGS).encode()).hexdigest()[:20]
     target = cache_dir() / f"{name}_{digest}.so"
     with _lock:
