@@ -200,18 +200,14 @@ class _JacobianCallback(ca.Callback):
 
 
 class _Derivatives:
-    """Residual, Jacobian, cost and gradient functions of a problem (CasADi, cached)."""
+    """Symbolic residual, cost and Jacobian of a problem (CasADi's AD of the graph)."""
 
     def __init__(self, problem: Problem) -> None:
-        self.problem = problem
-        rf = problem.residual_function()
         z = ca.MX.sym("z", problem.n_free)
-        r = rf(z)
-        self.z, self.r = z, r
+        r = problem.residual_function()(z)
+        self.z = z
         self.f = 0.5 * ca.sumsqr(r)
         self.J = ca.jacobian(r, z)
-        self.res_jac = ca.Function("res_jac", [z], [r, self.J])
-        self.cost_grad = ca.Function("cost_grad", [z], [self.f, ca.gradient(self.f, z)])
 
 
 def least_squares_cost(problem: Problem, z: np.ndarray) -> float:

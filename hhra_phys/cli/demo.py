@@ -40,7 +40,6 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
     from hhra_phys.fit import fit
     from hhra_phys.plots import plot_fit
-    from hhra_phys.problem import Problem
     from hhra_phys.rig import simulate_rig
 
     out = Path(args.out) if args.out else Path(f"hhra-demo-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -70,10 +69,8 @@ def run(args: argparse.Namespace) -> int:
         _step(5, n_steps, f"writing results to {out}/")
         res.save(files["json"], overwrite=args.overwrite)
         est, val = data.split(0.5)
-        problem = Problem(res.model, est, initial_state="fit")
-        values = [res.values[n] for n in problem.free_names[:-1]] + [res.x0["theta"]]
-        plot_fit(files["plot"], [("estimation", est, problem.simulate_values(values)),
-                                 ("validation", val, problem.simulate_values(values, data=val))],
+        plot_fit(files["plot"], [("estimation", est, res.predict(est)),
+                                 ("validation", val, res.predict(val))],
                  res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite)
     except (HHRAError, FileExistsError) as exc:
         print(f"hhra-phys demo: error: {exc}", file=sys.stderr)

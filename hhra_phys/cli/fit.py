@@ -91,16 +91,9 @@ def run(args: argparse.Namespace) -> int:
 def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -> Any:
     """Figure of a fit on its estimation and validation parts."""
     from hhra_phys.plots import plot_fit
-    from hhra_phys.problem import Problem
 
     est, val = data.split(split) if split < 1 else (data, None)
-    problem = Problem(res.model, est, free=[n for n in res.free if not n.startswith("x0_")],
-                      initial_state="fit" if any(n.startswith("x0_") for n in res.free)
-                      else "data")
-    values = [res.values[n] for n in problem.free_names if n in res.values]
-    if problem.initial_state == "fit":
-        values.append(res.x0[problem.free_names[-1][3:]])
-    parts = [("estimation", est, problem.simulate_values(values))]
+    parts = [("estimation", est, res.predict(est))]
     if val is not None:
-        parts.append(("validation", val, problem.simulate_values(values, data=val)))
+        parts.append(("validation", val, res.predict(val)))
     return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)
