@@ -90,7 +90,7 @@ class CompiledLeastSquares:
         from hhra_phys.sensitivity import TrajectorySensitivity
 
         self.problem = problem
-        self.sens = TrajectorySensitivity(problem.sim)
+        self.sens = TrajectorySensitivity.of(problem.sim)
         self.n_free = problem.n_free
         self.n_obs = problem.y.size
         self._key: bytes | None = None

@@ -19,6 +19,8 @@ follow by the chain rule.
 
 from __future__ import annotations
 
+import weakref
+
 import casadi as ca
 import numpy as np
 
@@ -77,6 +79,13 @@ class TrajectorySensitivity:
             (compile_function(fn) if sim.backend != "casadi" else None) or fn
         )
 
+    @classmethod
+    def of(cls, sim: Simulator) -> TrajectorySensitivity:
+        """The sensitivity function of ``sim``, built once per simulator object."""
+        if sim not in _BUILT:
+            _BUILT[sim] = cls(sim)
+        return _BUILT[sim]
+
     def __call__(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, ...]:
         """Output ``y`` (N,) and ``dy/d(x0, p)`` (N, nx + n_params) for one trajectory."""
         m = self.sim.model
@@ -99,3 +108,7 @@ class TrajectorySensitivity:
                 dys.append(dy.reshape(CHUNK, nv))
                 x, S = x.ravel(), S.reshape(self.nx, nv)
         return np.concatenate(ys)[:n], np.vstack(dys)[:n]
+
+
+# Refiners and the uncertainty step of a fit share one build per simulator.
+_BUILT: weakref.WeakKeyDictionary[Simulator, TrajectorySensitivity] = weakref.WeakKeyDictionary()
