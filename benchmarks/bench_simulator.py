@@ -3,10 +3,13 @@
 Measures, side by side in one run on this machine:
 
 * the hhra-phys :class:`~hhra_phys.Simulator` (CasADi mapaccum + thread map,
-  compiled) on a population of 100 parameter vectors over 5000 samples;
+  compiled) on a population of 100 parameter vectors over 5000 samples, both
+  as vector code (SIMD across the population, the default) and as scalar code;
+* the simulator's fused cost (:meth:`~hhra_phys.Simulator.simulate_cost`, what
+  a fit's global search calls), which never returns the trajectories;
 * a plain C RK4 loop of the same model equations, the same substeps, the same
   population and the same number of threads (pthreads), compiled with the same
-  compiler and flags;
+  compiler and flags (scalar code, like CasADi's own generated C);
 * a ``scipy.integrate.solve_ivp`` baseline as a user would write it by hand,
   restarted at every sample so the zero-order hold is exact (timed on one
   trajectory and scaled to the population);
@@ -151,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     model = HHRAModel()
     fs = 250.0
     sim = Simulator(model, fs=fs, threads=args.threads)
+    scalar = Simulator(model, fs=fs, threads=args.threads, simd=None)
     u = default_input(duration=args.samples / fs, fs=fs, seed=1)[: args.samples]
     rng = np.random.default_rng(0)
     P = model.nominal() * rng.uniform(0.7, 1.3, size=(args.pop, model.n_params))
@@ -160,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     Y = sim.simulate(u, P)
     t_build = time.perf_counter() - t0
+    y_meas = Y[0] + 0.05 * rng.standard_normal(args.samples)
+    sim.simulate_cost(u, P, y_meas)
+    width = sim.vector_width(args.pop)
+    Y_scalar = scalar.simulate(u, P)
     with tempfile.TemporaryDirectory() as tmp:
         ref = build_c_reference(Path(tmp))
         Pc = np.ascontiguousarray(P)
@@ -171,15 +179,22 @@ def main(argv: list[str] | None = None) -> int:
                          args.pop, args.samples, sim.substeps, sim.dt, args.threads)
 
         run_c()
-        t_sim, t_c = [], []
-        for _ in range(args.repeats):
+        t_sim, t_scalar, t_cost, t_c = [], [], [], []
+        for _ in range(args.repeats):  # interleaved: the machine's load hits all alike
             t0 = time.perf_counter()
             Y = sim.simulate(u, P)
             t_sim.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
+            scalar.simulate(u, P)
+            t_scalar.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            sim.simulate_cost(u, P, y_meas)
+            t_cost.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
             run_c()
             t_c.append(time.perf_counter() - t0)
     agree = float(np.nanmax(np.abs(Y - Yc)))
+    same = bool(np.array_equal(Y, Y_scalar, equal_nan=True))
 
     # Accuracy against CVODES on a few members.
     errs = []
@@ -196,19 +211,27 @@ def main(argv: list[str] | None = None) -> int:
     err_ivp = float(np.max(np.abs(y_ivp - y_ref_nominal[:n_ivp])))
 
     best_sim, best_c = min(t_sim), min(t_c)
-    ratio = best_sim / best_c
+    best_scalar, best_cost = min(t_scalar), min(t_cost)
     ivp_pop = t_ivp_one * args.pop
+
+    def ms(ts: list[float]) -> str:
+        return f"{1e3 * min(ts):.1f} ms per population (median {1e3 * float(np.median(ts)):.1f})"
+
     lines = [
         f"machine: {platform.processor() or platform.machine()}, {args.threads} threads, "
         f"python {platform.python_version()}",
         f"population {args.pop}, samples {args.samples}, RK4 substeps {sim.substeps}, "
-        f"block {sim.block}, native={sim.native}",
+        f"block {sim.block}, native={sim.native}, SIMD width {width} "
+        f"({' '.join(sim.simd.flags) if sim.simd else 'off'})",
         f"first call (build + compile or load from cache): {t_build:.2f} s",
-        f"hhra-phys Simulator: {1e3 * best_sim:.1f} ms per population "
-        f"(median {1e3 * float(np.median(t_sim)):.1f})",
-        f"plain C RK4 loop:    {1e3 * best_c:.1f} ms per population "
-        f"(median {1e3 * float(np.median(t_c)):.1f})",
-        f"ratio Simulator / plain C: {ratio:.3f}  (target <= 1.25)",
+        f"Simulator, vector code:  {ms(t_sim)}",
+        f"Simulator, scalar code:  {ms(t_scalar)}",
+        f"Simulator.simulate_cost: {ms(t_cost)}",
+        f"plain C RK4 loop:        {ms(t_c)}",
+        f"ratio scalar Simulator / plain C: {best_scalar / best_c:.3f}  (target <= 1.25)",
+        f"ratio vector Simulator / plain C: {best_sim / best_c:.3f}",
+        f"ratio simulate_cost / plain C:    {best_cost / best_c:.3f}",
+        f"vector and scalar outputs identical: {same}; "
         f"max |Simulator - plain C| = {agree:.2e} deg",
         f"solve_ivp restarted per sample: {t_ivp_one:.2f} s per simulation "
         f"(timed on {n_ivp} samples), {ivp_pop:.1f} s per population; "

@@ -8,14 +8,15 @@ Parts (each can be run alone with ``--parts``):
               seed: validation VAF and RMSE (against the noise level), and how often the
               95 % confidence interval of each group contains the truth (coverage).
 ``speed``     the paper's search (H-GWO, population 100, 200 iterations) on all 5000
-              samples of the 20 s record, then IPOPT: wall time of each stage.
+              samples of the 20 s record, then IPOPT: wall time of each stage (with
+              ``--scalar``, each run is repeated in scalar code for a side-by-side ratio).
 ``lam``       H-GWO with the paper's lambda = 0.25 against lambda = 1 on perturbed truths:
               cost after the global search and after IPOPT.
 
 Run::
 
     python experiments/fit_rig.py --out out/fit_rig [--parts clean,noisy,speed,lam]
-        [--seeds 20] [--pop 100] [--iters 200]
+        [--seeds 20] [--pop 100] [--iters 200] [--repeats 2] [--scalar]
 
 Writes ``results.json`` and ``summary.md`` into ``--out`` (a new directory, or use
 ``--overwrite``) and prints the summary.
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -91,21 +93,42 @@ def part_noisy(n: int, pop: int, iters: int) -> dict[str, Any]:
     }
 
 
-def part_speed(pop: int, iters: int, repeats: int) -> dict[str, Any]:
-    data = simulate_rig(seed=0)
-    runs = []
-    for r in range(repeats):
+def _timed_fit(data: Any, pop: int, iters: int, seed: int, simd: bool) -> dict[str, Any]:
+    previous = os.environ.get("HHRA_PHYS_SIMD")
+    # Read when the fit builds its simulator.
+    os.environ["HHRA_PHYS_SIMD"] = "auto" if simd else "off"
+    try:
         t0 = time.perf_counter()
-        res = fit(data, split=1.0, pop_size=pop, max_iter=iters, seed=r)
+        res = fit(data, split=1.0, pop_size=pop, max_iter=iters, seed=seed)
         total = time.perf_counter() - t0
-        stages = {s["name"]: s["seconds"] for s in res.stages}
-        runs.append({"total": total, **stages,
-                     "nfev": sum(s["nfev"] for s in res.stages),
-                     "ipopt_iterations": res.stages[-1]["info"].get("iterations")})
-        print(f"speed {r}: total {total:.1f} s, {stages}", file=sys.stderr)
-    return {"samples": len(data), "pop": pop, "iters": iters, "runs": runs,
-            "best_total": min(r["total"] for r in runs),
-            "best_ipopt": min(r["ipopt"] for r in runs)}
+    finally:
+        if previous is None:
+            os.environ.pop("HHRA_PHYS_SIMD")
+        else:
+            os.environ["HHRA_PHYS_SIMD"] = previous
+    stages = {s["name"]: s["seconds"] for s in res.stages}
+    return {"total": total, **stages, "nfev": sum(s["nfev"] for s in res.stages),
+            "ipopt_iterations": res.stages[-1]["info"].get("iterations"),
+            "est_rmse": res.metrics["est"]["rmse"]}
+
+
+def part_speed(pop: int, iters: int, repeats: int, scalar: bool) -> dict[str, Any]:
+    """Timed fits; with ``scalar`` each run is followed by the same fit in scalar code."""
+    data = simulate_rig(seed=0)
+    runs, scalar_runs = [], []
+    for r in range(repeats):
+        runs.append(_timed_fit(data, pop, iters, r, simd=True))
+        print(f"speed {r}: {runs[-1]}", file=sys.stderr)
+        if scalar:
+            scalar_runs.append(_timed_fit(data, pop, iters, r, simd=False))
+            print(f"speed {r}, scalar code: {scalar_runs[-1]}", file=sys.stderr)
+    out = {"samples": len(data), "pop": pop, "iters": iters, "runs": runs,
+           "best_total": min(r["total"] for r in runs),
+           "best_ipopt": min(r["ipopt"] for r in runs)}
+    if scalar_runs:
+        out["scalar_runs"] = scalar_runs
+        out["best_total_scalar"] = min(r["total"] for r in scalar_runs)
+    return out
 
 
 def part_lam(n: int, pop: int, iters: int) -> dict[str, Any]:
@@ -165,6 +188,14 @@ def summary_markdown(results: dict[str, Any]) -> str:
         for i, r in enumerate(s["runs"]):
             lines.append(f"| {i} | {r.get('hgwo', 0):.1f} | {r.get('ipopt', 0):.2f} | "
                          f"{r['total']:.1f} | {r['nfev']} | {r['ipopt_iterations']} |")
+        for i, r in enumerate(s.get("scalar_runs", [])):
+            lines.append(f"| {i}, scalar code | {r.get('hgwo', 0):.1f} | "
+                         f"{r.get('ipopt', 0):.2f} | {r['total']:.1f} | {r['nfev']} | "
+                         f"{r['ipopt_iterations']} |")
+        if "best_total_scalar" in s:
+            lines += ["", f"Same fits in scalar code (`HHRA_PHYS_SIMD=off`), each run right "
+                      f"after its vector-code twin: best **{s['best_total_scalar']:.1f} s**, "
+                      f"ratio scalar / vector **{s['best_total_scalar'] / s['best_total']:.2f}**."]
         lines.append("")
     if "lam" in results:
         lam = results["lam"]["summary"]
@@ -189,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pop", type=int, default=100)
     ap.add_argument("--iters", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=2, help="runs of the speed part")
+    ap.add_argument("--scalar", action="store_true",
+                    help="speed part: also time each fit in scalar code (HHRA_PHYS_SIMD=off)")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
     if args.out.exists() and any(args.out.iterdir()) and not args.overwrite:
@@ -203,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     if "noisy" in parts:
         results["noisy"] = part_noisy(args.seeds, args.pop, args.iters)
     if "speed" in parts:
-        results["speed"] = part_speed(args.pop, args.iters, args.repeats)
+        results["speed"] = part_speed(args.pop, args.iters, args.repeats, args.scalar)
     if "lam" in parts:
         results["lam"] = part_lam(args.lam_seeds, args.pop, args.iters)
     results["seconds"] = time.perf_counter() - t0

@@ -12,6 +12,10 @@ released.
 When no C compiler is found (or compilation fails) :func:`compile_function`
 returns ``None`` and callers fall back to CasADi's virtual machine, which gives
 the same numbers more slowly.
+
+``compile_function(fn, simd=target)`` compiles the same generated code with
+``casadi_real`` a vector of ``target.width`` doubles (:mod:`hhra_phys.vectorize`):
+one call then evaluates ``width`` independent instances, one per SIMD lane.
 """
 
 from __future__ import annotations
@@ -30,12 +34,19 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from hhra_phys.vectorize import SimdTarget, transform_source
+
 #: Flags for the generated code. No -ffast-math: it would let the compiler drop
 #: the NaN/Inf propagation that flags diverging population members.
 CFLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared", "-pthread")
+#: Extra flags of the vectorised C++: -fno-math-errno lets sqrt become one vector
+#: instruction (errno is never read); no FMA contraction, so every lane gives
+#: bit for bit the scalar code's result.
+SIMD_CFLAGS: tuple[str, ...] = ("-x", "c++", "-fno-math-errno", "-ffp-contract=off")
 
 _CASADI_INT = ctypes.c_longlong  # the generated code's default ``casadi_int``
 _lock = threading.Lock()
+_failed: set[str] = set()  # digests of sources that did not compile
 
 
 def cache_dir() -> Path:
@@ -66,6 +77,9 @@ class CompiledFunction:
         Name of the generated function.
     in_shapes, out_shapes : sequence of (rows, cols)
         Dense shapes of the inputs and outputs (column-major, as in CasADi).
+    width : int
+        SIMD lanes per element (1 for scalar code). With ``width > 1`` every
+        element is ``width`` consecutive doubles, one per independent instance.
     """
 
     def __init__(
@@ -74,11 +88,13 @@ class CompiledFunction:
         name: str,
         in_shapes: Sequence[tuple[int, int]],
         out_shapes: Sequence[tuple[int, int]],
+        width: int = 1,
     ) -> None:
         self.library = library
         self.name = name
         self.in_shapes = list(in_shapes)
         self.out_shapes = list(out_shapes)
+        self.width = int(width)
         self._lib = ctypes.CDLL(str(library))
         self._fn = getattr(self._lib, name)
         self._fn.restype = ctypes.c_int
@@ -100,29 +116,48 @@ class CompiledFunction:
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         """Evaluate on dense float64 arrays given in CasADi's column-major layout.
 
-        Each argument must have ``rows*cols`` elements; it is read in Fortran
-        order. Outputs are returned with their (rows, cols) shape. Work arrays are
-        allocated per call so concurrent calls from several threads are safe.
+        Scalar code (``width == 1``): each argument must have ``rows*cols``
+        elements; it is read in Fortran order, and outputs are returned with their
+        (rows, cols) shape.
+
+        Vector code (``width > 1``): an argument is either ``rows*cols``
+        elements (shared by every lane, read in Fortran order) or an array of
+        shape (rows*cols, width) whose column ``l`` is lane ``l``'s argument;
+        outputs are returned with shape (rows*cols, width).
+
+        Work arrays are allocated per call so concurrent calls from several
+        threads are safe.
         """
         if len(args) != len(self.in_shapes):
             raise TypeError(f"{self.name} takes {len(self.in_shapes)} arguments, got {len(args)}")
+        width = self.width
         keep = []
         arg = (ctypes.c_void_p * max(self.sz_arg, 1))()
         for i, (a, shape) in enumerate(zip(args, self.in_shapes, strict=True)):
             buf = np.asarray(a, dtype=np.float64)
-            if buf.size != shape[0] * shape[1]:
+            n_el = shape[0] * shape[1]
+            if width > 1 and buf.shape == (n_el, width):
+                buf = np.ascontiguousarray(buf)
+            elif buf.size == n_el:
+                buf = np.asfortranarray(buf.reshape(shape, order="F"))
+                if width > 1:  # shared by every lane
+                    buf = np.repeat(buf.ravel(order="F"), width)
+            else:
+                expected = f"{shape}" + (f" or ({n_el}, {width})" if width > 1 else "")
                 raise ValueError(
-                    f"{self.name}: input {i} has {buf.size} elements, expected {shape}"
+                    f"{self.name}: input {i} has shape {buf.shape}, expected {expected}"
                 )
-            buf = np.asfortranarray(buf.reshape(shape, order="F"))
             keep.append(buf)
             arg[i] = buf.ctypes.data
-        outs = [np.empty(shape, dtype=np.float64, order="F") for shape in self.out_shapes]
+        if width > 1:
+            outs = [np.empty((r * c, width)) for r, c in self.out_shapes]
+        else:
+            outs = [np.empty(shape, dtype=np.float64, order="F") for shape in self.out_shapes]
         res = (ctypes.c_void_p * max(self.sz_res, 1))()
         for i, o in enumerate(outs):
             res[i] = o.ctypes.data
         iw = np.empty(max(self.sz_iw, 1), dtype=np.int64)
-        w = np.empty(max(self.sz_w, 1), dtype=np.float64)
+        w = np.empty(max(self.sz_w, 1) * width, dtype=np.float64)
         flag = self._fn(
             arg, res,
             iw.ctypes.data_as(ctypes.POINTER(_CASADI_INT)),
@@ -134,7 +169,9 @@ class CompiledFunction:
         return outs
 
 
-def compile_function(fn: ca.Function, quiet: bool = True) -> CompiledFunction | None:
+def compile_function(
+    fn: ca.Function, quiet: bool = True, simd: SimdTarget | None = None
+) -> CompiledFunction | None:
     """Compile ``fn`` to native code (cached on disk) or return ``None`` if impossible.
 
     Parameters
@@ -143,8 +180,12 @@ def compile_function(fn: ca.Function, quiet: bool = True) -> CompiledFunction | 
         A function with dense inputs and outputs.
     quiet : bool
         Only warn (once per failure) instead of raising when compilation fails.
+    simd : SimdTarget, optional
+        Compile vector code evaluating ``simd.width`` instances per call (see
+        :mod:`hhra_phys.vectorize`). A model the vector type cannot express fails
+        to compile; callers then use scalar code.
     """
-    compiler = find_compiler()
+    compiler = find_compiler() if simd is None else simd.compiler
     if compiler is None:
         warnings.warn(
             "no C compiler found (set CC or install gcc); using CasADi's virtual machine, "
@@ -172,8 +213,14 @@ def compile_function(fn: ca.Function, quiet: bool = True) -> CompiledFunction | 
         # directory would break other threads (and a deleted cwd breaks the process).
         path = Path(cg.generate(tmp + os.sep))
         source = path.read_bytes()
-    digest = hashlib.sha256(source + " ".join((compiler,) + CFLAGS).encode()).hexdigest()[:20]
+    flags = CFLAGS
+    if simd is not None:
+        source = transform_source(source.decode()).encode()
+        flags = CFLAGS + SIMD_CFLAGS + (f"-DHV_W={simd.width}",) + simd.flags
+    digest = hashlib.sha256(source + " ".join((compiler,) + flags).encode()).hexdigest()[:20]
     target = cache_dir() / f"{name}_{digest}.so"
+    if digest in _failed:
+        return None
     with _lock:
         if not target.exists():
             with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
@@ -181,18 +228,22 @@ def compile_function(fn: ca.Function, quiet: bool = True) -> CompiledFunction | 
                 src.write_bytes(source)
                 out = Path(tmp, target.name)
                 proc = subprocess.run(
-                    [compiler, *CFLAGS, str(src), "-o", str(out), "-lm"],
+                    [compiler, *flags, str(src), "-o", str(out), "-lm"],
                     capture_output=True,
                     text=True,
                 )
                 if proc.returncode != 0:
+                    _failed.add(digest)  # do not retry in this process
                     msg = f"compiling {name} with {compiler} failed:\n{proc.stderr[-2000:]}"
                     if not quiet:
                         raise RuntimeError(msg)
-                    warnings.warn(msg + "\nusing CasADi's virtual machine instead",
+                    fallback = ("scalar code" if simd is not None
+                                else "CasADi's virtual machine")
+                    warnings.warn(msg + f"\nusing {fallback} instead",
                                   RuntimeWarning, stacklevel=3)
                     return None
                 os.replace(out, target)  # atomic: concurrent processes never see half a file
     shapes_in = [(fn.size1_in(i), fn.size2_in(i)) for i in range(fn.n_in())]
     shapes_out = [(fn.size1_out(i), fn.size2_out(i)) for i in range(fn.n_out())]
-    return CompiledFunction(target, name, shapes_in, shapes_out)
+    return CompiledFunction(target, name, shapes_in, shapes_out,
+                            1 if simd is None else simd.width)

@@ -24,7 +24,7 @@ and everything else at rest; ``"zero"`` starts from the model's rest state;
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Literal
 
 import casadi as ca
@@ -339,7 +339,29 @@ class Problem:
         Candidates whose simulation is flagged (unstable, diverging) cost ``inf``.
         """
         Z = np.atleast_2d(np.asarray(Z, dtype=float))
-        return self.cost_of(self.simulate_values(self.from_z(Z)))
+        v = self.from_z(Z)
+        # The cost is summed inside the compiled simulator (same value as
+        # cost_of(simulate_values(v)) up to summation order, without moving
+        # whole trajectories through NumPy).
+        loss, weights, post = self._cost_weights()
+        c = self.sim.simulate_cost(self.u, self.full(v), self.y, weights, loss,
+                                   x0=self.initial_states(v))
+        c = post(np.asarray(c, dtype=float))
+        return np.where(np.isfinite(c), c, np.inf)
+
+    def _cost_weights(
+        self,
+    ) -> tuple[str, np.ndarray | None, Callable[[np.ndarray], np.ndarray]]:
+        """(loss, per-sample weights, final map) giving the cost from a weighted sum."""
+        n = self.y.size
+        if self.cost == "itae":
+            t = self.t
+            step = (t[-1] - t[0]) / (n - 1) if n > 1 else 0.0
+            return "abs", (t - t[0]) * step, lambda c: c
+        if self.cost == "ssr":
+            return "sq", None, lambda c: c
+        weights = np.full(n, 1.0 / n)
+        return "sq", weights, (np.sqrt if self.cost == "rmse" else lambda c: c)
 
     # -- symbolic (for IPOPT / gradients) ----------------------------------------------------
     def residual_function(self) -> ca.Function:
