@@ -6,7 +6,8 @@ Parts (each can be run alone with ``--parts``):
               (``hhra_phys.rig.perturbed_physical``): relative error of every group.
 ``noisy``     records with the rig's default noise (0.05 deg), one perturbed truth per
               seed: validation VAF and RMSE (against the noise level), and how often the
-              95 % confidence interval of each group contains the truth (coverage).
+              95 % confidence interval of each group contains the truth (coverage;
+              with ``--profile`` also for profile-likelihood intervals).
 ``speed``     the paper's search (H-GWO, population 100, 200 iterations) on all 5000
               samples of the 20 s record, then IPOPT: wall time of each stage (with
               ``--scalar``, each run is repeated in scalar code for a side-by-side ratio).
@@ -16,7 +17,7 @@ Parts (each can be run alone with ``--parts``):
 Run::
 
     python experiments/fit_rig.py --out out/fit_rig [--parts clean,noisy,speed,lam]
-        [--seeds 20] [--pop 100] [--iters 200] [--repeats 2] [--scalar]
+        [--seeds 20] [--pop 100] [--iters 200] [--repeats 2] [--scalar] [--profile]
 
 Writes ``results.json`` and ``summary.md`` into ``--out`` (a new directory, or use
 ``--overwrite``) and prints the summary.
@@ -61,14 +62,24 @@ def part_clean(n: int, pop: int, iters: int) -> dict[str, Any]:
             "within_0.5%": sum(r["max_abs_rel_err"] <= 0.005 for r in rows)}
 
 
-def part_noisy(n: int, pop: int, iters: int) -> dict[str, Any]:
+def part_noisy(n: int, pop: int, iters: int, profile: bool = False) -> dict[str, Any]:
     rows = []
     for k in range(n):
         data = simulate_rig(seed=200 + k, physical=perturbed_physical(200 + k))
-        res = fit(data, pop_size=pop, max_iter=iters, seed=k)
+        res = fit(data, pop_size=pop, max_iter=iters, seed=k,
+                  intervals="profile" if profile else "linear")
         truth = _truth(data)
-        inside = {g: bool(res.ci95[g][0] <= truth[g] <= res.ci95[g][1]) for g in GROUPS}
-        rows.append({
+        linear = res.intervals.get("linear", res.ci95)
+        inside = {g: bool(linear[g][0] <= truth[g] <= linear[g][1]) for g in GROUPS}
+        extra: dict[str, Any] = {}
+        if profile:
+            extra = {
+                "inside_profile": {g: bool(res.ci95[g][0] <= truth[g] <= res.ci95[g][1])
+                                   for g in GROUPS},
+                "profile_seconds": res.intervals["seconds"],
+                "open_ends": res.intervals["open_ends"],
+            }
+        rows.append({**extra,
             "seed": 200 + k,
             "val_vaf": res.metrics["val"]["vaf"],
             "val_rmse": res.metrics["val"]["rmse"],
@@ -81,7 +92,14 @@ def part_noisy(n: int, pop: int, iters: int) -> dict[str, Any]:
               file=sys.stderr)
     coverage = {g: float(np.mean([r["inside"][g] for r in rows])) for g in GROUPS}
     all_in = float(np.mean([all(r["inside"].values()) for r in rows]))
-    return {
+    out: dict[str, Any] = {}
+    if profile:
+        out["coverage_profile"] = {g: float(np.mean([r["inside_profile"][g] for r in rows]))
+                                   for g in GROUPS}
+        out["coverage_all_groups_profile"] = float(
+            np.mean([all(r["inside_profile"].values()) for r in rows]))
+        out["profile_seconds_median"] = float(np.median([r["profile_seconds"] for r in rows]))
+    return {**out,
         "rows": rows,
         "noise": DEFAULT_NOISE_DEG,
         "val_vaf_min": min(r["val_vaf"] for r in rows),
@@ -175,6 +193,14 @@ def summary_markdown(results: dict[str, Any]) -> str:
                   f"{100 * m['coverage_all_groups']:.0f} % | - |"]
         for g, cov in m["coverage"].items():
             lines.append(f"| coverage of {g} | {100 * cov:.0f} % | >= 90 % |")
+        if "coverage_profile" in m:
+            lines.append(f"| records with every group inside its profile 95 % CI | "
+                         f"{100 * m['coverage_all_groups_profile']:.0f} % | - |")
+            for g, cov in m["coverage_profile"].items():
+                lines.append(f"| coverage of {g}, profile interval | {100 * cov:.0f} % "
+                             "| >= 90 % |")
+            lines.append(f"| median seconds for the profile intervals | "
+                         f"{m['profile_seconds_median']:.1f} | - |")
         lines.append("")
     if "speed" in results:
         s = results["speed"]
@@ -220,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pop", type=int, default=100)
     ap.add_argument("--iters", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=2, help="runs of the speed part")
+    ap.add_argument("--profile", action="store_true",
+                    help="noisy part: also profile-likelihood intervals (coverage of both)")
     ap.add_argument("--scalar", action="store_true",
                     help="speed part: also time each fit in scalar code (HHRA_PHYS_SIMD=off)")
     ap.add_argument("--overwrite", action="store_true")
@@ -234,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     if "clean" in parts:
         results["clean"] = part_clean(args.clean, args.pop, args.iters)
     if "noisy" in parts:
-        results["noisy"] = part_noisy(args.seeds, args.pop, args.iters)
+        results["noisy"] = part_noisy(args.seeds, args.pop, args.iters, args.profile)
     if "speed" in parts:
         results["speed"] = part_speed(args.pop, args.iters, args.repeats, args.scalar)
     if "lam" in parts:

@@ -40,6 +40,7 @@ from hhra_phys.model import HHRAModel, Model
 from hhra_phys.optim import minimize
 from hhra_phys.physical import PhysicalParameters
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
+from hhra_phys.profile import profile_intervals
 from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
 from hhra_phys.result import FitResult, tf_of, uncertainty
 
@@ -123,6 +124,7 @@ def fit(
     callback: Callable[[Any], bool | None] | None = None,
     problem: Problem | None = None,
     seed_population: bool | None = None,
+    intervals: str = "linear",
 ) -> FitResult:
     """Fit a physical model to a record.
 
@@ -174,12 +176,18 @@ def fit(
     seed_population : bool, optional
         Put the start values (``start``, or those of ``problem``) into the global
         search's first population (warm start). Default: when ``start`` is given.
+    intervals : {"linear", "profile"}
+        95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
+        profile-likelihood intervals (:mod:`hhra_phys.profile`; a few seconds more,
+        better along curved, weakly determined directions).
 
     Returns
     -------
     FitResult
     """
     t_start = time.perf_counter()
+    if intervals not in ("linear", "profile"):
+        raise ParameterError(f"intervals must be 'linear' or 'profile', got {intervals!r}")
     if data is None:
         from hhra_phys.rig import simulate_rig
 
@@ -236,7 +244,8 @@ def fit(
         stages.append(st)
         z = st.z
     return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
-                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start)
+                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
+                   intervals)
 
 
 def _int_or_none(x: Any) -> int | None:
@@ -262,6 +271,7 @@ def _result(
     split: float,
     datasheet: PhysicalParameters | None,
     seconds: float,
+    intervals: str = "linear",
 ) -> FitResult:
     model = problem.model
     values_free = problem.from_z(z)
@@ -280,6 +290,25 @@ def _result(
         lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
         ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
+    interval_info: dict[str, Any] = {"method": "linear"}
+    if intervals == "profile":
+        t0 = time.perf_counter()
+        profiles = profile_intervals(problem, z)
+        interval_info = {
+            "method": "profile",
+            "linear": {n: list(v) for n, v in ci95.items()},
+            "open_ends": {n: list(p.open_ends) for n, p in profiles.items()},
+            "solves": sum(p.n_solves for p in profiles.values()),
+            "seconds": time.perf_counter() - t0,
+        }
+        for name, prof in profiles.items():
+            ci95[name] = prof.interval
+            for side, is_open in zip(("lower", "upper"), prof.open_ends, strict=True):
+                if is_open:
+                    warnings.append(
+                        f"{name}: the profile stays below the 95 % threshold up to the {side} "
+                        "end of the search box, so the interval is open there"
+                    )
 
     bz = problem.bounds_z()
     span = bz[:, 1] - bz[:, 0]
@@ -362,6 +391,7 @@ def _result(
         settings=settings,
         seed=seed,
         physical=physical,
+        intervals=interval_info,
     )
 
 

@@ -114,7 +114,9 @@ class FitResult:
     units : dict of str to str
         Unit of each parameter.
     ci95 : dict of str to (float, float)
-        95 % confidence interval of each free parameter (physical units).
+        95 % confidence interval of each free parameter (physical units):
+        linearised (Gauss-Newton) by default, profile likelihood when the fit
+        asked for ``intervals="profile"`` (see :attr:`intervals`).
     std : dict of str to float
         Standard deviation in fitting coordinates (log10 units for log groups).
     correlation : ndarray
@@ -142,6 +144,11 @@ class FitResult:
     physical : dict or None
         Physical symbols recovered from the groups with a datasheet (see
         :meth:`hhra_phys.physical.PhysicalParameters.from_groups`), if one was given.
+    intervals : dict
+        How :attr:`ci95` was obtained: ``{"method": "linear"}``, or for profile
+        intervals ``{"method": "profile", "linear": {name: [lo, hi]}, "open_ends":
+        {name: [lower, upper]}, "solves": n, "seconds": s}`` (the linearised
+        intervals kept for comparison).
     """
 
     model_spec: dict[str, Any]
@@ -161,6 +168,7 @@ class FitResult:
     seed: int | None
     physical: dict[str, float] | None = None
     created: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
+    intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
 
     # -- reuse ------------------------------------------------------------------------
     @property
@@ -251,7 +259,8 @@ class FitResult:
     # -- reporting ----------------------------------------------------------------------------
     def summary(self) -> str:
         """A plain-text table: parameter, value, unit, 95 % CI; then the metrics."""
-        lines = [f"{'parameter':<12} {'value':>13} {'unit':<10} {'95 % CI':>29}"]
+        head = "95 % CI" + (" (profile)" if self.intervals.get("method") == "profile" else "")
+        lines = [f"{'parameter':<12} {'value':>13} {'unit':<10} {head:>29}"]
         for name, info in self.params.items():
             if not info["free"] and info["value"] == 0.0:
                 continue
@@ -290,6 +299,7 @@ class FitResult:
             "physical": self.physical,
             "model": self.model_spec,
             "created": self.created,
+            "intervals": self.intervals,
         }
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
@@ -336,6 +346,7 @@ class FitResult:
             seed=d.get("seed"),
             physical=d.get("physical"),
             created=d.get("created", ""),
+            intervals=d.get("intervals", {"method": "linear"}),
         )
 
 

@@ -40,6 +40,14 @@ def test_fit_on_a_csv_writes_json_and_plot(tmp_path, capsys):
     assert png.stat().st_size > 1000
     out = capsys.readouterr().out
     assert "95 % CI" in out
+    js2 = tmp_path / "profile.json"
+    assert main(["fit", str(data), "--pop", "8", "--iters", "3", "--seed", "1", "--json",
+                 str(js2), "--quiet", "--intervals", "profile"]) == 0
+    d2 = json.loads(js2.read_text())
+    assert d2["intervals"]["method"] == "profile"
+    lo, hi = d2["params"]["g_torque"]["ci95"]
+    assert lo < d2["params"]["g_torque"]["value"] < hi
+    assert "95 % CI (profile)" in capsys.readouterr().out
     assert main(["fit", str(data), "--fix", "nonsense"]) == 2
     assert main(["fit", str(data), "--free", "g_valve,bogus", "--json", str(tmp_path / "x.json"),
                  "--quiet", "--pop", "4", "--iters", "1"]) == 2

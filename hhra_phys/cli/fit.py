@@ -47,6 +47,9 @@ def register(subparsers: Any) -> None:
                    help="H-GWO mutation factor lambda (paper 0.25; default 1, see docs)")
     p.add_argument("--valve", choices=("orifice", "linear"), default="orifice",
                    help="valve law of the model")
+    p.add_argument("--intervals", choices=("linear", "profile"), default="linear",
+                   help="95 %% intervals: linearised at the optimum (default) or profile "
+                        "likelihood (a few seconds more)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", default=None, metavar="OUT.png", help="write a figure")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -73,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         res = fit(data, model, optimizer=args.optimizer, refine=refine,
                   free=free, fixed=fixed, bounds=bounds, split=args.split,
                   seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
-                  lam=args.lam, progress=not args.quiet)
+                  lam=args.lam, progress=not args.quiet, intervals=args.intervals)
     except (HHRAError, FileExistsError) as exc:
         print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
         return 2

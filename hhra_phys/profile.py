@@ -1,0 +1,238 @@
+"""Profile-likelihood confidence intervals for a least-squares fit.
+
+The Gauss-Newton intervals of :mod:`hhra_phys.result` linearise the model at the
+optimum. Along a weakly determined, curved direction (the HHRA's pressure scale:
+``g_valve`` and ``g_compress`` up with ``g_torque`` down) the sum of squares is
+far from quadratic, and the linearised interval can miss the truth. The profile
+interval of a parameter is the set of values ``c`` at which the sum of squares,
+minimised over all *other* free parameters with that one held at ``c``, stays
+below the likelihood-ratio threshold
+
+    SSR_prof(c) <= SSR_min * (1 + F(level; 1, n - p) / (n - p)),
+
+the F-test form for Gaussian errors of unknown variance (``n`` samples, ``p``
+free parameters; exact for a linear model, and what the Gauss-Newton interval
+approximates). Each profile point is a bounded nonlinear least-squares solve
+(:func:`scipy.optimize.least_squares`, trust-region reflective) with the exact
+residual Jacobian of :class:`~hhra_phys.refine.CompiledLeastSquares`, warm
+started from the previous point; the crossing of the threshold is bracketed by
+steps that double and then located by :func:`scipy.optimize.brentq`.
+
+Everything happens in the problem's fitting coordinates (``log10`` for positive
+groups), where the profile is closer to quadratic; intervals are mapped back to
+physical units, so they are asymmetric where the profile is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+from scipy.stats import f as f_dist
+
+from hhra_phys.errors import ParameterError
+from hhra_phys.problem import Problem
+from hhra_phys.refine import CompiledLeastSquares
+
+
+@dataclass
+class Profile:
+    """Profile of one free parameter and its confidence interval.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name.
+    interval : tuple of float
+        Confidence interval in physical units (``level`` coverage).
+    z_interval : tuple of float
+        The same interval in fitting coordinates.
+    open_ends : tuple of bool
+        ``(lower, upper)``: True where the profile stayed below the threshold up
+        to the search box, so that end is the box bound, not a crossing.
+    points : list of (float, float)
+        Evaluated ``(z, SSR_prof(z))`` pairs, sorted by ``z`` (the optimum included).
+    threshold : float
+        Sum-of-squares threshold [output unit**2].
+    n_solves : int
+        Number of profile least-squares solves.
+    """
+
+    name: str
+    interval: tuple[float, float]
+    z_interval: tuple[float, float]
+    open_ends: tuple[bool, bool]
+    points: list[tuple[float, float]] = field(default_factory=list)
+    threshold: float = float("nan")
+    n_solves: int = 0
+
+
+def threshold(ssr_min: float, n_obs: int, n_free: int, level: float = 0.95) -> float:
+    """Sum-of-squares threshold of the ``level`` profile interval (F-test form)."""
+    if not 0 < level < 1:
+        raise ParameterError(f"level must be in (0, 1), got {level}")
+    dof = max(n_obs - n_free, 1)
+    return float(ssr_min * (1.0 + f_dist.ppf(level, 1, dof) / dof))
+
+
+class _Profiler:
+    """Profile solves for one problem around one optimum (shares the residual engine)."""
+
+    def __init__(self, problem: Problem, z_hat: np.ndarray, engine: CompiledLeastSquares) -> None:
+        self.problem = problem
+        self.z_hat = np.asarray(z_hat, dtype=float)
+        self.engine = engine
+        self.box = problem.bounds_z()
+        r, _ = engine(self.z_hat)
+        self.ssr_min = float(r @ r)
+        self.n_solves = 0
+
+    def solve(self, i: int, c: float, start: np.ndarray) -> tuple[float, np.ndarray]:
+        """Minimal sum of squares with coordinate ``i`` held at ``c``; (SSR, full z)."""
+        others = [k for k in range(self.z_hat.size) if k != i]
+        lo, hi = self.box[others, 0], self.box[others, 1]
+        w0 = np.clip(start[others], lo, hi)
+
+        def full(w: np.ndarray) -> np.ndarray:
+            z = np.empty(self.z_hat.size)
+            z[others] = w
+            z[i] = c
+            return z
+
+        self.n_solves += 1
+        if not others:
+            r, _ = self.engine(full(w0))
+            return float(r @ r), full(w0)
+        sol = least_squares(
+            lambda w: self.engine(full(w))[0],
+            w0,
+            jac=lambda w: self.engine(full(w))[1][:, others],
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            ftol=1e-12,
+            xtol=1e-12,
+            gtol=1e-12,
+            max_nfev=60,
+        )
+        z = full(sol.x)
+        r, _ = self.engine(z)
+        return float(r @ r), z
+
+
+def profile_parameter(
+    problem: Problem,
+    z_hat: np.ndarray,
+    name: str,
+    level: float = 0.95,
+    step: float | None = None,
+    max_steps: int = 12,
+    engine: CompiledLeastSquares | None = None,
+) -> Profile:
+    """Profile-likelihood interval of one free parameter.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitting problem (its estimation data define the sum of squares).
+    z_hat : array, shape (n_free,)
+        The least-squares optimum in fitting coordinates (e.g. after IPOPT).
+    name : str
+        A free parameter of ``problem``.
+    level : float
+        Coverage of the interval.
+    step : float, optional
+        First step away from the optimum in fitting coordinates (default: the
+        linearised 95 % half-width, or 0.01 when that is not finite).
+    max_steps : int
+        Largest number of doubling steps per side before giving up (the end is
+        then reported open).
+    engine : CompiledLeastSquares, optional
+        Residual engine to reuse.
+
+    Returns
+    -------
+    Profile
+    """
+    if name not in problem.free_names:
+        raise ParameterError(f"{name!r} is not a free parameter ({', '.join(problem.free_names)})")
+    engine = engine or CompiledLeastSquares(problem)
+    prof = _Profiler(problem, z_hat, engine)
+    i = problem.free_names.index(name)
+    n_obs, n_free = problem.y.size, problem.n_free
+    limit = threshold(prof.ssr_min, n_obs, n_free, level)
+    if step is None:
+        r, J = engine(prof.z_hat)
+        s2 = prof.ssr_min / max(n_obs - n_free, 1)
+        with np.errstate(all="ignore"):
+            cov = np.linalg.pinv(J.T @ J) * s2
+        half = 1.96 * float(np.sqrt(max(cov[i, i], 0.0)))
+        step = half if np.isfinite(half) and half > 0 else 0.01
+    step = float(step)
+    points: list[tuple[float, float]] = [(float(prof.z_hat[i]), prof.ssr_min)]
+    ends: list[float] = []
+    open_ends: list[bool] = []
+    for side in (-1.0, 1.0):
+        bound = prof.box[i, 0] if side < 0 else prof.box[i, 1]
+        inner_c, inner_z = float(prof.z_hat[i]), prof.z_hat.copy()
+        h = step
+        crossing: float | None = None
+        for _ in range(max_steps):
+            c = inner_c + side * h
+            at_bound = (c - bound) * side >= 0
+            if at_bound:
+                c = float(bound)
+            ssr, z = prof.solve(i, c, inner_z)
+            points.append((c, ssr))
+            if ssr > limit:
+                outer_c = c
+                starts = {"z": inner_z}
+
+                def g(cc: float, starts: dict[str, np.ndarray] = starts) -> float:
+                    val, zz = prof.solve(i, cc, starts["z"])
+                    points.append((cc, val))
+                    if val <= limit:
+                        starts["z"] = zz  # warm start from the inside
+                    return val - limit
+
+                crossing = float(brentq(g, inner_c, outer_c, xtol=1e-4 * step, rtol=1e-10))
+                break
+            inner_c, inner_z = c, z
+            if at_bound:
+                break
+            h *= 2.0
+        if crossing is None:
+            ends.append(inner_c)
+            open_ends.append(True)
+        else:
+            ends.append(crossing)
+            open_ends.append(False)
+    z_lo, z_hi = ends
+    zl, zh = prof.z_hat.copy(), prof.z_hat.copy()
+    zl[i], zh[i] = z_lo, z_hi
+    lo_v, hi_v = problem.from_z(zl)[i], problem.from_z(zh)[i]
+    return Profile(
+        name=name,
+        interval=(float(min(lo_v, hi_v)), float(max(lo_v, hi_v))),
+        z_interval=(float(z_lo), float(z_hi)),
+        open_ends=(open_ends[0], open_ends[1]),
+        points=sorted(points),
+        threshold=limit,
+        n_solves=prof.n_solves,
+    )
+
+
+def profile_intervals(
+    problem: Problem,
+    z_hat: np.ndarray,
+    names: list[str] | None = None,
+    level: float = 0.95,
+) -> dict[str, Profile]:
+    """Profile-likelihood intervals of several free parameters (default: all).
+
+    See :func:`profile_parameter`; one residual engine serves every profile.
+    """
+    engine = CompiledLeastSquares(problem)
+    chosen = problem.free_names if names is None else list(names)
+    return {n: profile_parameter(problem, z_hat, n, level=level, engine=engine) for n in chosen}
