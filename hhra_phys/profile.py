@@ -175,7 +175,7 @@ def profile_parameter(
     open_ends: list[bool] = []
     for side in (-1.0, 1.0):
         bound = prof.box[i, 0] if side < 0 else prof.box[i, 1]
-        inner_c, inner_z = float(prof.z_hat[i]), prof.z_hat.copy()
+        inner_c, inner_z, inner_ssr = float(prof.z_hat[i]), prof.z_hat.copy(), prof.ssr_min
         h = step
         crossing: float | None = None
         for _ in range(max_steps):
@@ -188,8 +188,13 @@ def profile_parameter(
             if ssr > limit:
                 outer_c = c
                 starts = {"z": inner_z}
+                # brentq evaluates both bracket ends first: they are known already.
+                known = {inner_c: inner_ssr, outer_c: ssr}
 
-                def g(cc: float, starts: dict[str, np.ndarray] = starts) -> float:
+                def g(cc: float, starts: dict[str, np.ndarray] = starts,
+                      known: dict[float, float] = known) -> float:
+                    if cc in known:
+                        return known[cc] - limit
                     val, zz = prof.solve(i, cc, starts["z"])
                     points.append((cc, val))
                     if val <= limit:
@@ -198,7 +203,7 @@ def profile_parameter(
 
                 crossing = float(brentq(g, inner_c, outer_c, xtol=1e-4 * step, rtol=1e-10))
                 break
-            inner_c, inner_z = c, z
+            inner_c, inner_z, inner_ssr = c, z, ssr
             if at_bound:
                 break
             h *= 2.0
