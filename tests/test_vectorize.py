@@ -130,10 +130,11 @@ def test_population_states_equal_single_runs(population):
             np.testing.assert_allclose(X[i], x, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("simd", [None, "auto"])
-def test_fused_cost_equals_the_cost_of_the_simulated_outputs(population, simd):
+@pytest.mark.parametrize("opts", [{"simd": None}, {"simd": "auto"}, {"backend": "casadi"}],
+                         ids=["scalar", "vector", "casadi-vm"])
+def test_fused_cost_equals_the_cost_of_the_simulated_outputs(population, opts):
     model, P, u = population
-    sim = Simulator(model, fs=250.0, simd=simd)
+    sim = Simulator(model, fs=250.0, **opts)
     y = np.sin(np.arange(u.size) / 30.0)
     w = np.linspace(0.0, 2.0, u.size)
     Y = sim.simulate(u, P)
