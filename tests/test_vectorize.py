@@ -104,14 +104,16 @@ def population():
 
 
 @needs_simd
-def test_vector_simulator_gives_the_scalar_numbers_bit_for_bit(population):
+@pytest.mark.parametrize("width", ["auto", 4])
+def test_vector_simulator_gives_the_scalar_numbers_bit_for_bit(population, width):
     model, P, u = population
-    vec = Simulator(model, fs=250.0)
+    vec = Simulator(model, fs=250.0, simd=width)
     sca = Simulator(model, fs=250.0, simd=None)
     assert vec.simd is not None and sca.simd is None
     Yv, Xv = vec.simulate(u, P, states=True)
     Ys, Xs = sca.simulate(u, P, states=True)
-    assert vec.vector_width(len(P)) == TARGET.width  # really the vector code
+    expected = TARGET.width if width == "auto" else width
+    assert vec.vector_width(len(P)) == expected  # really the vector code
     np.testing.assert_array_equal(vec.last_status, sca.last_status)
     assert vec.last_status[4] != STATUS_OK
     np.testing.assert_array_equal(Yv, Ys)
