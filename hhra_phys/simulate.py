@@ -176,8 +176,10 @@ class Simulator:
         #: simulated chunk after chunk.
         self.chunk = max(1, int(chunk) // self.block) * self.block
         self._steps: dict[tuple[bool, int], ca.Function] = {}
-        self._compiled: dict[tuple[int, int, int, bool], _Compiled] = {}
-        self._entries: dict[tuple[int, bool], _Compiled] = {}
+        # Keyed by (members, lanes, width, kind) and (population, kind); kind is
+        # "y" (outputs), "x" (outputs and states), "abs"/"sq" (fused cost).
+        self._compiled: dict[tuple[int, int, int, str], _Compiled] = {}
+        self._entries: dict[tuple[int, str], _Compiled] = {}
         self._simd_ok: bool | None = None
         self._stab: dict[int, CompiledFunction | ca.Function] = {}
         #: Status per row of the last :meth:`simulate` call (``STATUS_*`` codes).
