@@ -4,7 +4,9 @@ Runs every registered comparison method (LS, RLS, FFRLS, PSO, GWO, H-GWO, FFRLS+
 plug-ins, e.g. the physical-model fits) plus a few controls on
 
 * the simulated rig (:func:`hhra_phys.rig.simulate_rig`, the paper's 20 s at 250 Hz, 0.05 deg
-  encoder noise), one record per seed, split in halves; and
+  encoder noise), one record per seed, split in halves (``rig_perturbed``: the same with the
+  truth drawn away from the model's nominal values by :func:`hhra_phys.rig.perturbed_physical`,
+  so that no method starts at the answer); and
 * the public measured hydraulic-actuator record (valve opening -> oil pressure, sample units),
   split at sample 512 as its README says, once per seed (only the metaheuristics depend on it).
 
@@ -31,6 +33,9 @@ added unless ``--no-controls``). The numbers in ``docs/identification.md`` come 
     python experiments/table3.py --out out/table3 --figures docs/figures \
         --methods ls,rls,ffrls,pso,gwo,hgwo,ffrls_hgwo
     python experiments/table3.py --out out/table3_phys --seeds 0 --no-controls
+    python experiments/table3.py --out out/table3_perturbed --seeds 0 --no-controls \
+        --records rig_perturbed --methods \
+        ls,ffrls,ffrls_hgwo,phys_hgwo,phys_hgwo_ipopt,phys_hgwo_nlopt,phys_ipopt
 
 Existing outputs are never replaced unless ``--overwrite`` is given.
 """
@@ -54,7 +59,7 @@ from hhra_phys.data import Dataset, load_public_actuator
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.metrics import mse
 from hhra_phys.model import HHRAModel
-from hhra_phys.rig import DEFAULT_NOISE_DEG, simulate_rig
+from hhra_phys.rig import DEFAULT_NOISE_DEG, perturbed_physical, simulate_rig
 
 #: Rows of the paper's table plus plain H-GWO, in this order.
 PAPER_ROWS = C.ARX_METHODS
@@ -62,6 +67,8 @@ PAPER_ROWS = C.ARX_METHODS
 FIGURES = ("outputs", "errors", "convergence")
 #: Control rows registered by this script.
 CONTROLS = ("pso_2x", "gwo_2x", "ffrls_hgwo_ws", "ffrls_hgwo_z01", "ffrls_hgwo_z1")
+#: Records the comparison can run on (``tustin`` is the inverse-map check).
+RECORDS = ("rig", "rig_perturbed", "public", "tustin")
 
 
 def _double_budget(method: str) -> C.MethodFn:
@@ -218,7 +225,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated seeds")
     parser.add_argument("--pop", type=int, default=100, help="population (paper: 100)")
     parser.add_argument("--iters", type=int, default=200, help="iterations (paper: 200)")
-    parser.add_argument("--records", default="rig,public,tustin", help="any of rig, public, tustin")
+    parser.add_argument("--records", default="rig,public,tustin",
+                        help=f"any of {', '.join(RECORDS)}")
     parser.add_argument(
         "--methods", help="comma-separated methods (default: every registered one); controls added"
     )
@@ -239,8 +247,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
         records = [r.strip() for r in args.records.split(",") if r.strip()]
-        if not seeds or not records or set(records) - {"rig", "public", "tustin"}:
-            raise ParameterError("--seeds needs integers; --records: rig, public, tustin")
+        if not seeds or not records or set(records) - set(RECORDS):
+            raise ParameterError(f"--seeds needs integers; --records: {', '.join(RECORDS)}")
         if args.figure_seed not in seeds:
             raise ParameterError(f"--figure-seed {args.figure_seed} is not among --seeds")
         C.load_plugins(args.plugin)
@@ -288,6 +296,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             for seed in seeds:
                 if record == "rig":
                     ds, split = simulate_rig(seed=seed), 0.5
+                elif record == "rig_perturbed":
+                    ds = simulate_rig(seed=seed, physical=perturbed_physical(seed))
+                    split = 0.5
                 else:
                     ds, split = load_public_actuator(), 512
                 say(f"== {record}, seed {seed}")
