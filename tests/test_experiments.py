@@ -1,0 +1,81 @@
+"""Smoke versions of the experiment scripts: tiny settings, every output written.
+
+The full experiments (minutes to an hour) produce the figures in ``docs/``; these
+runs only check that each script still runs end to end and writes what it says.
+The closed-loop studies have their CI version in ``tests/test_diagnose.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PUBLIC = REPO.parent / "shared" / "data"
+
+
+def _call(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, str(REPO / "experiments" / script), *args],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+def _run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    proc = _call(script, *args, cwd=cwd)
+    assert proc.returncode == 0, f"{script} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    return proc
+
+
+def test_fit_rig_every_part(tmp_path):
+    out = tmp_path / "fit_rig"
+    _run("fit_rig.py", "--out", str(out), "--parts", "clean,noisy,speed,lam", "--seeds", "2",
+         "--clean", "1", "--lam-seeds", "1", "--pop", "6", "--iters", "3", "--repeats", "1",
+         "--scalar", "--profile", cwd=tmp_path)
+    res = json.loads((out / "results.json").read_text())
+    assert set(res) >= {"clean", "noisy", "speed", "lam"}
+    assert len(res["noisy"]["rows"]) == 2 and "coverage_profile" in res["noisy"]
+    assert res["speed"]["scalar_runs"][0]["nfev"] == res["speed"]["runs"][0]["nfev"]
+    text = (out / "summary.md").read_text()
+    assert "profile interval" in text and "scalar code" in text
+
+
+@pytest.mark.skipif(not PUBLIC.exists(), reason="public data not present next to the repository")
+def test_table3_on_the_perturbed_rig_and_public_record(tmp_path):
+    out = tmp_path / "t3"
+    _run("table3.py", "--out", str(out), "--seeds", "0", "--records",
+         "rig_perturbed,public,tustin", "--methods", "ls,ffrls,phys_hgwo_ipopt,phys_ipopt",
+         "--no-controls", "--pop", "6", "--iters", "3", cwd=tmp_path)
+    for name in ("rig_perturbed_seed0.json", "public_seed0.json", "summary.json", "tables.md",
+                 "rig_perturbed_outputs.png", "public_convergence.png"):
+        assert (out / name).exists(), name
+    assert "physical IPOPT from nominal" in (out / "tables.md").read_text()
+
+
+@pytest.mark.skipif(not PUBLIC.exists(), reason="public data not present next to the repository")
+def test_fit_public(tmp_path):
+    out = tmp_path / "fp"
+    _run("fit_public.py", "--out", str(out), "--seeds", "1", "--pop", "6", "--iters", "3",
+         cwd=tmp_path)
+    assert (out / "results.json").exists() and (out / "summary.md").exists()
+
+
+def test_position_control(tmp_path):
+    out = tmp_path / "pc"
+    _run("position_control.py", "--out", str(out), "--pop", "6", "--iters", "3",
+         "--samples", "50", cwd=tmp_path)
+    for name in ("summary.json", "control_steps.png", "control_tracking.png",
+                 "control_bode_family.png"):
+        assert (out / name).exists(), name
+
+
+def test_table2(tmp_path):
+    prefix = tmp_path / "t2"
+    _run("table2.py", "--out", str(prefix), "--runs", "1", cwd=tmp_path)
+    assert prefix.with_suffix(".json").exists() and prefix.with_suffix(".md").exists()
+    again = _call("table2.py", "--out", str(prefix), "--runs", "1", cwd=tmp_path)
+    assert again.returncode == 2  # an existing output is never replaced
