@@ -370,12 +370,14 @@ class Simulator:
         return entry
 
     def _cost_trajectory(self, loss: str) -> ca.Function:
-        """One chunk of a trajectory reduced to its cost: ``(xa0, p, U, Ym, Wt) -> xa``.
+        """One chunk of a trajectory reduced to its cost: ``(xa0, p, U, Ym, Wt, M) -> xa``.
 
         ``xa = [x; J; peak]`` carries, next to the state, the running cost
         ``J += sum_k Wt_k * loss(Ym_k - y_k)`` (``loss`` ``"abs"`` or ``"sq"``)
         and the running peak ``max_k |y_k|``, so a population's cost leaves the
         compiled code as a few numbers per member instead of whole trajectories.
+        Only samples with ``M_k != 0`` count: the padding after the record's last
+        sample must not add to either (not even a NaN through ``0 * NaN``).
         """
         m = self.model
         nu = m.n_lags + 1
@@ -385,19 +387,21 @@ class Simulator:
         U = ca.SX.sym("U", nu * self.block)
         Ym = ca.SX.sym("Ym", self.block)
         Wt = ca.SX.sym("Wt", self.block)
+        M = ca.SX.sym("M", self.block)
         x_next, y = step(xa[:m.nx], p, U)
         e = Ym - y.T
         J, peak = xa[m.nx], xa[m.nx + 1]
         for k in range(self.block):
-            J = J + Wt[k] * (ca.fabs(e[k]) if loss == "abs" else e[k] * e[k])
-            peak = ca.fmax(peak, ca.fabs(y[k]))
-        cstep = ca.Function("cost_step", [xa, p, U, Ym, Wt],
+            term = Wt[k] * (ca.fabs(e[k]) if loss == "abs" else e[k] * e[k])
+            J = J + ca.if_else(M[k], term, 0)
+            peak = ca.fmax(peak, ca.if_else(M[k], ca.fabs(y[k]), 0))
+        cstep = ca.Function("cost_step", [xa, p, U, Ym, Wt, M],
                             [ca.vertcat(x_next, J, peak)], {"cse": True})
         nb = self.chunk // self.block
         acc = cstep.mapaccum("cost_acc", nb, [0], [0], {})
         ins = [ca.MX.sym("xa0", m.nx + 2), ca.MX.sym("p", m.n_params),
                ca.MX.sym("U", nu * self.block, nb), ca.MX.sym("Ym", self.block, nb),
-               ca.MX.sym("Wt", self.block, nb)]
+               ca.MX.sym("Wt", self.block, nb), ca.MX.sym("M", self.block, nb)]
         res = acc(ins[0], ca.repmat(ins[1], 1, nb), *ins[2:])
         return ca.Function("cost_traj", ins, [res[:, -1]])
 
@@ -409,7 +413,7 @@ class Simulator:
         ``kind`` ``"y"`` maps (initial states, parameters, input chunk) to
         (outputs, final states), ``"x"`` to (outputs, states, final states), and
         ``"abs"``/``"sq"`` map (augmented states, parameters, input, measured
-        output, weights) to the augmented states of :meth:`_cost_trajectory`. Any
+        output, weights, sample mask) to the augmented states of :meth:`_cost_trajectory`. Any
         record length is simulated by chaining chunks: one compiled function per
         population size serves every record. With ``simd`` each instance of the
         trajectory is a vector of ``simd.width`` members.
@@ -425,7 +429,7 @@ class Simulator:
             shared = [2]
         else:
             traj = self._cost_trajectory(kind)
-            shared = [2, 3, 4]
+            shared = [2, 3, 4, 5]
         threads = max(1, min(self.threads, groups))
         name = f"hhra_sim_{kind}_{n_members}_{lanes}" + (f"_v{width}" if width > 1 else "")
         if groups == 1:
@@ -730,10 +734,12 @@ class Simulator:
         total = n_chunks * self.chunk
         Ym = np.concatenate([yy, np.zeros(total - n)]).reshape(-1, self.block).T
         Wt = np.concatenate([w, np.zeros(total - n)]).reshape(-1, self.block).T
+        Mk = np.concatenate([np.ones(n), np.zeros(total - n)]).reshape(-1, self.block).T
         with np.errstate(all="ignore"):
             for c in range(n_chunks):
                 cols = slice(c * cb, (c + 1) * cb)
-                outs = entry.fn(xa, PT, U[:, cols], Ym[:, cols], Wt[:, cols])  # type: ignore[operator]
+                outs = entry.fn(xa, PT, U[:, cols], Ym[:, cols], Wt[:, cols],  # type: ignore[operator]
+                                Mk[:, cols])
                 xa = np.asarray(outs[0] if entry.native else outs)
             if width > 1:
                 xa = xa.reshape(groups, nx + 2, width).transpose(1, 0, 2).reshape(nx + 2, -1)

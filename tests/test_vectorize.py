@@ -152,6 +152,21 @@ def test_fused_cost_equals_the_cost_of_the_simulated_outputs(population, opts):
     assert single == pytest.approx(np.sum((y - Y[0]) ** 2), rel=1e-12)
 
 
+@pytest.mark.parametrize("simd", [None, "auto"])
+def test_fused_cost_ignores_the_padding_after_the_record(simd):
+    # 501 samples: the last chunk runs 499 samples past the record with the input
+    # held, where this record's angle keeps growing beyond the divergence limit.
+    model = HHRAModel()
+    sim = Simulator(model, fs=250.0, diverge_limit=30.0, simd=simd)
+    u = default_input(duration=5.0, seed=3)[:501]
+    P = np.tile(model.nominal(), (16, 1))
+    Y = sim.simulate(u, P)
+    assert (sim.last_status == STATUS_OK).all() and np.abs(Y).max() < 30.0
+    cost = sim.simulate_cost(u, P, np.zeros(u.size))
+    assert (sim.last_status == STATUS_OK).all()
+    np.testing.assert_allclose(cost, np.sum(Y**2, axis=1), rtol=1e-12)
+
+
 def test_fused_cost_rejects_bad_measurements(population):
     model, P, u = population
     sim = Simulator(model, fs=250.0)
