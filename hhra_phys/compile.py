@@ -37,12 +37,13 @@ import numpy as np
 from hhra_phys.vectorize import SimdTarget, transform_source
 
 #: Flags for the generated code. No -ffast-math: it would let the compiler drop
-#: the NaN/Inf propagation that flags diverging population members.
-CFLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared", "-pthread")
+#: the NaN/Inf propagation that flags diverging population members. No FMA
+#: contraction (GCC's default contracts where FMA is baseline, e.g. AArch64), so
+#: scalar and vector code round alike.
+CFLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared", "-pthread", "-ffp-contract=off")
 #: Extra flags of the vectorised C++: -fno-math-errno lets sqrt become one vector
-#: instruction (errno is never read); no FMA contraction, so every lane gives
-#: bit for bit the scalar code's result.
-SIMD_CFLAGS: tuple[str, ...] = ("-x", "c++", "-fno-math-errno", "-ffp-contract=off")
+#: instruction (errno is never read).
+SIMD_CFLAGS: tuple[str, ...] = ("-x", "c++", "-fno-math-errno")
 
 _CASADI_INT = ctypes.c_longlong  # the generated code's default ``casadi_int``
 _lock = threading.Lock()

@@ -301,8 +301,21 @@ def _result(
             "solves": sum(p.n_solves for p in profiles.values()),
             "seconds": time.perf_counter() - t0,
         }
+        first = next(iter(profiles.values()), None)
+        if first is not None and first.moved:
+            interval_info["polished_ssr"] = first.ssr_min
+            warnings.append(
+                "the fit did not end at the least-squares minimum (no or unconverged "
+                "refinement): the profile intervals are centred on a polished optimum "
+                f"(sum of squares {first.ssr_min:.6g}), not on the reported values"
+            )
         for name, prof in profiles.items():
             ci95[name] = prof.interval
+            if prof.lower_minimum:
+                warnings.append(
+                    f"{name}: its profile found a lower sum of squares than the optimum "
+                    "(another minimum exists), so the profile intervals are not reliable"
+                )
             for side, is_open in zip(("lower", "upper"), prof.open_ends, strict=True):
                 if is_open:
                     warnings.append(

@@ -57,6 +57,15 @@ class Profile:
         Sum-of-squares threshold [output unit**2].
     n_solves : int
         Number of profile least-squares solves.
+    ssr_min : float
+        Sum of squares at the least-squares optimum the profile is centred on.
+    moved : bool
+        The given point was not a least-squares minimum: a bounded least-squares
+        polish from it lowered the sum of squares by more than 1e-6 (relative),
+        and the profile is centred on the polished optimum instead.
+    lower_minimum : bool
+        A profile solve found a sum of squares below ``ssr_min``: another, better
+        minimum exists, and the interval is not trustworthy.
     """
 
     name: str
@@ -66,6 +75,9 @@ class Profile:
     points: list[tuple[float, float]] = field(default_factory=list)
     threshold: float = float("nan")
     n_solves: int = 0
+    ssr_min: float = float("nan")
+    moved: bool = False
+    lower_minimum: bool = False
 
 
 def threshold(ssr_min: float, n_obs: int, n_free: int, level: float = 0.95) -> float:
@@ -76,17 +88,35 @@ def threshold(ssr_min: float, n_obs: int, n_free: int, level: float = 0.95) -> f
     return float(ssr_min * (1.0 + f_dist.ppf(level, 1, dof) / dof))
 
 
+_LSQ = {"method": "trf", "x_scale": "jac", "ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
+
+
 class _Profiler:
-    """Profile solves for one problem around one optimum (shares the residual engine)."""
+    """Profile solves for one problem around one optimum (shares the residual engine).
+
+    The optimum is first polished by a bounded least-squares solve over every
+    free coordinate: the threshold is relative to the *minimum* sum of squares,
+    and a fit refined by another cost (ITAE), stopped early, or not refined at
+    all does not end exactly there.
+    """
 
     def __init__(self, problem: Problem, z_hat: np.ndarray, engine: CompiledLeastSquares) -> None:
         self.problem = problem
-        self.z_hat = np.asarray(z_hat, dtype=float)
         self.engine = engine
         self.box = problem.bounds_z()
-        r, _ = engine(self.z_hat)
-        self.ssr_min = float(r @ r)
         self.n_solves = 0
+        z0 = np.clip(np.asarray(z_hat, dtype=float), self.box[:, 0], self.box[:, 1])
+        r, _ = engine(z0)
+        ssr_given = float(r @ r)
+        sol = least_squares(lambda z: engine(z)[0], z0, jac=lambda z: engine(z)[1],
+                            bounds=(self.box[:, 0], self.box[:, 1]), max_nfev=100, **_LSQ)
+        r, _ = engine(sol.x)
+        ssr_polished = float(r @ r)
+        if ssr_polished < ssr_given:
+            self.z_hat, self.ssr_min = np.asarray(sol.x, dtype=float), ssr_polished
+        else:
+            self.z_hat, self.ssr_min = z0, ssr_given
+        self.moved = ssr_given - self.ssr_min > 1e-6 * ssr_given
 
     def solve(self, i: int, c: float, start: np.ndarray) -> tuple[float, np.ndarray]:
         """Minimal sum of squares with coordinate ``i`` held at ``c``; (SSR, full z)."""
@@ -109,12 +139,8 @@ class _Profiler:
             w0,
             jac=lambda w: self.engine(full(w))[1][:, others],
             bounds=(lo, hi),
-            method="trf",
-            x_scale="jac",
-            ftol=1e-12,
-            xtol=1e-12,
-            gtol=1e-12,
             max_nfev=60,
+            **_LSQ,
         )
         z = full(sol.x)
         r, _ = self.engine(z)
@@ -137,7 +163,8 @@ def profile_parameter(
     problem : Problem
         The fitting problem (its estimation data define the sum of squares).
     z_hat : array, shape (n_free,)
-        The least-squares optimum in fitting coordinates (e.g. after IPOPT).
+        The fit's optimum in fitting coordinates (e.g. after IPOPT); it is
+        polished to the least-squares minimum first (:attr:`Profile.moved`).
     name : str
         A free parameter of ``problem``.
     level : float
@@ -146,8 +173,7 @@ def profile_parameter(
         First step away from the optimum in fitting coordinates (default: the
         linearised 95 % half-width, or 0.01 when that is not finite).
     max_steps : int
-        Largest number of doubling steps per side before giving up (the end is
-        then reported open).
+        Steps per side, doubling each time; the last one goes to the box bound.
     engine : CompiledLeastSquares, optional
         Residual engine to reuse.
 
@@ -157,13 +183,19 @@ def profile_parameter(
     """
     if name not in problem.free_names:
         raise ParameterError(f"{name!r} is not a free parameter ({', '.join(problem.free_names)})")
-    engine = engine or CompiledLeastSquares(problem)
-    prof = _Profiler(problem, z_hat, engine)
+    prof = _Profiler(problem, z_hat, engine or CompiledLeastSquares(problem))
+    return _profile(prof, name, level, step, max_steps)
+
+
+def _profile(prof: _Profiler, name: str, level: float, step: float | None,
+             max_steps: int) -> Profile:
+    problem, engine = prof.problem, prof.engine
     i = problem.free_names.index(name)
     n_obs, n_free = problem.y.size, problem.n_free
     limit = threshold(prof.ssr_min, n_obs, n_free, level)
+    solves_before = prof.n_solves
     if step is None:
-        r, J = engine(prof.z_hat)
+        _, J = engine(prof.z_hat)
         s2 = prof.ssr_min / max(n_obs - n_free, 1)
         with np.errstate(all="ignore"):
             cov = np.linalg.pinv(J.T @ J) * s2
@@ -178,11 +210,14 @@ def profile_parameter(
         inner_c, inner_z, inner_ssr = float(prof.z_hat[i]), prof.z_hat.copy(), prof.ssr_min
         h = step
         crossing: float | None = None
-        for _ in range(max_steps):
+        for k in range(max(int(max_steps), 1)):
             c = inner_c + side * h
-            at_bound = (c - bound) * side >= 0
+            # The last step goes to the bound, so an open end is always the box.
+            at_bound = (c - bound) * side >= 0 or k == max_steps - 1
             if at_bound:
                 c = float(bound)
+            if c == inner_c:  # already at the bound
+                break
             ssr, z = prof.solve(i, c, inner_z)
             points.append((c, ssr))
             if ssr > limit:
@@ -224,7 +259,10 @@ def profile_parameter(
         open_ends=(open_ends[0], open_ends[1]),
         points=sorted(points),
         threshold=limit,
-        n_solves=prof.n_solves,
+        n_solves=prof.n_solves - solves_before,
+        ssr_min=prof.ssr_min,
+        moved=prof.moved,
+        lower_minimum=min(s for _, s in points) < prof.ssr_min * (1 - 1e-9),
     )
 
 
@@ -236,8 +274,13 @@ def profile_intervals(
 ) -> dict[str, Profile]:
     """Profile-likelihood intervals of several free parameters (default: all).
 
-    See :func:`profile_parameter`; one residual engine serves every profile.
+    See :func:`profile_parameter`; one residual engine and one polished optimum
+    serve every profile.
     """
-    engine = CompiledLeastSquares(problem)
     chosen = problem.free_names if names is None else list(names)
-    return {n: profile_parameter(problem, z_hat, n, level=level, engine=engine) for n in chosen}
+    for n in chosen:
+        if n not in problem.free_names:
+            raise ParameterError(
+                f"{n!r} is not a free parameter ({', '.join(problem.free_names)})")
+    prof = _Profiler(problem, z_hat, CompiledLeastSquares(problem))
+    return {n: _profile(prof, n, level, None, 12) for n in chosen}

@@ -11,7 +11,9 @@ which are replaced by lane-wise versions, and the ``(c?x:0)`` form of ``if_else`
 
 Why this is safe: every operation defined on the vector type acts lane by lane
 with the scalar semantics (IEEE division and square root are exact in both; other
-mathematical functions call the same libm function per lane). Any construct of
+mathematical functions call the same libm function per lane), so every lane gives
+the scalar code's result bit for bit. The one exception is allowed by C99:
+``fmin``/``fmax`` of two zeros of opposite sign may return the other zero. Any construct of
 the generated code that would need a scalar decision (a branch or a conversion to
 an integer) has no meaning for the vector type and fails to *compile*, so a model
 outside what this supports falls back to scalar code instead of giving a wrong

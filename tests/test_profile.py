@@ -84,3 +84,37 @@ def test_unknown_parameter_is_refused(fitted):
     problem, _, z_hat = fitted
     with pytest.raises(ParameterError, match="not a free parameter"):
         profile_parameter(problem, z_hat, "g_spring")
+
+
+def test_profile_from_a_point_that_is_not_the_minimum(fitted):
+    problem, _, z_hat = fitted
+    engine = CompiledLeastSquares(problem)
+    off = z_hat.copy()
+    off[problem.free_names.index("g_valve")] += 0.05  # 12 % away along a correlated group
+    from_off = profile_parameter(problem, off, "g_leak", engine=engine)
+    from_opt = profile_parameter(problem, z_hat, "g_leak", engine=engine)
+    assert from_off.moved and not from_opt.moved
+    assert not from_off.lower_minimum and not from_opt.lower_minimum
+    assert from_off.ssr_min == pytest.approx(from_opt.ssr_min, rel=1e-8)
+    assert from_off.interval == pytest.approx(from_opt.interval, rel=1e-3)
+
+
+def test_unrefined_fit_warns_that_profiles_are_centred_elsewhere(fitted):
+    problem, _, _ = fitted
+    res = fit(problem.data, problem=problem, optimizer="none", refine="none", split=1.0,
+              intervals="profile")
+    assert any("did not end at the least-squares minimum" in w for w in res.warnings)
+    assert "polished_ssr" in res.intervals
+
+
+def test_last_step_reaches_the_box_so_open_ends_are_the_bounds(fitted):
+    problem, _, z_hat = fitted
+    i = problem.free_names.index("g_damping")
+    box = problem.bounds_z()[i]
+    prof = profile_parameter(problem, z_hat, "g_damping", max_steps=1)
+    for end, is_open, bound in zip(prof.z_interval, prof.open_ends, box, strict=True):
+        if is_open:
+            assert end == bound
+        else:
+            ssr, _ = _Profiler(problem, z_hat, CompiledLeastSquares(problem)).solve(i, end, z_hat)
+            assert ssr == pytest.approx(prof.threshold, rel=1e-4)
