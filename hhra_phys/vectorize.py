@@ -59,6 +59,13 @@ SUPPORTED_OPS: frozenset[int] = frozenset(
 #: C++ defining ``casadi_real`` as ``HV_W`` doubles with lane-wise semantics.
 PRELUDE = r"""
 #include <math.h>
+/* C++ does not define it; CasADi's helpers then compile pre-C99 fallbacks (for
+   example log(1+x) for log1p) which would round differently. With it, a helper
+   this module does not replace calls a C99 function that has no vector
+   overload, and fails to compile instead. */
+#ifndef __STDC_VERSION__
+#define __STDC_VERSION__ 199901L
+#endif
 #ifndef HV_W
 #error "HV_W (the vector width) must be defined"
 #endif
