@@ -179,7 +179,7 @@ def fit(
     intervals : {"linear", "profile"}
         95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
         profile-likelihood intervals (:mod:`hhra_phys.profile`; a few seconds more,
-        better along curved, weakly determined directions).
+        better founded along curved, weakly determined directions).
 
     Returns
     -------
