@@ -20,7 +20,9 @@ PUBLIC = REPO.parent / "shared" / "data"
 
 
 def _call(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, MPLBACKEND="Agg")
+    # The scripts run outside the repository (cwd) and the package may be installed
+    # elsewhere, so name the public data's directory explicitly.
+    env = dict(os.environ, MPLBACKEND="Agg", HHRA_SHARED_DATA=str(PUBLIC))
     return subprocess.run([sys.executable, str(REPO / "experiments" / script), *args],
                           cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
