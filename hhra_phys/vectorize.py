@@ -13,11 +13,12 @@ Why this is safe: every operation defined on the vector type acts lane by lane
 with the scalar semantics (IEEE division and square root are exact in both; other
 mathematical functions call the same libm function per lane), so every lane gives
 the scalar code's result bit for bit. The one exception is allowed by C99:
-``fmin``/``fmax`` of two zeros of opposite sign may return the other zero. Any construct of
-the generated code that would need a scalar decision (a branch or a conversion to
-an integer) has no meaning for the vector type and fails to *compile*, so a model
-outside what this supports falls back to scalar code instead of giving a wrong
-answer. :data:`SUPPORTED_OPS` is checked first so that fallback costs no compile.
+``fmin``/``fmax`` of two zeros of opposite sign may return the other zero. Any
+construct of the generated code that would need a scalar decision (a branch or a
+conversion to an integer) has no meaning for the vector type and fails to
+*compile*, so a model outside what this supports falls back to scalar code
+instead of giving a wrong answer. :data:`SUPPORTED_OPS` is checked first so that
+fallback costs no compile.
 
 Memory layout. Every element of every input, output and work array becomes
 ``width`` consecutive doubles: element ``e`` (CasADi's column-major order) of lane
