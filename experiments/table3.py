@@ -47,7 +47,8 @@ import platform
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -71,44 +72,33 @@ CONTROLS = ("pso_2x", "gwo_2x", "ffrls_hgwo_ws", "ffrls_hgwo_z01", "ffrls_hgwo_z
 RECORDS = ("rig", "rig_perturbed", "public", "tustin")
 
 
-def _double_budget(method: str) -> C.MethodFn:
+def _variant(base: str, changes: Callable[[C.CompareSettings], dict[str, Any]]) -> C.MethodFn:
+    """The registered method ``base`` run with some of its settings changed."""
+
     def run(est: Dataset, val: Dataset, s: C.CompareSettings) -> C.MethodOutcome:
-        fit = arx.fit_metaheuristic(
-            est.u,
-            est.y,
-            est.t,
-            method=method,
-            bounds=s.bounds,
-            pop_size=s.pop_size,
-            max_iter=2 * s.max_iter + 1,
-            seed=s.seed,
-            na=s.na,
-            nb=s.nb,
-            nk=s.nk,
-        )
-        return C.arx_outcome(fit, est, val)
+        return C.METHODS[base](est, val, replace(s, **changes(s)))
 
     return run
 
 
-def _hybrid(zeta_s: float | None = None, warm_start: bool = False) -> C.MethodFn:
-    def run(est: Dataset, val: Dataset, s: C.CompareSettings) -> C.MethodOutcome:
-        fit = arx.fit_ffrls_hgwo(
-            est.u,
-            est.y,
-            est.t,
-            zeta_s=s.zeta_s if zeta_s is None else zeta_s,
-            warm_start=warm_start,
-            pop_size=s.pop_size,
-            max_iter=s.max_iter,
-            seed=s.seed,
-            na=s.na,
-            nb=s.nb,
-            nk=s.nk,
-        )
-        return C.arx_outcome(fit, est, val)
-
-    return run
+def _hybrid_warm_start(est: Dataset, val: Dataset, s: C.CompareSettings) -> C.MethodOutcome:
+    """The hybrid with the FFRLS estimate injected into its first population."""
+    fit = arx.fit_ffrls_hgwo(
+        est.u,
+        est.y,
+        est.t,
+        zeta_s=s.zeta_s,
+        warm_start=True,
+        pop_size=s.pop_size,
+        max_iter=s.max_iter,
+        seed=s.seed,
+        options=s.options.get("ffrls_hgwo"),
+        progress=s.progress,
+        na=s.na,
+        nb=s.nb,
+        nk=s.nk,
+    )
+    return C.arx_outcome(fit, est, val)
 
 
 def register_controls() -> None:
@@ -121,11 +111,12 @@ def register_controls() -> None:
         "ffrls_hgwo_z1": "FFRLS+H-GWO zeta 1",
     }
     fns = {
-        "pso_2x": _double_budget("pso"),
-        "gwo_2x": _double_budget("gwo"),
-        "ffrls_hgwo_ws": _hybrid(warm_start=True),
-        "ffrls_hgwo_z01": _hybrid(zeta_s=0.1),
-        "ffrls_hgwo_z1": _hybrid(zeta_s=1.0),
+        # H-GWO spends two evaluations per member and iteration plus 2 * pop at the start.
+        "pso_2x": _variant("pso", lambda s: {"max_iter": 2 * s.max_iter + 1}),
+        "gwo_2x": _variant("gwo", lambda s: {"max_iter": 2 * s.max_iter + 1}),
+        "ffrls_hgwo_ws": _hybrid_warm_start,
+        "ffrls_hgwo_z01": _variant("ffrls_hgwo", lambda s: {"zeta_s": 0.1}),
+        "ffrls_hgwo_z1": _variant("ffrls_hgwo", lambda s: {"zeta_s": 1.0}),
     }
     for name, fn in fns.items():
         C.register_method(name, fn, label=labels[name], replace=True)
