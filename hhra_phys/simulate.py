@@ -562,6 +562,37 @@ class Simulator:
                 )
         return u, P, X0, single
 
+    def _stability_status(self, P: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rho, status): candidates beyond ``rho_max`` are flagged before simulating."""
+        rho = self.stability_index(P, float(np.max(np.abs(u))))
+        return rho, np.where(rho > self.rho_max, STATUS_UNSTABLE, STATUS_OK)
+
+    def _pack(self, X: np.ndarray, P: np.ndarray, entry: _Compiled) -> tuple[np.ndarray, ...]:
+        """Initial states (rows, n_pop) and parameters (n_pop, n_params) in the entry's layout.
+
+        The population is padded to ``entry.n_members`` with copies of its last
+        member. Vector code: element ``e`` of group ``g``, lane ``l`` (member
+        ``g*width + l``) goes to ``[g*n_el + e, l]``.
+        """
+        pad = entry.n_members - P.shape[0]
+        if pad:
+            X = np.hstack([X, np.repeat(X[:, -1:], pad, axis=1)])
+            P = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
+        width = entry.width
+        if width == 1:
+            return X, np.ascontiguousarray(P.T)
+        groups = entry.n_members // width
+        return (X.reshape(X.shape[0], groups, width).transpose(1, 0, 2).reshape(-1, width),
+                P.reshape(groups, width, -1).transpose(0, 2, 1).reshape(-1, width))
+
+    def _input_chunks(self, u: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """(input matrix padded to whole chunks, blocks per chunk, number of chunks)."""
+        U = self.input_matrix(u)
+        cb = self.chunk // self.block
+        n_chunks = -(-U.shape[1] // cb)
+        U = np.hstack([U, np.repeat(U[:, -1:], n_chunks * cb - U.shape[1], axis=1)])
+        return U, cb, n_chunks
+
     def simulate(
         self,
         u: np.ndarray,
@@ -593,29 +624,13 @@ class Simulator:
         """
         u, P, X0, single = self._prepare(u, P, x0)
         n, n_pop = u.size, P.shape[0]
-        rho = self.stability_index(P, float(np.max(np.abs(u))))
-        status = np.where(rho > self.rho_max, STATUS_UNSTABLE, STATUS_OK)
+        rho, status = self._stability_status(P, u)
         entry = self._entry(n_pop, "x" if states else "y")
         lanes, n_members, width = entry.lanes, entry.n_members, entry.width
         groups = n_members // (lanes * width)
         nx = self.model.nx
-        pad = n_members - n_pop
-        if pad:  # fill the last groups with copies of the last member
-            X0 = np.hstack([X0, np.repeat(X0[:, -1:], pad, axis=1)])
-            Pin = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
-        else:
-            Pin = P
-        U = self.input_matrix(u)
-        cb = self.chunk // self.block  # blocks per chunk
-        n_chunks = -(-U.shape[1] // cb)
-        U = np.hstack([U, np.repeat(U[:, -1:], n_chunks * cb - U.shape[1], axis=1)])
-        if width > 1:
-            # Element e of group g, lane l (member g*width + l) at [g*n_el + e, l].
-            x = X0.reshape(nx, groups, width).transpose(1, 0, 2).reshape(groups * nx, width)
-            PT = Pin.reshape(groups, width, -1).transpose(0, 2, 1).reshape(-1, width)
-        else:
-            x = X0
-            PT = np.ascontiguousarray(Pin.T)
+        x, PT = self._pack(X0, P, entry)
+        U, cb, n_chunks = self._input_chunks(u)
         # Padded members are rows past n_pop, so Y = Ypad[:n_pop] is a contiguous view.
         Ypad = np.empty((n_members, n))
         Xpad = np.empty((n_members, n, nx)) if states else None
@@ -709,27 +724,14 @@ class Simulator:
         w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
         if w.shape != (n,) or not np.isfinite(w).all():
             raise ParameterError(f"weights must be {n} finite numbers, got shape {w.shape}")
-        rho = self.stability_index(P, float(np.max(np.abs(u))))
-        status = np.where(rho > self.rho_max, STATUS_UNSTABLE, STATUS_OK)
+        rho, status = self._stability_status(P, u)
         entry = self._entry(n_pop, loss)
         n_members, width = entry.n_members, entry.width
         groups = n_members // width
         nx = self.model.nx
-        pad = n_members - n_pop
-        XA = np.vstack([X0, np.zeros((2, n_pop))])
-        Pin = P
-        if pad:
-            XA = np.hstack([XA, np.repeat(XA[:, -1:], pad, axis=1)])
-            Pin = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
-        if width > 1:
-            xa = XA.reshape(nx + 2, groups, width).transpose(1, 0, 2).reshape(-1, width)
-            PT = Pin.reshape(groups, width, -1).transpose(0, 2, 1).reshape(-1, width)
-        else:
-            xa, PT = XA, np.ascontiguousarray(Pin.T)
-        U = self.input_matrix(u)
-        cb = self.chunk // self.block
-        n_chunks = -(-U.shape[1] // cb)
-        U = np.hstack([U, np.repeat(U[:, -1:], n_chunks * cb - U.shape[1], axis=1)])
+        # The state is augmented by the running cost and peak, both starting at 0.
+        xa, PT = self._pack(np.vstack([X0, np.zeros((2, n_pop))]), P, entry)
+        U, cb, n_chunks = self._input_chunks(u)
         # Samples past the record weigh nothing (the input is held at its last value).
         total = n_chunks * self.chunk
         Ym = np.concatenate([yy, np.zeros(total - n)]).reshape(-1, self.block).T
