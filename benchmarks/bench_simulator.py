@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 
 from hhra_phys import HHRAModel, Simulator
 from hhra_phys.compile import CFLAGS, find_compiler
-from hhra_phys.rig import default_input
+from hhra_phys.models.hhra.rig import default_input
 
 C_SOURCE = r"""
 #include <math.h>

@@ -25,7 +25,7 @@ import numpy as np
 
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.loop import augment
-from hhra_phys.rig import simulate_rig
+from hhra_phys.models.hhra.rig import simulate_rig
 
 NOISE = 0.05
 #: Two sizes per effect: a small one and a large one.

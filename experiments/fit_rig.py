@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from hhra_phys.fit import fit
-from hhra_phys.rig import DEFAULT_NOISE_DEG, perturbed_physical, simulate_rig
+from hhra_phys.models.hhra.rig import DEFAULT_NOISE_DEG, perturbed_physical, simulate_rig
 
 GROUPS = ["g_valve", "g_compress", "g_leak", "g_torque", "g_damping"]
 

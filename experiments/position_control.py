@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 
 from hhra_phys import control as hc  # noqa: E402
 from hhra_phys.fit import fit  # noqa: E402
-from hhra_phys.rig import rig_model, simulate_rig  # noqa: E402
+from hhra_phys.models.hhra.rig import rig_model, simulate_rig  # noqa: E402
 
 DT = 0.004  # controller period [s]: the rig's 250 Hz
 CURRENT_LIMIT = 2.0  # [mA]

@@ -1,10 +1,33 @@
-"""hhra-phys: fit physical models of hydraulic actuators to measured data."""
+"""hhra-phys: fit physical models of actuators and processes to measured data.
+
+The generic core (parts, model, simulator, problem, fit, diagnosis loop) knows no
+particular system; the bundled models (:mod:`hhra_phys.models`) and a user's own
+are packages of parts::
+
+    from hhra_phys import Model, Part, State, Parameter, Effect, Simulator
+    from hhra_phys import register_part, register_effect, HHRAModel
+"""
 
 from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from hhra_phys.model import HHRAModel, Model  # noqa: E402
+from hhra_phys import effects as _effects  # noqa: E402, F401  (registers the library)
+from hhra_phys.model import Model  # noqa: E402, I001  (after parts: the core first)
+from hhra_phys.models.hhra import HHRAModel  # noqa: E402
+from hhra_phys.parameters import Parameter  # noqa: E402
+from hhra_phys.parts import (  # noqa: E402
+    Context,
+    Effect,
+    Part,
+    Signals,
+    State,
+    register_effect,
+    register_part,
+)
 from hhra_phys.simulate import Simulator  # noqa: E402
 
-__all__ = ["HHRAModel", "Model", "Simulator", "__version__"]
+__all__ = [
+    "Context", "Effect", "HHRAModel", "Model", "Parameter", "Part", "Signals", "Simulator",
+    "State", "__version__", "register_effect", "register_part",
+]

@@ -50,7 +50,8 @@ import scipy.signal
 
 from hhra_phys.arx import ARXFit, ARXModel
 from hhra_phys.errors import ModelError, ParameterError
-from hhra_phys.model import RAD2DEG, HHRAModel, Model
+from hhra_phys.model import Model
+from hhra_phys.models.hhra.model import RAD2DEG, HHRAModel
 from hhra_phys.result import FitResult
 
 __all__ = [

@@ -48,6 +48,10 @@ from hhra_phys.problem import Problem
 #: reported as not identifiable from the record.
 DETECTABLE = 1.0
 
+#: Old names of entry points: the HHRA's valve command is its input; its
+#: acceleration is the rate of its velocity state.
+ENTRY_ALIASES: dict[str, str] = {"command": "input", "accel": "rate:omega"}
+
 
 @dataclass
 class EffectEvidence:
@@ -308,17 +312,20 @@ def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarr
         return cols
     names = model.state_names
     A, B, C, _ = model.linearize(p=P, u=0.5 * umax, dt=dt)
-    if entry == "command":
-        # Average the two directions: the orifice law and dead zones are odd in u.
+    entry = ENTRY_ALIASES.get(entry, entry)
+    if entry == "input":
+        # Average the two directions: orifice laws and dead zones are odd in u.
         A2, B2, _, _ = model.linearize(p=P, u=-0.5 * umax, dt=dt)
         A, B = 0.5 * (A + A2), 0.5 * (B + B2)
         Dm = np.zeros((1, 1))
-    elif entry == "accel":
+    elif entry.startswith("rate:") and entry[5:] in names:
         B = np.zeros((len(names), 1))
-        B[names.index("omega"), 0] = 1.0
+        B[names.index(entry[5:]), 0] = 1.0
         Dm = np.zeros((1, 1))
     else:
-        raise ParameterError(f"unknown entry point {entry!r}")
+        raise ParameterError(
+            f"unknown entry point {entry!r} (input, output or rate:<state> with a state of "
+            f"{', '.join(names)})")
     Ad, Bd, Cd, Dd, _ = sps.cont2discrete((A, B, C, Dm), dt, method="zoh")
     out = np.empty_like(cols)
     for j in range(cols.shape[1]):
@@ -372,8 +379,8 @@ def analyse(
     r = data.y - yhat
     fs = data.fs
     names = problem.model.state_names
-    theta = X[:, names.index("theta")] if "theta" in names else None
-    omega = X[:, names.index("omega")] if "omega" in names else None
+    states = {n: X[:, i] for i, n in enumerate(names)}
+    theta, omega = states.get("theta"), states.get("omega")
     noise = noise_level(r)
     white = whiteness(r)
     max_lag = int(min(50, data.n // 10))
@@ -390,9 +397,11 @@ def analyse(
                 "low_fraction": float(pxx[low].sum() / pxx.sum()) if pxx.sum() > 0 else 0.0,
                 "unit": "Hz" if data.time_unit != "samples" else "1/sample"}
 
-    # Nuisance: what the model's own parameters can absorb, plus a constant.
-    J = _sensitivities(problem, values, yhat)
-    N = np.column_stack([np.ones(data.n), J])
+    # Nuisance: what the model's own free parameters (the fitted initial state
+    # among them) can absorb. No constant of its own: a constant residual is
+    # absorbed only where the model can make one (an integrating output's initial
+    # value), otherwise it is evidence of an offset.
+    N = _sensitivities(problem, values, yhat)
     N = N / np.maximum(np.linalg.norm(N, axis=0), 1e-300)
     Q, R = np.linalg.qr(N)
     keep = np.abs(np.diag(R)) > 1e-8
@@ -403,16 +412,19 @@ def analyse(
 
     r_p = perp(r[:, None])[:, 0]
     r_norm2 = float(r_p @ r_p) or 1e-300
-    sig = Signals(u=data.u, dt=data.dt, theta=theta, omega=omega,
-                  output="angle" if problem.model.has_part("angle_output") else
-                  ("pressure" if problem.model.has_part("pressure_output") else "other"))
+    sig = Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat)
     fitted = problem.model.params.as_dict(P)
     names_c = list(candidates) if candidates is not None else list(EFFECTS)
     umax = float(np.max(np.abs(data.u))) or 1.0
     evidence = []
     for name in names_c:
         kw = dict((effect_kw or {}).get(name, {}))
-        eff: Effect = make_effect(name, data=data, values=fitted, **kw)
+        try:
+            eff: Effect = make_effect(name, data=data, values=fitted, **kw)
+        except Exception as exc:  # noqa: BLE001 - a user's effect may fail to build
+            evidence.append(EffectEvidence(name, 0.0, 0.0, {}, False, "",
+                                           note=f"skipped: cannot be built ({exc})"))
+            continue
         why = eff.applicable(problem.model)
         if why:
             evidence.append(EffectEvidence(name, 0.0, 0.0, {}, False, eff.signature,
@@ -422,6 +434,12 @@ def analyse(
                for k in eff.regressors if k in table}
         try:
             cols = eff.first_order(sig)
+            if cols is None:
+                evidence.append(EffectEvidence(
+                    name, 0.0, float("nan"), {}, True, eff.signature, rel,
+                    note="no first-order signature declared: ranked last, decided by its refit"))
+                continue
+            cols = np.asarray(cols, dtype=float).reshape(data.n, -1)
             S = _linear_response(problem, P, eff.entry, cols, umax)
         except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
             evidence.append(EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,

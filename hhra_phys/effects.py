@@ -11,14 +11,16 @@ Library names (stable, read by outside checks)::
     coulomb_friction  valve_deadzone  valve_saturation  input_delay  valve_dynamics
     gravity_load      backlash        sensor_offset     asymmetric_valve
 
-Effects work on any composed model whose parts provide what they read: input
-stage effects transform the ``"command"`` signal, ``asymmetric_valve`` the
-``"flow"`` signal, motion effects add to the rate of state ``omega`` (and read
-``theta``), output effects change ``"y"``. For example, on a user's own model::
-
-    from hhra_phys.model import Model, CurrentCommand, LinearValve, ChamberPressure, ...
-    model = Model([CurrentCommand(), LinearValve(), ChamberPressure(), RotaryMotion(),
-                   AngleOutput()]).with_parts(make_effect("coulomb_friction"))
+Each effect declares what it reads and writes (:attr:`Effect.reads`,
+:attr:`Effect.writes`), and :meth:`Effect.applicable` checks exactly that, so the
+loop skips an effect a model cannot take and says why. Input-side effects
+(``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``)
+act on the model's input ``ctx.u`` and output-side ``sensor_offset`` on the
+output ``y``: they attach to any model. ``coulomb_friction`` and ``gravity_load``
+act on the rate of a rotary velocity state ``omega`` (and read ``theta``),
+``backlash`` on an angle output in degrees, ``asymmetric_valve`` on the
+``"flow"`` and ``"command"`` signals of a valve model such as the HHRA. A user's
+effect is registered with :func:`hhra_phys.parts.register_effect`.
 
 Scaling. Bounds of input-stage effects are relative to ``u_scale`` (typical input
 magnitude, default 1 mA), of motion effects to ``accel_scale`` (the model's
@@ -46,87 +48,24 @@ import numpy as np
 from scipy import signal as sps
 
 from hhra_phys.errors import ModelError, ParameterError
-from hhra_phys.model import RAD2DEG, Model, register_part
 from hhra_phys.parameters import Parameter
-from hhra_phys.parts import Context, Part, State, smooth_relu, smooth_sign
+from hhra_phys.parts import (
+    EFFECTS,
+    Context,
+    Effect,
+    Signals,
+    State,
+    register_effect,
+    smooth_relu,
+    smooth_sign,
+)
+
+__all__ = ["EFFECTS", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL"]
+
+RAD2DEG = 180.0 / math.pi
 
 #: The rig's g_torque [rad/s^2]: default scale of accelerations of motion effects.
 RIG_ACCEL = 175.58
-
-
-@dataclass(frozen=True)
-class Signals:
-    """Signals of a simulation without the effect, for first-order signatures.
-
-    Attributes
-    ----------
-    u : ndarray
-        Input (input units), shape (N,).
-    dt : float
-        Sample period [s] (or samples for records in sample time).
-    theta, omega : ndarray or None
-        Simulated angle [rad] and velocity [rad/s] (None when the model has none).
-    output : str
-        ``"angle"`` (degrees) or ``"pressure"`` or ``"other"``.
-    """
-
-    u: np.ndarray
-    dt: float
-    theta: np.ndarray | None = None
-    omega: np.ndarray | None = None
-    output: str = "angle"
-
-
-@dataclass(frozen=True)
-class Effect(Part):
-    """Base class of library effects: a part plus its residual signature.
-
-    Class attributes
-    ----------------
-    entry : {"command", "accel", "output"}
-        Where the effect enters the model (for its first-order signature).
-    signature : str
-        What the effect leaves in the residual of a model without it.
-    regressors : tuple of str
-        Names of the generic regressors of :mod:`hhra_phys.diagnose` it relates to.
-    position_dependent : bool
-        Whether it depends on the angle (then it may extrapolate badly).
-    """
-
-    entry: ClassVar[str] = "command"
-    signature: ClassVar[str] = ""
-    regressors: ClassVar[tuple[str, ...]] = ()
-    position_dependent: ClassVar[bool] = False
-
-    def applicable(self, model: Model) -> str | None:
-        """``None`` if the effect can be added to ``model``, else the reason why not."""
-        names = {p.name for p in model.params}
-        clash = names & {p.name for p in self.parameters}
-        if clash:
-            return f"model already has parameters {sorted(clash)}"
-        if self.name in model.part_names():
-            return "already in the model"
-        if self.entry == "accel" and "omega" not in model.state_names:
-            return "model has no angular velocity state 'omega'"
-        return None
-
-    def probe(self) -> dict[str, float]:
-        """Parameter values of a small but relevant size of the effect."""
-        return {p.name: p.nominal for p in self.parameters}
-
-    def first_order(self, sig: Signals) -> np.ndarray:  # pragma: no cover - abstract
-        """Change at :attr:`entry` made by the effect at its probe size, shape (N, k)."""
-        raise NotImplementedError
-
-
-def _register(cls: type[Effect]) -> type[Effect]:
-    register_part(cls)
-    EFFECTS[cls.name] = cls
-    return cls
-
-
-#: Registry: library name -> effect class.
-EFFECTS: dict[str, type[Effect]] = {}
 
 
 def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
@@ -136,7 +75,7 @@ def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
 # --- motion stage -----------------------------------------------------------------
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class CoulombFriction(Effect):
     """Coulomb friction torque, optionally with a Stribeck term.
@@ -168,6 +107,8 @@ class CoulombFriction(Effect):
     accel_scale: float = RIG_ACCEL
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "coulomb_friction"
+    reads: ClassVar[tuple[str, ...]] = ("omega",)
+    writes: ClassVar[tuple[str, ...]] = ("omega",)
     entry: ClassVar[str] = "accel"
     signature: ClassVar[str] = (
         "residual follows the sign of the simulated velocity; the error grows after "
@@ -207,7 +148,7 @@ class CoulombFriction(Effect):
         return -g * _smooth_np(sig.omega, self.eps + 0.5 * self.dt * g)[:, None]
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class GravityLoad(Effect):
     """Angle-dependent load torque, such as an offset mass on the shaft.
@@ -223,6 +164,8 @@ class GravityLoad(Effect):
     accel_scale: float = RIG_ACCEL
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "gravity_load"
+    reads: ClassVar[tuple[str, ...]] = ("theta",)
+    writes: ClassVar[tuple[str, ...]] = ("omega",)
     entry: ClassVar[str] = "accel"
     signature: ClassVar[str] = (
         "residual drifts with the simulated angle (sin/cos of theta); it is absent "
@@ -246,11 +189,6 @@ class GravityLoad(Effect):
         ctx.add_rate("omega", -(ctx.p["g_grav_cos"] * ca.cos(th)
                                 + ctx.p["g_grav_sin"] * ca.sin(th)))
 
-    def applicable(self, model: Model) -> str | None:
-        if "theta" not in model.state_names:
-            return "model has no angle state 'theta'"
-        return super().applicable(model)
-
     def probe(self) -> dict[str, float]:
         return {"g_grav_cos": 0.03 * self.accel_scale, "g_grav_sin": 0.03 * self.accel_scale}
 
@@ -264,7 +202,7 @@ class GravityLoad(Effect):
 # --- input stage ------------------------------------------------------------------
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class ValveDeadzone(Effect):
     """No flow for ``|command| < i_dead``: ``c -> relu(c - d) - relu(-c - d)`` (smooth).
@@ -295,17 +233,17 @@ class ValveDeadzone(Effect):
                           "half width of the valve dead zone"),)
 
     def apply(self, ctx: Context) -> None:
-        c = ctx.signal("command", self.name)
+        c = ctx.u
         d = ctx.p["i_dead"]
         e = self.eps * self.u_scale
-        ctx.signals["command"] = smooth_relu(c - d, e) - smooth_relu(-c - d, e)
+        ctx.u = smooth_relu(c - d, e) - smooth_relu(-c - d, e)
 
     def first_order(self, sig: Signals) -> np.ndarray:
         d = self.probe()["i_dead"]
         return -np.clip(sig.u, -d, d)[:, None]
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class ValveSaturation(Effect):
     """Spool or current limit: ``c -> clip(c, -i_sat, i_sat)`` (smooth corners)."""
@@ -328,17 +266,17 @@ class ValveSaturation(Effect):
                           "largest effective valve command"),)
 
     def apply(self, ctx: Context) -> None:
-        c = ctx.signal("command", self.name)
+        c = ctx.u
         s = ctx.p["i_sat"]
         e = self.eps * self.u_scale
-        ctx.signals["command"] = c - smooth_relu(c - s, e) + smooth_relu(-c - s, e)
+        ctx.u = c - smooth_relu(c - s, e) + smooth_relu(-c - s, e)
 
     def first_order(self, sig: Signals) -> np.ndarray:
         s = 0.8 * float(np.max(np.abs(sig.u)))
         return (np.clip(sig.u, -s, s) - sig.u)[:, None]
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class InputDelay(Effect):
     """Transport delay of the command, fractional, in samples.
@@ -383,12 +321,11 @@ class InputDelay(Effect):
         out = ca.SX(0)
         for k in range(self.n_lags + 1):
             out = out + ca.fmax(0, 1 - ca.fabs(d - k)) * ctx.u_lags[k]
-        # The delay acts on the measured input, wherever it sits in the input
-        # stage: earlier input parts (dead zone, saturation, spool lag) see the
-        # delayed input, so substitute it for the current input in what they built.
+        # The delay acts on the measured input, wherever it sits among the input-side
+        # effects: earlier ones (dead zone, saturation, lag) see the delayed input,
+        # so substitute it for the current input in what they built.
         u0 = ctx.u_lags[0]
-        if "command" not in ctx.signals:
-            ctx.signals["command"] = u0
+        ctx.u = ca.substitute(ctx.u, u0, out)
         for key, expr in ctx.signals.items():
             ctx.signals[key] = ca.substitute(expr, u0, out)
         for key, expr in ctx.rates.items():
@@ -399,7 +336,7 @@ class InputDelay(Effect):
         return (np.concatenate([u[:1], u[:-1]]) - u)[:, None]
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class ValveDynamics(Effect):
     """First-order lag of the valve spool: ``tau_spool * dx_spool/dt = command - x_spool``.
@@ -428,12 +365,12 @@ class ValveDynamics(Effect):
 
     @property
     def states(self) -> Sequence[State]:
-        return (State("x_spool", "input", 0.0, "spool position in input units"),)
+        return (State("x_spool", "input", 0.0, "spool position in input units",
+                      fit_initial=False),)
 
     def apply(self, ctx: Context) -> None:
-        c = ctx.signal("command", self.name)
-        ctx.add_rate("x_spool", (c - ctx.x["x_spool"]) / ctx.p["tau_spool"])
-        ctx.signals["command"] = ctx.x["x_spool"]
+        ctx.add_rate("x_spool", (ctx.u - ctx.x["x_spool"]) / ctx.p["tau_spool"])
+        ctx.u = ctx.x["x_spool"]
 
     def first_order(self, sig: Signals) -> np.ndarray:
         tau = self.probe()["tau_spool"]
@@ -445,7 +382,7 @@ class ValveDynamics(Effect):
 # --- valve stage --------------------------------------------------------------------
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class AsymmetricValve(Effect):
     """Different flow gains for the two directions: ``flow *= 1 + asym*sgn(command)``.
@@ -459,6 +396,8 @@ class AsymmetricValve(Effect):
     eps: float = 0.01
     stage: ClassVar[str] = "valve"
     name: ClassVar[str] = "asymmetric_valve"
+    reads: ClassVar[tuple[str, ...]] = ("command", "flow")
+    writes: ClassVar[tuple[str, ...]] = ("flow",)
     entry: ClassVar[str] = "command"
     signature: ClassVar[str] = (
         "residual drifts in proportion to the integral of |input| (time-growing drift "
@@ -486,7 +425,7 @@ class AsymmetricValve(Effect):
 # --- output stage -------------------------------------------------------------------
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class Backlash(Effect):
     """Play between piston and shaft as seen by the encoder.
@@ -509,6 +448,8 @@ class Backlash(Effect):
     eps_omega: float = 0.01
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "backlash"
+    reads: ClassVar[tuple[str, ...]] = ("omega", "theta")
+    writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
     signature: ClassVar[str] = (
         "output residual jumps by about the play at each direction reversal and stays "
@@ -523,12 +464,18 @@ class Backlash(Effect):
 
     @property
     def states(self) -> Sequence[State]:
-        return (State("gap", "rad", 0.0, "shaft angle minus encoder angle"),)
+        return (State("gap", "rad", 0.0, "shaft angle minus encoder angle",
+                      fit_initial=False),)
 
-    def applicable(self, model: Model) -> str | None:
-        if not model.has_part("angle_output"):
-            return "backlash is seen by an angle encoder; the model has no angle output"
-        return super().applicable(model)
+    def applicable(self, model: Any) -> str | None:
+        why = super().applicable(model)
+        if why:
+            return why
+        slope = output_slope(model, "theta")
+        if slope is None or abs(slope - RAD2DEG) > 1e-9 * RAD2DEG:
+            return ("backlash is seen by an angle encoder: the model has no angle output "
+                    "(its output is not the angle 'theta' in degrees)")
+        return None
 
     def apply(self, ctx: Context) -> None:
         w, gap = ctx.x["omega"], ctx.x["gap"]
@@ -548,7 +495,7 @@ class Backlash(Effect):
         return -0.25 * _smooth_np(sig.omega, self.eps_omega)[:, None]
 
 
-@_register
+@register_effect
 @dataclass(frozen=True)
 class SensorOffset(Effect):
     """Constant bias of the measured output: ``y += y_offset`` (output units).
@@ -560,6 +507,7 @@ class SensorOffset(Effect):
     y_scale: float = 1.0
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "sensor_offset"
+    writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
     signature: ClassVar[str] = "constant residual mean"
     regressors: ClassVar[tuple[str, ...]] = ("constant",)
@@ -569,9 +517,10 @@ class SensorOffset(Effect):
         a = 10 * self.y_scale
         return (Parameter("y_offset", "out", 0.0, -a, a, "linear", "sensor zero offset"),)
 
-    def applicable(self, model: Model) -> str | None:
-        if model.has_part("pressure_output"):
-            return "the pressure output already has an offset p_offset"
+    def applicable(self, model: Any) -> str | None:
+        have = output_offsets(model)
+        if have:
+            return f"the model's output already has an offset parameter ({', '.join(have)})"
         return super().applicable(model)
 
     def apply(self, ctx: Context) -> None:
@@ -582,6 +531,39 @@ class SensorOffset(Effect):
 
     def first_order(self, sig: Signals) -> np.ndarray:
         return np.full((sig.u.size, 1), 0.1 * self.y_scale)
+
+
+# --- structural checks ----------------------------------------------------------------
+
+
+def output_slope(model: Any, state: str) -> float | None:
+    """``dy/d state`` if the output is affine in ``state`` with a constant slope, else None.
+
+    Read from the model's symbolic output, not from part names (so any model
+    whose output is, say, the angle in degrees is recognised).
+    """
+    if state not in model.state_names:
+        return None
+    x, u, p = model.symbols()
+    _, y = model.assemble(x, u, p, 0.004)
+    d = ca.jacobian(y, x[model.state_names.index(state)])
+    if not d.is_constant():
+        return None
+    return float(ca.DM(ca.evalf(d)))
+
+
+def output_offsets(model: Any) -> list[str]:
+    """Parameters that shift the output by themselves: ``dy/dq == 1`` and absent from ``f``."""
+    x, u, p = model.symbols()
+    xdot, y = model.assemble(x, u, p, 0.004)
+    dy = ca.jacobian(y, p)
+    dx = ca.jacobian(xdot, p)
+    out = []
+    for i, name in enumerate(model.params.names):
+        di = dy[0, i]
+        if di.is_constant() and float(ca.evalf(di)) == 1.0 and dx[:, i].nnz() == 0:
+            out.append(name)
+    return out
 
 
 # --- construction -------------------------------------------------------------------

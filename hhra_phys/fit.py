@@ -36,48 +36,25 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.metrics import score
-from hhra_phys.model import HHRAModel, Model
+from hhra_phys.model import Model
 from hhra_phys.optim import minimize
-from hhra_phys.physical import PhysicalParameters
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
 from hhra_phys.profile import profile_intervals
 from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
-from hhra_phys.result import FitResult, tf_of, uncertainty
+from hhra_phys.result import FitResult, uncertainty
 
 OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
-
-#: Sample rate whose time scale the nominal groups describe (the rig's) [Hz].
-NOMINAL_FS = 250.0
-#: Box of every positive group, as a factor around its nominal, for records in sample units.
-SAMPLE_UNIT_SPAN = 100.0
-
 
 def default_model(
     data: Dataset, valve: str = "orifice"
 ) -> tuple[Model, dict[str, tuple[float, float]]]:
-    """The HHRA model (and bounds) :func:`fit` uses for a record when none is given.
+    """The model (and bounds) :func:`fit` uses for a record when none is given: the HHRA.
 
-    Angle output in degrees, or a pressure output when the record's output is
-    called ``pressure``. A record in sample units (unknown sample time, such as
-    the public hydraulic-actuator data) is fitted per sample: the nominal groups
-    are rescaled from seconds to 4 ms samples (the rig's 250 Hz) and every
-    positive group may range over a factor of 100 either way, because nothing
-    is known of that actuator; a pressure output's gain and offset get boxes of
-    10 and 1 times the largest measured value.
+    See :func:`hhra_phys.models.hhra.defaults.default_model`.
     """
-    output = "pressure" if data.output_name == "pressure" else "angle"
-    model: Model = HHRAModel(valve=valve, output=output)  # type: ignore[arg-type]
-    bounds: dict[str, tuple[float, float]] = {}
-    if data.metadata.get("time_unit") == "samples":
-        model = model.time_scaled(1.0 / NOMINAL_FS, time_unit="sample")
-        for par in model.params:
-            if par.scale == "log":
-                bounds[par.name] = (par.nominal / SAMPLE_UNIT_SPAN, par.nominal * SAMPLE_UNIT_SPAN)
-    if output == "pressure":
-        peak = float(np.max(np.abs(data.y)))
-        bounds["p_gain"] = (-10 * peak, 10 * peak)
-        bounds["p_offset"] = (-peak, peak)
-    return model, bounds
+    from hhra_phys.models.hhra.defaults import default_model as hhra_default
+
+    return hhra_default(data, valve=valve)
 
 
 def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
@@ -119,7 +96,7 @@ def fit(
     options: Mapping[str, Any] | None = None,
     refine_options: Mapping[str, Any] | None = None,
     start: Mapping[str, float] | None = None,
-    datasheet: PhysicalParameters | None = None,
+    datasheet: Any | None = None,
     progress: bool = False,
     callback: Callable[[Any], bool | None] | None = None,
     problem: Problem | None = None,
@@ -164,9 +141,12 @@ def fit(
     start : dict, optional
         Starting values (physical units) for the global search's first population
         and for ``optimizer="none"``.
-    datasheet : PhysicalParameters, optional
-        Known physical symbols; the fitted groups are then also reported as
-        physical symbols. Simulated rig data carries its own.
+    datasheet : object, optional
+        Known physical symbols for the model's physical view
+        (:meth:`Model.physical_view <hhra_phys.model.Model.physical_view>`; for the
+        HHRA a :class:`~hhra_phys.models.hhra.physical.PhysicalParameters`); the
+        fitted parameters are then also reported as physical symbols. Simulated
+        rig data carries its own.
     progress : bool
         Show a progress bar during the global search.
     callback : callable, optional
@@ -189,7 +169,7 @@ def fit(
     if intervals not in ("linear", "profile"):
         raise ParameterError(f"intervals must be 'linear' or 'profile', got {intervals!r}")
     if data is None:
-        from hhra_phys.rig import simulate_rig
+        from hhra_phys.models.hhra.rig import simulate_rig
 
         data = simulate_rig(seed=0)
     if optimizer not in OPTIMIZERS:
@@ -269,7 +249,7 @@ def _result(
     seed: int | None,
     lam: float,
     split: float,
-    datasheet: PhysicalParameters | None,
+    datasheet: Any | None,
     seconds: float,
     intervals: str = "linear",
 ) -> FitResult:
@@ -345,30 +325,18 @@ def _result(
     if val is not None:
         y_val = problem.simulate_values(values_free, data=val)
         metrics["val"] = _score(val, y_val)
-        position_dependent = "g_spring" in problem.free_names or any(
-            getattr(part, "position_dependent", False) or part.name == "gravity_load"
-            for part in problem.model.parts
-        )
-        if position_dependent and problem.model.has_part("angle_output"):
+        position_dependent = any(getattr(part, "position_dependent", False)
+                                 for part in problem.model.parts)
+        if position_dependent:
             lo_e, hi_e = float(problem.data.y.min()), float(problem.data.y.max())
             if val.y.min() < lo_e or val.y.max() > hi_e:
                 warnings.append(
                     f"validation output leaves the estimation range [{lo_e:.3g}, {hi_e:.3g}]: "
                     "position-dependent terms are extrapolated there"
                 )
-    sheet = datasheet
-    if sheet is None and isinstance(data.metadata.get("physical"), dict):
-        try:
-            sheet = PhysicalParameters(**data.metadata["physical"])
-        except (TypeError, ParameterError):
-            sheet = None
-    physical = None
-    if sheet is not None and isinstance(model, HHRAModel):
-        groups = {k: v for k, v in values.items() if k.startswith("g_") and k != "g_kp"}
-        try:
-            physical = sheet.from_groups(groups).to_dict()
-        except ParameterError as exc:
-            warnings.append(f"physical symbols not recoverable with the datasheet: {exc}")
+    physical, why = model.physical_view(values, datasheet, data.metadata)
+    if why:
+        warnings.append(why)
     settings = {
         "optimizer": optimizer,
         "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
@@ -399,12 +367,13 @@ def _result(
         metrics=metrics,
         stages=[s.to_json() for s in stages],
         history=history,
-        tf=tf_of(model, values),
+        tf=model.tf_coefficients_of(values),
         x0=x0,
         settings=settings,
         seed=seed,
         physical=physical,
         intervals=interval_info,
+        problem=problem,
     )
 
 

@@ -42,7 +42,7 @@ from hhra_phys.diagnose import Diagnosis, analyse
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
-from hhra_phys.model import HHRAModel, Model
+from hhra_phys.model import Model
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
 from hhra_phys.simulate import Simulator
@@ -112,6 +112,8 @@ class LoopResult:
     final_diagnosis: Diagnosis | None
     settings: dict[str, Any]
     warnings: list[str] = field(default_factory=list)
+    #: Candidates that could not be tried on this model, with the reason.
+    skipped: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """``{"base": {"est": .., "val": ..}, "steps": [..], "chosen": [..], "final": ..}``."""
@@ -131,6 +133,7 @@ class LoopResult:
             "diagnosis_after": (self.final_diagnosis.to_json()
                                 if self.final_diagnosis is not None else None),
             "warnings": self.warnings,
+            "skipped": dict(self.skipped),
             "settings": self.settings,
         })
 
@@ -151,10 +154,13 @@ class _Fitter:
     """Builds problems on the estimation part and runs fits with shared settings."""
 
     def __init__(self, data: Dataset, split: float, bounds: Mapping[str, tuple[float, float]],
-                 backend: str, seed: int, ipopt_iter: int = 60) -> None:
+                 backend: str, seed: int, ipopt_iter: int = 60,
+                 initial_state: str = "fit") -> None:
         self.data = data
         self.split = split
-        self.est = data.split(split)[0]
+        # The record is split once; every fit gets the same parts.
+        self.est, self.val = data.split(split)
+        self.initial_state = initial_state
         self.bounds = dict(bounds)
         self.backend = backend
         self.seed = seed
@@ -172,19 +178,22 @@ class _Fitter:
             self.substeps = sim.substeps
         bnd = {k: v for k, v in self.bounds.items() if k in free}
         st = {k: v for k, v in start.items() if k in model.params and k not in fixed}
-        observed = "theta" if model.has_part("angle_output") else "p"
-        if x0 and observed in x0:  # warm start of the fitted initial state too
-            st[f"x0_{observed}"] = float(x0[observed])
+        if self.initial_state == "fit":
+            for state in model.fitted_states:  # warm start of the fitted initial state too
+                if x0 and state in x0:
+                    st[f"x0_{state}"] = float(x0[state])
         return Problem(model, self.est, free=list(free), fixed=dict(fixed), bounds=bnd,
-                       initial_state="fit", simulator=sim, start=st)
+                       initial_state=self.initial_state, simulator=sim,  # type: ignore[arg-type]
+                       start=st)
 
     def run(self, problem: Problem, optimizer: str, pop: int, iters: int,
             refine: str = "ipopt", warm: bool = True) -> FitResult:
         # A warm start seeds the first population with the problem's start values
         # (the previous fit); the base fit is not seeded.
-        return fit(self.data, problem=problem, split=self.split, optimizer=optimizer,
-                   refine=refine, pop_size=pop, max_iter=iters, seed=self.seed,
-                   seed_population=warm, refine_options={"max_iter": self.ipopt_iter})
+        return fit(self.data, problem=problem, validation=self.val, split=self.split,
+                   optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
+                   seed=self.seed, seed_population=warm,
+                   refine_options={"max_iter": self.ipopt_iter})
 
 
 def _free_values(problem: Problem, res: FitResult) -> np.ndarray:
@@ -209,17 +218,10 @@ def _unidentified(res: FitResult, names: Sequence[str], model: Model) -> list[st
     return out
 
 
-def _angle_range(problem: Problem, values: np.ndarray, data: Dataset) -> tuple[float, float]:
-    """Range of the simulated angle [deg] on ``data`` (free run)."""
-    names = problem.model.state_names
-    if "theta" not in names:
-        return (math.nan, math.nan)
-    P = problem.full(values)
-    X0 = problem.initial_states(values, data if data is not problem.data else None)[0]
-    sim = problem.simulator_for(data)
-    _, X = sim.simulate(data.u, P, x0=X0, states=True)
-    th = np.degrees(X[:, names.index("theta")])
-    return float(np.nanmin(th)), float(np.nanmax(th))
+def _output_range(problem: Problem, values: np.ndarray, data: Dataset) -> tuple[float, float]:
+    """Range of the simulated output on ``data`` (free run), output units."""
+    y = problem.simulate_values(values, data=data if data is not problem.data else None)
+    return float(np.nanmin(y)), float(np.nanmax(y))
 
 
 def augment(
@@ -243,6 +245,7 @@ def augment(
     backend: str = "casadi",
     ipopt_iter: int = 60,
     progress: Callable[[str], None] | None = None,
+    initial_state: str = "fit",
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -290,6 +293,8 @@ def augment(
         spends long iterations on a fit that will be rejected anyway).
     progress : callable, optional
         Called with a line of text at every step.
+    initial_state : {"fit", "data", "zero"}
+        Initial-state rule of every fit (:mod:`hhra_phys.problem`).
 
     Returns
     -------
@@ -307,10 +312,12 @@ def augment(
         if n not in EFFECTS:
             raise ParameterError(f"unknown effect {n!r}; library: {', '.join(EFFECTS)}")
     if model is None:
+        from hhra_phys.models.hhra import HHRAModel
+
         model = HHRAModel(output="pressure" if data.output_name == "pressure" else "angle")
     t0 = time.perf_counter()
-    fitter = _Fitter(data, split, bounds or {}, backend, seed, ipopt_iter)
-    _, val = data.split(split)
+    fitter = _Fitter(data, split, bounds or {}, backend, seed, ipopt_iter, initial_state)
+    val = fitter.val
     base_free = list(free) if free is not None else default_free(model)
     say(f"base fit: {', '.join(base_free)} (pop {pop_size}, {max_iter} iterations)")
     prob = fitter.problem(model, base_free, {}, {})
@@ -324,7 +331,9 @@ def augment(
     chosen: list[str] = []
     diagnoses: list[Diagnosis] = []
     warnings: list[str] = []
-    est_range = _angle_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
+    skipped: dict[str, str] = {}
+    unit = data.output_unit or ""
+    est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     for rnd in range(1, max_effects + 1):
         remaining = [n for n in names if n not in chosen]
         if not remaining:
@@ -332,6 +341,10 @@ def augment(
         diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
                        effect_kw=effect_kw)
         diagnoses.append(diag)
+        for ev in diag.evidence:
+            if ev.note.startswith("skipped"):
+                skipped[ev.name] = ev.note.removeprefix("skipped: ")
+        names = [n for n in names if n not in skipped]
         ranked = diag.ranked()
         say(f"round {rnd}: ranking\n" + diag.summary())
         crit_cur = information_criterion(cur, criterion)
@@ -344,11 +357,17 @@ def augment(
             model_c = cur_prob.model.with_parts(eff)
             new = [p.name for p in eff.parameters]
             fixed = {n: cur.values[n] for n in cur_free}
-            p1 = fitter.problem(model_c, new, fixed, cur.values, cur.x0)
-            r1 = fitter.run(p1, "hgwo", cand_pop, cand_iter, refine="none")
             all_free = cur_free + new
-            p2 = fitter.problem(model_c, all_free, {}, r1.values, r1.x0)
-            r2 = fitter.run(p2, "none", 0, 0)
+            try:
+                p1 = fitter.problem(model_c, new, fixed, cur.values, cur.x0)
+                r1 = fitter.run(p1, "hgwo", cand_pop, cand_iter, refine="none")
+                p2 = fitter.problem(model_c, all_free, {}, r1.values, r1.x0)
+                r2 = fitter.run(p2, "none", 0, 0)
+            except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
+                skipped[ev.name] = f"its refit failed: {type(exc).__name__}: {exc}"
+                names = [n for n in names if n != ev.name]
+                say(f"  skipped {ev.name}: {skipped[ev.name]}")
+                continue
             crit = information_criterion(r2, criterion)
             vr = float(r2.metrics["val"].get("rmse", math.inf))
             if not math.isfinite(vr):
@@ -362,13 +381,13 @@ def augment(
                 step.identifiable = False
                 step.notes.append(
                     f"95 % CI of {', '.join(bad)} too wide: not identifiable from these data")
-            if eff.position_dependent and model_c.has_part("angle_output"):
-                vrange = _angle_range(p2, _free_values(p2, r2), val)
+            if eff.position_dependent:
+                vrange = _output_range(p2, _free_values(p2, r2), val)
                 lo, hi = est_range
                 if vrange[0] < lo - 1e-9 or vrange[1] > hi + 1e-9:
                     step.notes.append(
-                        f"validation drives the angle to [{vrange[0]:.3g}, {vrange[1]:.3g}] deg, "
-                        f"outside the estimation range [{lo:.3g}, {hi:.3g}]: this "
+                        f"validation drives the output to [{vrange[0]:.3g}, {vrange[1]:.3g}] "
+                        f"{unit}, outside the estimation range [{lo:.3g}, {hi:.3g}]: this "
                         "position-dependent effect is extrapolated there")
             gain_ok = vr <= (1 - margin) * rmse_cur
             crit_ok = crit < crit_cur
@@ -394,19 +413,20 @@ def augment(
     final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
         n for n in names if n not in chosen]) if names else None
     lo, hi = est_range
-    if "theta" in cur_prob.model.state_names:
-        vr = _angle_range(cur_prob, _free_values(cur_prob, cur), val)
+    if any(getattr(part, "position_dependent", False) for part in cur_prob.model.parts):
+        vr = _output_range(cur_prob, _free_values(cur_prob, cur), val)
         if vr[0] < lo or vr[1] > hi:
             warnings.append(
-                f"validation angle range [{vr[0]:.3g}, {vr[1]:.3g}] deg (simulated) leaves the "
-                f"estimation range [{lo:.3g}, {hi:.3g}] deg: position-dependent effects are "
-                "extrapolated there")
+                f"validation output range [{vr[0]:.3g}, {vr[1]:.3g}] {unit} (simulated) leaves "
+                f"the estimation range [{lo:.3g}, {hi:.3g}] {unit}: position-dependent effects "
+                "are extrapolated there")
     settings = {"split": split, "candidates": names, "max_effects": max_effects, "top_k": top_k,
                 "pop_size": pop_size, "max_iter": max_iter, "cand_pop": cand_pop,
                 "cand_iter": cand_iter, "seed": seed, "margin": margin, "criterion": criterion,
                 "backend": backend, "seconds": time.perf_counter() - t0,
                 "data": {"name": data.name, "n": data.n, "fs": data.fs}}
-    return LoopResult(base, cur, steps, chosen, diagnoses, final_diag, settings, warnings)
+    return LoopResult(base, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
+                      skipped)
 
 
 

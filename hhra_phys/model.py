@@ -1,303 +1,63 @@
-"""Composed models and the helical hydraulic rotary actuator (HHRA).
+"""A dynamic model composed of parts: the generic core of hhra-phys.
 
-The HHRA of the reference paper (PAPER_NOTES section 1) reduces to three states,
-shaft angle ``theta`` [rad], angular velocity ``omega`` [rad/s] and the load
-pressure normalised by the supply pressure, ``p = P_L / p_s`` [-]::
+A :class:`Model` is a list of :class:`~hhra_phys.parts.Part` objects assembled
+into CasADi functions ``xdot = f(x, u_lags, p)`` and ``y = h(x, u_lags, p)``.
+It knows no state, signal or part name of any particular system: the bundled
+models (:mod:`hhra_phys.models`) and a user's own are packages of parts, and
+effects (:mod:`hhra_phys.effects`, or a user's, see
+:func:`~hhra_phys.parts.register_effect`) are further parts added with
+:meth:`Model.with_parts`.
 
-    dtheta/dt = omega
-    domega/dt = g_torque*p - g_damping*omega - g_spring*theta - g_load
-    dp/dt     = q(I, p) - g_compress*omega - g_leak*p
+Order of assembly. Input-side effects (an :class:`~hhra_phys.parts.Effect` of
+stage ``"input"``) first, in list order; then the model's stages, in the order
+given (``stages=``) or of first appearance in the part list, each stage's parts
+in list order; a stage the model does not name (``"output"`` of an output-side
+effect) after those, in order of first appearance. States are ordered as their
+parts appear in the list.
 
-with the orifice valve ``q = g_valve * I * sqrt(1 - sign(I)*p)`` (or the linearised
-valve ``q = g_valve*I - g_kp*p``). The ``g_*`` are the identifiable groups of the
-physical symbols (see :mod:`hhra_phys.physical` for the mapping and
-``docs/model.md`` for the derivation). Normalising the pressure by ``p_s`` keeps
-every state O(1) and puts the orifice nonlinearity at ``|p| -> 1``.
+Example: a user's two-tank process::
 
-A model is a list of :class:`~hhra_phys.parts.Part`; :class:`Model` assembles
-them into CasADi functions. :class:`HHRAModel` is the HHRA built from the parts
-defined here; :meth:`Model.with_parts` adds effects (friction, dead zone, ...).
+    from hhra_phys import Model, Part, State, Parameter, register_part
+
+    @register_part
+    @dataclass(frozen=True)
+    class Tank(Part):
+        name = "tank"
+        stage = "tank"
+        ...
+
+    model = Model([Inflow(), Tank(), LevelSensor()])   # stages: inflow, tank, sensor
 """
 
 from __future__ import annotations
 
-import math
 import re
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, fields
-from typing import Any, ClassVar, Literal
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, fields
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from hhra_phys.errors import ModelError
-from hhra_phys.parameters import Parameter, ParameterSet
+from hhra_phys.parameters import ParameterSet
 from hhra_phys.parts import (
-    STAGES,
+    INPUT_STAGE,
+    PART_TYPES,
     Context,
+    Effect,
     Part,
     State,
-    smooth_sign,
-    smooth_signed_sqrt,
+    register_part,
 )
-from hhra_phys.physical import PhysicalParameters
 
-RAD2DEG = 180.0 / math.pi
+__all__ = ["Model", "register_part", "MODEL_TYPES"]
 
-#: Nominal identifiable groups: those of the built-in simulated rig.
-NOMINAL_GROUPS: dict[str, float] = PhysicalParameters().groups()
-# The linearised valve's flow-pressure gain is 0 at rest; give it the value it
-# has at a mid-range operating point so its log-scaled bounds are meaningful.
-NOMINAL_GROUPS["g_kp"] = 2.0
-
-
-# --- the HHRA parts -----------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CurrentCommand(Part):
-    """Valve command equal to the measured input (valve current, input units).
-
-    Effects of the ``input`` stage (dead zone, saturation, delay, spool lag)
-    transform the ``command`` signal this part sets.
-    """
-
-    stage: ClassVar[str] = "input"
-    name: ClassVar[str] = "current_command"
-
-    def apply(self, ctx: Context) -> None:
-        ctx.signals["command"] = ctx.u
-
-
-@dataclass(frozen=True)
-class OrificeValve(Part):
-    """Critical-centre servo valve with the orifice law.
-
-    ``q = g_valve * I * sqrt(1 - sign(I) * p)`` in normalised pressure per second,
-    i.e. the paper's ``q_L = k_q x_v sqrt(p_s - sign(x_v) P_L)`` divided by
-    ``p_s * V_t / (4 beta_e)``. The sign and the square root are smoothed
-    (:func:`~hhra_phys.parts.smooth_sign` with width ``sign_eps`` in input units,
-    :func:`~hhra_phys.parts.smooth_signed_sqrt` with ``sqrt_delta``) so that CasADi
-    derivatives exist everywhere; beyond the supply pressure (``sign(I)*p > 1``)
-    the signed root reverses the flow, as a real orifice does.
-    """
-
-    sign_eps: float = 1e-3
-    sqrt_delta: float = 1e-6
-    stage: ClassVar[str] = "valve"
-    name: ClassVar[str] = "orifice_valve"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return (group_parameter("g_valve"),)
-
-    def apply(self, ctx: Context) -> None:
-        cmd = ctx.signal("command", self.name)
-        p = ctx.x["p"]
-        drop = 1 - smooth_sign(cmd, self.sign_eps) * p
-        ctx.signals["flow"] = ctx.p["g_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
-
-
-@dataclass(frozen=True)
-class LinearValve(Part):
-    """Linearised valve ``q = g_valve*I - g_kp*p`` (flow gain and flow-pressure gain)."""
-
-    stage: ClassVar[str] = "valve"
-    name: ClassVar[str] = "linear_valve"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return (group_parameter("g_valve"), group_parameter("g_kp"))
-
-    def apply(self, ctx: Context) -> None:
-        cmd = ctx.signal("command", self.name)
-        ctx.signals["flow"] = ctx.p["g_valve"] * cmd - ctx.p["g_kp"] * ctx.x["p"]
-
-
-@dataclass(frozen=True)
-class ChamberPressure(Part):
-    """Flow continuity: ``dp/dt = flow - g_compress*omega - g_leak*p``.
-
-    ``g_compress*omega`` is the displacement flow of the moving piston and
-    ``g_leak*p`` the internal leakage, both in normalised pressure per second.
-    """
-
-    stage: ClassVar[str] = "flow"
-    name: ClassVar[str] = "chamber_pressure"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return (group_parameter("g_compress"), group_parameter("g_leak"))
-
-    @property
-    def states(self) -> Sequence[State]:
-        return (State("p", "-", 0.0, "load pressure P_L / supply pressure p_s"),)
-
-    def apply(self, ctx: Context) -> None:
-        ctx.add_rate("p", ctx.signal("flow", self.name))
-        ctx.add_rate("p", -ctx.p["g_compress"] * ctx.x["omega"] - ctx.p["g_leak"] * ctx.x["p"])
-
-
-@dataclass(frozen=True)
-class RotaryMotion(Part):
-    """Load and torque balance with the piston eliminated.
-
-    ``domega/dt = g_torque*p - g_damping*omega - g_spring*theta - g_load``. The
-    spring (``G``) and constant load (``T_L``) groups are parameters of the model
-    but fixed at 0 by default (the paper's ``G = 0``; no load on the rig).
-    """
-
-    stage: ClassVar[str] = "motion"
-    name: ClassVar[str] = "rotary_motion"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return tuple(group_parameter(n) for n in ("g_torque", "g_damping", "g_spring", "g_load"))
-
-    @property
-    def states(self) -> Sequence[State]:
-        return (
-            State("theta", "rad", 0.0, "shaft angle"),
-            State("omega", "rad/s", 0.0, "shaft angular velocity"),
-        )
-
-    def apply(self, ctx: Context) -> None:
-        x, p = ctx.x, ctx.p
-        ctx.add_rate("theta", x["omega"])
-        ctx.add_rate(
-            "omega",
-            p["g_torque"] * x["p"]
-            - p["g_damping"] * x["omega"]
-            - p["g_spring"] * x["theta"]
-            - p["g_load"],
-        )
-
-
-@dataclass(frozen=True)
-class SpoolLag(Part):
-    """First-order lag of the valve spool: ``tau_v * dxs/dt = command - xs``.
-
-    The valve then sees ``xs`` (input units) instead of the command. At 250 Hz
-    angle data a lag of a few milliseconds is hardly identifiable (the angle
-    integrates it away); pressure data shows it better.
-    """
-
-    tau_nominal: float = 0.01
-    stage: ClassVar[str] = "input"
-    name: ClassVar[str] = "spool_lag"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return (
-            Parameter(
-                "tau_v", "s", self.tau_nominal, 1e-4, 0.2, "log", "valve spool time constant"
-            ),
-        )
-
-    @property
-    def states(self) -> Sequence[State]:
-        return (State("xs", "mA", 0.0, "spool position in input units"),)
-
-    def apply(self, ctx: Context) -> None:
-        cmd = ctx.signal("command", self.name)
-        ctx.add_rate("xs", (cmd - ctx.x["xs"]) / ctx.p["tau_v"])
-        ctx.signals["command"] = ctx.x["xs"]
-
-
-@dataclass(frozen=True)
-class AngleOutput(Part):
-    """Measured output: the shaft angle in degrees."""
-
-    stage: ClassVar[str] = "output"
-    name: ClassVar[str] = "angle_output"
-
-    def apply(self, ctx: Context) -> None:
-        ctx.signals["y"] = RAD2DEG * ctx.x["theta"]
-
-
-@dataclass(frozen=True)
-class PressureOutput(Part):
-    """Measured output: the load pressure, ``y = p_gain * p + p_offset``.
-
-    ``p_gain`` is the supply pressure in the output's units (for a sensor in Pa,
-    ``p_s``; for rescaled raw data, whatever scale the data has), signed: a
-    negative gain means the sensor's positive direction is the other chamber's
-    (so the model needs no assumption on the sign convention of the data).
-    ``p_offset`` is the sensor's zero. Both are linear-scale parameters.
-
-    With only a pressure measured, the angle's scale is not observable: scaling
-    ``theta`` by ``b`` and dividing ``g_compress`` by ``b`` (and multiplying
-    ``g_torque`` by ``b``) changes nothing measured, so fits keep ``g_compress``
-    fixed for such models (:mod:`hhra_phys.problem`).
-    """
-
-    gain_nominal: float = 1.0
-    gain_limit: float = 1e3
-    offset_limit: float = 1e3
-    stage: ClassVar[str] = "output"
-    name: ClassVar[str] = "pressure_output"
-
-    @property
-    def parameters(self) -> Sequence[Parameter]:
-        return (
-            Parameter("p_gain", "out", self.gain_nominal, -self.gain_limit, self.gain_limit,
-                      "linear", "supply pressure in output units (signed)"),
-            Parameter("p_offset", "out", 0.0, -self.offset_limit, self.offset_limit, "linear",
-                      "pressure sensor offset"),
-        )
-
-    def apply(self, ctx: Context) -> None:
-        ctx.signals["y"] = ctx.p["p_gain"] * ctx.x["p"] + ctx.p["p_offset"]
-
-
-# --- parameters of the groups ---------------------------------------------------
-
-_GROUP_SPECS: dict[str, tuple[str, str, str]] = {
-    # name: (unit, scale, description)
-    "g_torque": ("rad/s^2", "log", "A*p_s/M_e: angular acceleration at full supply pressure"),
-    "g_damping": ("1/s", "log", "B_e/M_e: viscous damping rate"),
-    "g_spring": ("1/s^2", "linear", "2*varsigma*G/(d*M_e): angle stiffness (0 on the rig)"),
-    "g_load": ("rad/s^2", "linear", "2*varsigma*T_L/(d*M_e): constant load torque (0 on the rig)"),
-    "g_compress": ("1/rad", "log", "4*beta_e*A/(2*pi*zeta*V_t*p_s): displacement flow per rad"),
-    "g_leak": ("1/s", "log", "4*beta_e*C_t/V_t: internal leakage rate"),
-    "g_valve": ("1/(s*mA)", "log", "4*beta_e*k_q*k_x/(V_t*sqrt(p_s)): valve flow gain"),
-    "g_kp": ("1/s", "log", "4*beta_e*k_pa/V_t: linearised flow-pressure gain"),
-}
-
-#: Bounds of each group relative to its nominal value (log groups) or absolute.
+#: Factor of 10 around a new nominal value for log-scaled bounds (:meth:`Model.with_nominal`).
 GROUP_SPAN = 10.0
 
-
-def group_parameter(name: str) -> Parameter:
-    """The :class:`Parameter` of identifiable group ``name`` with the rig's nominal value.
-
-    Log-scaled groups get bounds nominal/10 .. nominal*10; the spring and load
-    groups (nominal 0) get symmetric absolute bounds.
-    """
-    unit, scale, desc = _GROUP_SPECS[name]
-    nom = NOMINAL_GROUPS[name]
-    if scale == "log":
-        lo, hi = nom / GROUP_SPAN, nom * GROUP_SPAN
-    else:
-        lo, hi = (-400.0, 400.0) if name == "g_spring" else (-100.0, 100.0)
-    return Parameter(name, unit, nom, lo, hi, scale, desc)  # type: ignore[arg-type]
-
-
-# --- the composed model -----------------------------------------------------------
-
-#: Registry of part classes by class name, for JSON round trips.
-PART_TYPES: dict[str, type[Part]] = {}
-
-
-def register_part(cls: type[Part]) -> type[Part]:
-    """Register a part class so models containing it can be saved and loaded."""
-    PART_TYPES[cls.__name__] = cls
-    return cls
-
-
-for _cls in (CurrentCommand, OrificeValve, LinearValve, ChamberPressure, RotaryMotion,
-             SpoolLag, AngleOutput, PressureOutput):
-    register_part(_cls)
+#: Model classes by class name, for JSON round trips (filled by subclassing).
+MODEL_TYPES: dict[str, type[Model]] = {}
 
 
 class Model:
@@ -306,14 +66,24 @@ class Model:
     Parameters
     ----------
     parts : sequence of Part
-        The parts; they run in stage order (:data:`~hhra_phys.parts.STAGES`), then
-        in the given order within a stage.
+        The parts (module docstring for the order they run in).
+    stages : sequence of str, optional
+        Order of the stages; default: order of first appearance in ``parts``.
+        A stage of a part not listed here runs after the listed ones (input-side
+        effects before everything).
     name : str
         A label used in reports.
     overrides : dict, optional
         ``{parameter: {"nominal": .., "lower": .., "upper": ..}}`` or
         ``{parameter: value}`` (sets the nominal value) applied on top of the
         parts' own parameter declarations.
+    pinned : sequence of str, optional
+        States whose initial value is never fitted (held at
+        :attr:`State.initial <hhra_phys.parts.State.initial>`), in addition to
+        those declared with ``fit_initial=False``.
+    held : sequence of str, optional
+        Parameters a fit holds at their nominal value unless they are freed
+        explicitly (e.g. a spring that is absent on the usual rig).
 
     Notes
     -----
@@ -321,24 +91,38 @@ class Model:
     :meth:`with_nominal` return new models.
     """
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        MODEL_TYPES[cls.__name__] = cls
+
     def __init__(
         self,
         parts: Sequence[Part],
+        stages: Sequence[str] | None = None,
         name: str = "model",
-        overrides: dict[str, Any] | None = None,
+        overrides: Mapping[str, Any] | None = None,
+        pinned: Sequence[str] = (),
+        held: Sequence[str] = (),
     ) -> None:
+        if isinstance(stages, str):
+            raise ModelError(
+                f"stages must be a sequence of stage names, got the string {stages!r} "
+                "(the model's name is the keyword name=)"
+            )
         self.parts: tuple[Part, ...] = tuple(parts)
+        for part in self.parts:
+            if not isinstance(part, Part):
+                raise ModelError(f"a model is made of Part objects, got {part!r}")
+            if not isinstance(part.stage, str) or not part.stage:
+                raise ModelError(f"part {part.name!r} has no stage name (a non-empty string)")
         self.name = name
         self._overrides: dict[str, dict[str, Any]] = {}
         for pname, spec in (overrides or {}).items():
             self._overrides[pname] = dict(spec) if isinstance(spec, dict) else {"nominal": spec}
-        for part in self.parts:
-            if part.stage not in STAGES:
-                raise ModelError(f"part {part.name!r} has unknown stage {part.stage!r}")
-        ordered = sorted(enumerate(self.parts), key=lambda ip: (STAGES.index(ip[1].stage), ip[0]))
-        self._ordered = [p for _, p in ordered]
+        self._stages_given = tuple(stages) if stages is not None else None
+        self._ordered = self._order()
 
-        params: list[Parameter] = []
+        params = []
         for part in self._ordered:
             params.extend(part.parameters)
         base = ParameterSet(params)  # raises on duplicates
@@ -347,20 +131,37 @@ class Model:
         self.params = base
 
         states: list[State] = []
-        for part in self._ordered:
+        for part in self.parts:
             states.extend(part.states)
         names = [s.name for s in states]
         if len(set(names)) != len(names):
             raise ModelError(f"duplicate state names in model {name!r}: {names}")
         if not states:
             raise ModelError(f"model {name!r} has no states")
-        # Keep the mechanical states first: theta, omega, p is the order users expect.
-        order = {"theta": 0, "omega": 1, "p": 2}
-        self.states: tuple[State, ...] = tuple(
-            sorted(states, key=lambda s: (order.get(s.name, 3), names.index(s.name)))
-        )
+        unknown = sorted(set(pinned) - set(names))
+        if unknown:
+            raise ModelError(f"pinned states {unknown} are not states of the model ({names})")
+        self.pinned: tuple[str, ...] = tuple(pinned)
+        unknown = sorted(set(held) - set(self.params.names))
+        if unknown:
+            raise ModelError(f"held parameters {unknown} are not parameters of the model")
+        self.held: tuple[str, ...] = tuple(held)
+        self.states: tuple[State, ...] = tuple(states)
         self.n_lags = max((part.n_lags for part in self.parts), default=0)
         self._cache: dict[float, dict[str, ca.Function]] = {}
+        self._signal_names: tuple[str, ...] | None = None
+
+    def _order(self) -> list[Part]:
+        """Parts in assembly order (module docstring)."""
+        first = [p for p in self.parts if isinstance(p, Effect) and p.stage == INPUT_STAGE]
+        rest = [p for p in self.parts if not any(p is q for q in first)]
+        order = list(self._stages_given or ())
+        for part in rest:
+            if part.stage not in order:
+                order.append(part.stage)
+        self.stages: tuple[str, ...] = tuple(order)
+        ranked = sorted(enumerate(rest), key=lambda ip: (order.index(ip[1].stage), ip[0]))
+        return first + [p for _, p in ranked]
 
     # -- description -------------------------------------------------------------
     def __repr__(self) -> str:
@@ -397,10 +198,43 @@ class Model:
         """Whether a part called ``name`` is in the model."""
         return name in self.part_names()
 
+    # -- model-specific views (overridden by models that have them) ------------------
+    def tf_coefficients_of(self, values: Mapping[str, float]) -> dict[str, float]:
+        """A transfer function of the model from fitted values, if it defines one (else ``{}``)."""
+        return {}
+
+    def physical_view(
+        self, values: Mapping[str, float], datasheet: Any = None,
+        metadata: Mapping[str, Any] | None = None,
+    ) -> tuple[dict[str, float] | None, str | None]:
+        """Physical symbols from fitted parameters and a datasheet, and a warning if any.
+
+        The generic model has no physical view: ``(None, None)``.
+        """
+        return None, None
+
     # -- derived models ------------------------------------------------------------
+    @property
+    def fitted_states(self) -> list[str]:
+        """States whose initial value a fit estimates (``fit_initial`` and not pinned)."""
+        return [s.name for s in self.states if s.fit_initial and s.name not in self.pinned]
+
+    def signal_names(self) -> list[str]:
+        """Names of the signals the assembled model provides (``"y"`` among them)."""
+        if self._signal_names is None:
+            x, u, p = self.symbols()
+            ctx = self._context(x, u, p, 0.004)
+            self._signal_names = tuple(ctx.signals)
+        return list(self._signal_names)
+
     def _derive(self, parts: Sequence[Part], overrides: dict[str, Any]) -> Model:
         new = Model.__new__(type(self))
-        Model.__init__(new, parts, self.name, overrides)
+        keep_stages = self._stages_given
+        names = {s.name for q in parts for s in q.states}
+        pinned = [s for s in self.pinned if s in names]
+        pnames = {par.name for q in parts for par in q.parameters}
+        held = [n for n in self.held if n in pnames]
+        Model.__init__(new, parts, keep_stages, self.name, overrides, pinned, held)
         return new
 
     def with_parts(self, *parts: Part) -> Model:
@@ -481,6 +315,12 @@ class Model:
         dt : float
             Sample period [s] (used by discrete-time input parts).
         """
+        ctx = self._context(x, u_lags, p, dt)
+        xdot = ca.vertcat(*[ctx.rates[s.name] for s in self.states])
+        return xdot, ctx.signals["y"]
+
+    def _context(self, x: ca.SX, u_lags: ca.SX, p: ca.SX, dt: float) -> Context:
+        """Run every part on a fresh context; raise if no part sets the output ``y``."""
         ctx = Context(
             {s.name: x[i] for i, s in enumerate(self.states)},
             {name: p[i] for i, name in enumerate(self.params.names)},
@@ -490,9 +330,9 @@ class Model:
         for part in self._ordered:
             part.apply(ctx)
         if "y" not in ctx.signals:
-            raise ModelError(f"model {self.name!r} has no output part (stage 'output')")
-        xdot = ca.vertcat(*[ctx.rates[s.name] for s in self.states])
-        return xdot, ctx.signals["y"]
+            raise ModelError(
+                f"model {self.name!r} has no output part: no part sets ctx.signals['y']")
+        return ctx
 
     def functions(self, dt: float) -> dict[str, ca.Function]:
         """CasADi functions of the model for sample period ``dt`` (cached).
@@ -566,17 +406,19 @@ class Model:
             "name": self.name,
             "parts": parts,
             "overrides": self._overrides,
+            "stages": list(self._stages_given) if self._stages_given is not None else None,
+            "pinned": list(self.pinned),
+            "held": list(self.held),
         }
 
     @classmethod
     def from_json(cls, spec: dict[str, Any]) -> Model:
-        """Rebuild a model saved with :meth:`to_json`."""
-        try:  # the effect library registers its parts on import
-            import hhra_phys.effects  # noqa: F401
-        except ModuleNotFoundError as exc:
-            if exc.name != "hhra_phys.effects":
-                raise
+        """Rebuild a model saved with :meth:`to_json`.
 
+        Every part class must be registered (:func:`~hhra_phys.parts.register_part`):
+        the package's own are when :mod:`hhra_phys` is imported; a user's when
+        the module defining them is imported.
+        """
         parts = []
         for entry in spec["parts"]:
             typ = PART_TYPES.get(entry["type"])
@@ -587,9 +429,11 @@ class Model:
                 )
             args = {k: tuple(v) if isinstance(v, list) else v for k, v in entry["args"].items()}
             parts.append(typ(**args))
-        target = HHRAModel if spec.get("class") == "HHRAModel" else Model
+        target = MODEL_TYPES.get(str(spec.get("class")), Model)
         new = Model.__new__(target)
-        Model.__init__(new, parts, spec.get("name", "model"), spec.get("overrides"))
+        stages = spec.get("stages")
+        Model.__init__(new, parts, stages, spec.get("name", "model"), spec.get("overrides"),
+                       spec.get("pinned", ()), spec.get("held", ()))
         return new
 
 
@@ -617,85 +461,17 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-class HHRAModel(Model):
-    """The valve-controlled helical hydraulic rotary actuator.
 
-    Parameters
-    ----------
-    valve : {"orifice", "linear"}
-        Valve law: the nonlinear orifice law (default) or the linearised law.
-    output : {"angle", "pressure"}
-        Measured output: shaft angle in degrees (default) or load pressure
-        (``y = p_gain*p + p_offset``, for records such as the public
-        hydraulic-actuator data whose output is oil pressure).
-    spool_lag : bool
-        Add a first-order valve spool lag (state ``xs``, parameter ``tau_v``).
-    effects : iterable of Part
-        Further parts, e.g. from :mod:`hhra_phys.effects`.
-    nominal : dict, optional
-        Nominal values to use instead of the simulated rig's, by parameter name.
 
-    Notes
-    -----
-    States: ``theta`` [rad], ``omega`` [rad/s], ``p`` [-] (load pressure over
-    supply pressure), plus ``xs`` [mA] with the spool lag. Input: valve current
-    [mA] (zero-order hold). Default parameters: the identifiable groups
-    ``g_torque, g_damping, g_spring, g_load, g_compress, g_leak, g_valve`` at the
-    values of the built-in simulated rig (:class:`hhra_phys.physical.PhysicalParameters`).
+_MOVED = ("HHRAModel", "NOMINAL_GROUPS", "RAD2DEG", "CurrentCommand", "OrificeValve",
+          "LinearValve", "ChamberPressure", "RotaryMotion", "SpoolLag", "AngleOutput",
+          "PressureOutput", "group_parameter")
 
-    Examples
-    --------
-    >>> from hhra_phys import HHRAModel
-    >>> model = HHRAModel()
-    >>> model.params.names[:3]
-    ['g_valve', 'g_compress', 'g_leak']
-    """
 
-    def __init__(
-        self,
-        valve: Literal["orifice", "linear"] = "orifice",
-        output: Literal["angle", "pressure"] = "angle",
-        spool_lag: bool = False,
-        effects: Iterable[Part] = (),
-        nominal: dict[str, float] | None = None,
-    ) -> None:
-        if valve not in ("orifice", "linear"):
-            raise ModelError(f"valve must be 'orifice' or 'linear', got {valve!r}")
-        if output not in ("angle", "pressure"):
-            raise ModelError(f"output must be 'angle' or 'pressure', got {output!r}")
-        parts: list[Part] = [CurrentCommand()]
-        if spool_lag:
-            parts.append(SpoolLag())
-        parts.append(OrificeValve() if valve == "orifice" else LinearValve())
-        parts += [ChamberPressure(), RotaryMotion()]
-        parts.append(AngleOutput() if output == "angle" else PressureOutput())
-        parts += list(effects)
-        super().__init__(parts, name="hhra")
-        if nominal:
-            derived = self.with_nominal(nominal)
-            self.params = derived.params
-            self._overrides = derived._overrides
+def __getattr__(name: str) -> Any:
+    # The HHRA moved to hhra_phys.models.hhra; old imports from here keep working.
+    if name in _MOVED:
+        from hhra_phys.models import hhra
 
-    @property
-    def valve(self) -> str:
-        """``"orifice"`` or ``"linear"``."""
-        return "linear" if self.has_part("linear_valve") else "orifice"
-
-    def tf_coefficients(self, p: np.ndarray | None = None) -> dict[str, float]:
-        """The paper's transfer function ``theta/I = kv / (a s^3 + b s^2 + c s)``.
-
-        Computed from the groups and normalised to ``a = 1`` (only the ratios are
-        identifiable from (current, angle) data). Units: ``theta`` in rad, ``I`` in
-        mA; ``b`` [1/s], ``c`` [1/s^2], ``kv`` [rad/(s^3*mA)]. The linearised valve
-        at rest has flow gain ``g_valve`` and flow-pressure gain ``g_kp`` (0 for the
-        orifice valve at zero current).
-        """
-        d = self.params.as_dict(self.nominal() if p is None else np.asarray(p, dtype=float))
-        kp = d.get("g_kp", 0.0)
-        leak = d["g_leak"] + kp
-        return {
-            "a": 1.0,
-            "b": d["g_damping"] + leak,
-            "c": d["g_damping"] * leak + d["g_torque"] * d["g_compress"],
-            "kv": d["g_torque"] * d["g_valve"],
-        }
+        return getattr(hhra, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

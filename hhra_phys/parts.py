@@ -1,40 +1,51 @@
-"""Composable model parts.
+"""Composable model parts, the part registry and the effect base class.
 
-A model in hhra-phys is an ordered list of :class:`Part` objects. Assembling the
-model hands every part, in stage order, one symbolic :class:`Context`; each part
-reads states, parameters, the input and named signals, and contributes
+A model in hhra-phys is an ordered list of :class:`Part` objects (see
+:class:`hhra_phys.model.Model`). Assembling the model hands every part, in stage
+order, one symbolic :class:`Context`; each part reads states, parameters, the
+input and named signals, and contributes
 
 * time derivatives of states (``ctx.add_rate``),
-* named signals for later parts (``ctx.signals``), such as the valve command or
-  the flow, and
+* named signals for later parts (``ctx.signals``), and
 * the measured output (``ctx.signals["y"]``).
 
-The stages run in the order of :data:`STAGES`::
+Stages. A part's :attr:`Part.stage` is any string naming where it runs. A model
+runs its stages in the order it is given, or in the order of their first
+appearance in its part list, and the parts of one stage in list order. Two stage
+names have a meaning for every model, because effects attach there to models
+they know nothing about:
 
-    input   -> the valve command from the measured input (dead zone, saturation, delay, lag)
-    valve   -> the flow into the chambers from the command and the load pressure
-    flow    -> the pressure equation (piston displacement flow, leakage)
-    motion  -> the angle/velocity equations (pressure torque, damping, friction, load)
-    output  -> the measured output (angle in degrees, pressure, offsets, backlash)
+* ``"input"``: an :class:`Effect` of this stage acts on the model's input
+  ``ctx.u`` and runs before every part of the model (dead zone, saturation,
+  delay, lag of the input);
+* ``"output"``: a stage the model does not name runs after all of the model's
+  stages, so an output-side effect (offset, backlash) sees the finished
+  ``ctx.signals["y"]``.
 
-Within a stage, parts run in the order they were added. This is what lets the
-effect library (and users) add friction, dead zones, delays and so on to a model
-without rewriting it: they are further parts.
+Registries. :func:`register_part` records a part class by name so that saved
+models (JSON) can be rebuilt; :func:`register_effect` also makes an
+:class:`Effect` a candidate of the diagnosis loop (:data:`EFFECTS`). They live
+here, with the base classes, so that models and effect libraries import this
+module and never each other.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import ClassVar
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import casadi as ca
+import numpy as np
 
 from hhra_phys.errors import ModelError
 from hhra_phys.parameters import Parameter
 
-STAGES: tuple[str, ...] = ("input", "valve", "flow", "motion", "output")
+#: Stage whose effects act on the model's input, before every part of the model.
+INPUT_STAGE = "input"
+#: Conventional last stage: where output-side effects attach.
+OUTPUT_STAGE = "output"
 
 
 @dataclass(frozen=True)
@@ -44,19 +55,30 @@ class State:
     Parameters
     ----------
     name : str
-        Identifier (``theta``, ``omega``, ``p`` ...).
+        Identifier (``theta``, ``level``, ...), unique in a model.
     unit : str
         Unit of the state.
     initial : float
         Default initial value at the start of a simulation.
     description : str
         What the state means.
+    fit_initial : bool
+        Whether a fit estimates the state's initial value from the data
+        (``initial_state="fit"``, the default of :func:`hhra_phys.fit.fit`).
+        ``False`` pins it at ``initial`` (a state known to start at rest, or
+        one the output cannot see). A model can also pin states by name
+        (:class:`hhra_phys.model.Model`, ``pinned``).
+    scale : float
+        Typical size of the state (its unit): a fitted initial value is searched
+        within ``+- scale`` of its estimate from the first output sample.
     """
 
     name: str
     unit: str
     initial: float = 0.0
     description: str = ""
+    fit_initial: bool = True
+    scale: float = 1.0
 
 
 class Context:
@@ -69,14 +91,17 @@ class Context:
     p : dict of str to casadi.SX
         Parameter symbols by name.
     u_lags : casadi.SX
-        Input at the current sample and the previous ``n_lags`` samples
+        Measured input at the current sample and the previous ``n_lags`` samples
         (``u_lags[0]`` is the current input, zero-order hold over the sample).
+    u : casadi.SX
+        The input as the model's parts see it: ``u_lags[0]`` unless an
+        input-side effect (stage ``"input"``) replaced it, e.g. by a dead zone.
     dt : float
         Sample period [s] (needed by discrete-time input parts such as a delay).
     signals : dict of str to casadi.SX
-        Named intermediate expressions. The model convention is ``"command"``
-        (valve command, input units), ``"flow"`` (flow term of the pressure
-        equation) and ``"y"`` (measured output).
+        Named intermediate expressions. ``"y"`` is the measured output; other
+        names are the model's own (the HHRA's are ``"command"``, the valve
+        command in input units, and ``"flow"``).
     """
 
     def __init__(
@@ -89,14 +114,10 @@ class Context:
         self.x = x
         self.p = p
         self.u_lags = u_lags
+        self.u: ca.SX = u_lags[0]
         self.dt = dt
         self.signals: dict[str, ca.SX] = {}
         self.rates: dict[str, ca.SX] = {name: ca.SX(0) for name in x}
-
-    @property
-    def u(self) -> ca.SX:
-        """The input at the current sample."""
-        return self.u_lags[0]
 
     def add_rate(self, state: str, expr: ca.SX) -> None:
         """Add ``expr`` to the time derivative of ``state``."""
@@ -122,12 +143,13 @@ class Context:
 class Part:
     """Base class of model parts.
 
-    Subclasses set :attr:`stage`, may declare :attr:`parameters`, :attr:`states`
-    and :attr:`n_lags` (how many past input samples they need), and implement
-    :meth:`apply`.
+    Subclasses set :attr:`name` and :attr:`stage`, may declare
+    :attr:`parameters`, :attr:`states` and :attr:`n_lags` (how many past input
+    samples they need), and implement :meth:`apply`. Options of a part are
+    dataclass fields (they are saved with the model).
     """
 
-    #: Stage the part runs in (one of :data:`STAGES`).
+    #: Stage the part runs in: any string (module docstring).
     stage: ClassVar[str] = "motion"
     #: Short name used in reports; effects use their library name.
     name: ClassVar[str] = "part"
@@ -150,6 +172,166 @@ class Part:
     def apply(self, ctx: Context) -> None:  # pragma: no cover - abstract
         """Contribute rates and signals to ``ctx``."""
         raise NotImplementedError
+
+
+#: Registry of part classes by class name, for JSON round trips.
+PART_TYPES: dict[str, type[Part]] = {}
+
+
+def register_part(cls: type[Part]) -> type[Part]:
+    """Register a part class so that models containing it can be saved and loaded.
+
+    Usable as a class decorator. Raises :class:`~hhra_phys.errors.ModelError` if
+    ``cls`` is not a :class:`Part` subclass.
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Part)):
+        raise ModelError(f"register_part expects a Part subclass, got {cls!r}")
+    PART_TYPES[cls.__name__] = cls
+    return cls
+
+
+# --- effects ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Signals of a simulation without an effect, for first-order signatures.
+
+    Attributes
+    ----------
+    u : ndarray, shape (N,)
+        Input (input units).
+    dt : float
+        Sample period [s] (or samples for records in sample time).
+    theta, omega : ndarray or None
+        Shortcuts for ``states["theta"]`` and ``states["omega"]`` (rotary
+        mechanics), kept for effects written against them.
+    output : str
+        Unit or kind of the output (informative).
+    states : dict of str to ndarray
+        Simulated states by name, each shape (N,).
+    y : ndarray or None
+        Simulated output, shape (N,).
+    """
+
+    u: np.ndarray
+    dt: float
+    theta: np.ndarray | None = None
+    omega: np.ndarray | None = None
+    output: str = ""
+    states: Mapping[str, np.ndarray] = field(default_factory=dict)
+    y: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        merged = dict(self.states)
+        for name in ("theta", "omega"):
+            given = getattr(self, name)
+            if given is not None:
+                merged.setdefault(name, given)
+            elif name in merged:
+                object.__setattr__(self, name, merged[name])
+        object.__setattr__(self, "states", merged)
+
+
+@dataclass(frozen=True)
+class Effect(Part):
+    """Base class of effects: a part the diagnosis loop can add to a model.
+
+    A user's effect needs only what a part needs (``name``, ``stage``,
+    ``parameters``, ``apply``) and the :func:`register_effect` decorator. The
+    rest has defaults:
+
+    Class attributes
+    ----------------
+    reads : tuple of str
+        States and signals the effect reads (``"u"`` is always there; ``"y"``
+        is the output). :meth:`applicable` checks that the model has them.
+    writes : tuple of str
+        States whose rate the effect changes and signals it sets.
+    entry : str
+        Where the effect enters, for its first-order signature: ``"input"``
+        (the model's input; ``"command"`` is an old name of it), ``"output"``,
+        or ``"rate:<state>"`` (the time derivative of a state; ``"accel"`` is
+        ``"rate:omega"``).
+    signature : str
+        What the effect leaves in the residual of a model without it.
+    regressors : tuple of str
+        Generic regressors of :mod:`hhra_phys.diagnose` it relates to.
+    position_dependent : bool
+        Whether it depends on a position-like state (it may extrapolate badly).
+    """
+
+    stage: ClassVar[str] = INPUT_STAGE
+    reads: ClassVar[tuple[str, ...]] = ()
+    writes: ClassVar[tuple[str, ...]] = ()
+    entry: ClassVar[str] = "input"
+    signature: ClassVar[str] = ""
+    regressors: ClassVar[tuple[str, ...]] = ()
+    position_dependent: ClassVar[bool] = False
+
+    def applicable(self, model: Any) -> str | None:
+        """``None`` if the effect can be added to ``model``, else the reason why not.
+
+        Checks the parameter and state names against the model's, every name in
+        :attr:`reads` and :attr:`writes` against the model's states and signals,
+        and then that the model with the effect assembles. Never raises.
+        """
+        if self.name in model.part_names():
+            return "already in the model"
+        clash = set(model.params.names) & {p.name for p in self.parameters}
+        if clash:
+            return f"model already has parameters {sorted(clash)}"
+        clash = set(model.state_names) & {s.name for s in self.states}
+        if clash:
+            return f"model already has states {sorted(clash)}"
+        have = set(model.state_names) | set(model.signal_names()) | {"u", "y"}
+        missing = [n for n in (*self.reads, *self.writes) if n not in have]
+        if missing:
+            return (f"needs {', '.join(repr(n) for n in missing)}, which the model has neither "
+                    f"as a state nor as a signal (states: {', '.join(model.state_names)}; "
+                    f"signals: {', '.join(model.signal_names()) or 'none'})")
+        try:
+            model.with_parts(self).functions(float(getattr(self, "dt", 0.004) or 0.004))
+        except Exception as exc:  # noqa: BLE001 - any failure means "cannot be added"
+            return f"the model with it does not assemble: {exc}"
+        return None
+
+    def probe(self) -> dict[str, float]:
+        """Parameter values of a small but relevant size of the effect."""
+        return {p.name: p.nominal for p in self.parameters}
+
+    def first_order(self, sig: Signals) -> np.ndarray | None:
+        """Change at :attr:`entry` made by the effect at its probe size, shape (N, k).
+
+        ``None`` (the default) when the effect declares no first-order
+        signature: the loop then refits it without a ranking score.
+        """
+        return None
+
+
+#: Registry: effect name -> effect class (candidates of the diagnosis loop).
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Register an effect class as a candidate of the diagnosis loop (class decorator).
+
+    The class is also registered as a part (:func:`register_part`), so models
+    containing it can be saved and loaded. A later registration under the same
+    :attr:`Effect.name` replaces the earlier one.
+
+    Raises
+    ------
+    ModelError
+        ``cls`` is not an :class:`Effect` subclass, or has no name of its own.
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise ModelError(f"register_effect expects an Effect subclass, got {cls!r}")
+    if cls.name in ("part", "") or not isinstance(cls.name, str):
+        raise ModelError(f"effect class {cls.__name__} needs a class attribute 'name'")
+    register_part(cls)
+    EFFECTS[cls.name] = cls
+    return cls
 
 
 # --- smooth helpers --------------------------------------------------------

@@ -15,10 +15,25 @@ into a bias toward them whatever the data say. Here ``z = 0`` is one SI unit,
 unrelated to either (and the fitting pipeline uses ``lam = 1`` by default,
 see :mod:`hhra_phys.fit`).
 
-Initial state. ``"data"`` (default) starts the shaft at the first measured angle
-(or, for a pressure output, the pressure state at the first measured pressure)
-and everything else at rest; ``"zero"`` starts from the model's rest state;
-``"fit"`` adds the initial angle (or pressure) as a free parameter ``x0_<state>``.
+Initial state: one rule for every model, from the states' declarations
+(:class:`~hhra_phys.parts.State` ``fit_initial`` and ``scale``, and the model's
+``pinned`` states); no part or state name is special.
+
+``"zero"``
+    every state at its declared ``initial`` value;
+``"data"``
+    as ``"zero"``, then the *fitted states* (``fit_initial`` and not pinned) moved
+    by the least-norm change that makes the model's output equal the first
+    measured sample (Newton steps on ``y = h(x)``; exact in one step for an
+    output linear in the states, such as an angle in degrees or a pressure with
+    gain and offset);
+``"fit"``
+    every fitted state's initial value is a free parameter ``x0_<state>``,
+    started at its ``"data"`` value and searched within ``+- scale`` of it.
+
+On another record (validation, prediction) the ``"data"`` rule starts it and,
+under ``"fit"``, the whole initial state is then re-estimated on that record
+with the parameters fixed (:func:`estimate_initial_state`).
 """
 
 from __future__ import annotations
@@ -32,7 +47,6 @@ import numpy as np
 
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.errors import ParameterError
-from hhra_phys.metrics import itae, mse
 from hhra_phys.model import Model
 from hhra_phys.parameters import Parameter
 from hhra_phys.simulate import Simulator
@@ -40,20 +54,50 @@ from hhra_phys.simulate import Simulator
 CostName = Literal["itae", "mse", "rmse", "ssr"]
 COSTS: tuple[str, ...] = ("itae", "mse", "rmse", "ssr")
 
-#: Parameters held fixed unless freed explicitly (the paper's G = 0, no load).
-DEFAULT_FIXED: tuple[str, ...] = ("g_spring", "g_load")
+#: Newton steps of the ``"data"`` rule (one is exact for an output linear in the states).
+DATA_RULE_STEPS = 3
 
 
 def default_free(model: Model, fixed: Mapping[str, float] | None = None) -> list[str]:
-    """Parameters a fit frees by default: all but ``g_spring``, ``g_load`` and ``fixed``.
+    """Parameters a fit frees by default: all but the model's ``held`` ones and ``fixed``.
 
-    For a model whose only output is a pressure, ``g_compress`` is held too: the
-    angle's scale is not observable from pressure alone.
+    (The HHRA holds its spring and constant-load groups, and for a pressure
+    output alone the displacement group, whose scale a pressure cannot see.)
     """
-    held = set(DEFAULT_FIXED) | set(fixed or {})
-    if model.has_part("pressure_output") and not model.has_part("angle_output"):
-        held.add("g_compress")
+    held = set(model.held) | set(fixed or {})
     return [n for n in model.params.names if n not in held]
+
+
+def data_rule_function(model: Model, dt: float) -> ca.Function:
+    """CasADi function ``(y0, u0, p) -> x0`` of the ``"data"`` rule (module docstring).
+
+    Symbolic in every argument, so the rule is differentiated exactly where the
+    initial state depends on parameters (a pressure sensor's gain and offset).
+    """
+    cache = model.__dict__.setdefault("_data_rule_cache", {})
+    key = float(dt)
+    if key in cache:
+        return cache[key]
+    xs, us, ps = model.symbols()
+    y0 = ca.SX.sym("y0")
+    u0 = ca.SX.sym("u0")
+    _, h = model.assemble(xs, us, ps, dt)
+    fitted = [model.state_names.index(n) for n in model.fitted_states]
+    x = ca.SX(model.x0())
+    if fitted:
+        xf = ca.vertcat(*[xs[i] for i in fitted])
+        hu = ca.substitute(h, us, ca.repmat(u0, us.numel(), 1))
+        J = ca.jacobian(hu, xf)
+        jj = ca.mtimes(J, J.T)
+        step = ca.Function("newton", [xs, y0, u0, ps],
+                           [ca.if_else(jj > 0, J.T * (y0 - hu) / jj, ca.SX.zeros(len(fitted)))])
+        for _ in range(DATA_RULE_STEPS):
+            dxf = step(x, y0, u0, ps)
+            x = ca.vertcat(*[x[i] + dxf[fitted.index(i)] if i in fitted else x[i]
+                             for i in range(model.nx)])
+    fn = ca.Function("x0_data_rule", [y0, u0, ps], [x], ["y0", "u0", "p"], ["x0"])
+    cache[key] = fn
+    return fn
 
 
 class Problem:
@@ -70,10 +114,8 @@ class Problem:
         squared error, or the sum of squared residuals. Local refiners always
         minimise the (smooth) sum of squares.
     free : sequence of str, optional
-        Names of the free parameters (default: all except ``g_spring`` and
-        ``g_load``, which stay at their nominal 0 unless named here, and, for a
-        pressure output alone, ``g_compress``, which fixes the unobservable scale
-        of the angle).
+        Names of the free parameters (default: all except the model's ``held``
+        ones, :func:`default_free`).
     fixed : dict, optional
         ``{name: value}``: parameters held at the given value (e.g. from a
         datasheet). A name both free and fixed is an error.
@@ -161,20 +203,25 @@ class Problem:
             raise ParameterError(
                 f"bounds given for parameters that are not free: {sorted(unknown)}"
             )
-        self._x0_state: str | None = None
-        self._observed = self._observed_state()
-        if initial_state == "fit":
-            state, value, span, unit = self._x0_parameter()
-            self._x0_state = state
-            name = f"x0_{state}"
-            start_value = x0_start.pop(name, value)
-            lo, hi = min(value, start_value) - span, max(value, start_value) + span
-            params.append(Parameter(name, unit, start_value, lo, hi, "linear",
-                                    f"initial value of state {state!r}"))
+        self._dt = 1.0 / data.fs
+        self._x0_states: list[str] = list(model.fitted_states) if initial_state == "fit" else []
+        if self._x0_states:
+            guess = self._x0_from_data(self.base[None, :])[0]
+            for state in self._x0_states:
+                st = model.states[model.state_names.index(state)]
+                value = float(guess[model.state_names.index(state)])
+                if not math.isfinite(value):
+                    value = float(st.initial)
+                name = f"x0_{state}"
+                start_value = x0_start.pop(name, value)
+                lo = min(value, start_value) - st.scale
+                hi = max(value, start_value) + st.scale
+                params.append(Parameter(name, st.unit, start_value, lo, hi, "linear",
+                                        f"initial value of state {state!r}"))
         if x0_start:
             raise ParameterError(
                 f"start values {sorted(x0_start)} name initial states that are not fitted "
-                "(use initial_state='fit' with an angle or pressure output)"
+                f"(fitted with initial_state='fit': {', '.join(model.fitted_states) or 'none'})"
             )
         self.free_params = params
         self.free_names = [p.name for p in params]
@@ -230,6 +277,11 @@ class Problem:
                 out.append(self.base[self.model.params.index(p.name)])
         return np.array(out)
 
+    @property
+    def x0_states(self) -> list[str]:
+        """States whose initial value is a free parameter ``x0_<state>`` (``"fit"`` rule)."""
+        return list(self._x0_states)
+
     def full(self, values: np.ndarray) -> np.ndarray:
         """Full model parameter vectors from free values, shape (..., n_params)."""
         v = np.atleast_2d(np.asarray(values, dtype=float))
@@ -239,42 +291,20 @@ class Problem:
         return P if np.ndim(values) > 1 else P[0]
 
     # -- initial state --------------------------------------------------------------------
-    def _observed_state(self) -> str | None:
-        if self.model.has_part("angle_output"):
-            return "theta"
-        if self.model.has_part("pressure_output"):
-            return "p"
-        return None
-
-    def _x0_parameter(self) -> tuple[str, float, float, str]:
-        state = self._observed
-        if state is None:
-            raise ParameterError("initial_state='fit' needs an angle or pressure output part")
-        x0 = self._x0_from_data(self.base[None, :])[0]
-        value = float(x0[self.model.state_names.index(state)])
-        if state == "theta":
-            return state, value, math.radians(10.0), "rad"
-        return state, value, 0.5, "-"
-
-    def _x0_from_data(self, P: np.ndarray, y0: float | None = None) -> np.ndarray:
-        """Initial states (n_pop, nx) under the ``"data"`` rule (first output sample ``y0``)."""
-        y0 = float(self.data.y[0]) if y0 is None else y0
-        X0 = np.tile(self.model.x0(), (P.shape[0], 1))
-        if self._observed == "theta":
-            X0[:, self.model.state_names.index("theta")] = math.radians(y0)
-        elif self._observed == "p":
-            names = self.model.params.names
-            gain = P[:, names.index("p_gain")]
-            off = P[:, names.index("p_offset")]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                X0[:, self.model.state_names.index("p")] = (y0 - off) / gain
-        return X0
+    def _x0_from_data(self, P: np.ndarray, data: Dataset | None = None) -> np.ndarray:
+        """Initial states (n_pop, nx) under the ``"data"`` rule for parameter rows ``P``."""
+        d = self.data if data is None else data
+        rule = data_rule_function(self.model, 1.0 / d.fs)
+        n = P.shape[0]
+        fn = rule if n == 1 else rule.map(n)
+        X0 = np.array(fn(float(d.y[0]), float(d.u[0]), P.T), dtype=float)
+        return X0.reshape(self.model.nx, n).T
 
     def initial_states(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
         """Initial states (n_pop, nx) for free-parameter values (n_pop, n_free).
 
         For another record (``data``, e.g. validation) the ``"data"`` rule is
-        applied to it, and under ``"fit"`` the observed initial state is
+        applied to it, and under ``"fit"`` the whole initial state is
         re-estimated on it (:meth:`fit_initial_state`): the fitted one belongs to
         the estimation record.
         """
@@ -283,14 +313,41 @@ class Problem:
             return np.tile(self.model.x0(), (v.shape[0], 1))
         P = self.full(v)
         if data is not None:
-            X0 = self._x0_from_data(P, float(data.y[0]))
+            X0 = self._x0_from_data(P, data)
             if self.initial_state == "fit":
                 X0 = np.array([self.fit_initial_state(data, P[i], X0[i]) for i in range(len(P))])
             return X0
-        X0 = self._x0_from_data(P)
-        if self.initial_state == "fit":
-            X0[:, self.model.state_names.index(self._x0_state)] = v[:, -1]  # type: ignore[arg-type]
+        if self.initial_state == "data":
+            return self._x0_from_data(P)
+        X0 = np.tile(self.model.x0(), (v.shape[0], 1))
+        nm = len(self._model_free)
+        for k, state in enumerate(self._x0_states):
+            X0[:, self.model.state_names.index(state)] = v[:, nm + k]
         return X0
+
+    def symbolic(self, z: ca.MX) -> tuple[ca.MX, ca.MX]:
+        """Full parameter vector and initial state as CasADi expressions of coordinates ``z``.
+
+        The same coordinates and initial-state rule as :meth:`from_z`,
+        :meth:`full` and :meth:`initial_states`, for exact derivatives (IPOPT,
+        sensitivities, profiles).
+        """
+        vals = [10 ** z[i] if p.scale == "log" else z[i] * self._scale[i]
+                for i, p in enumerate(self.free_params)]
+        pieces = [ca.MX(float(b)) for b in self.base]
+        for k, j in enumerate(self._model_free):
+            pieces[j] = vals[k]
+        p_full = ca.vertcat(*pieces)
+        if self.initial_state == "zero":
+            return p_full, ca.MX(ca.DM(self.model.x0()))
+        if self.initial_state == "data":
+            rule = data_rule_function(self.model, self._dt)
+            return p_full, rule(float(self.data.y[0]), float(self.data.u[0]), p_full)
+        nm = len(self._model_free)
+        x0 = [ca.MX(float(v)) for v in self.model.x0()]
+        for k, state in enumerate(self._x0_states):
+            x0[self.model.state_names.index(state)] = vals[nm + k]
+        return p_full, ca.vertcat(*x0)
 
     def fit_initial_state(
         self, data: Dataset, p: np.ndarray, x0: np.ndarray, iterations: int = 4
@@ -321,17 +378,18 @@ class Problem:
         return Y[0] if single else Y
 
     def cost_of(self, Y: np.ndarray) -> np.ndarray:
-        """Cost of simulated outputs (n, N) against the estimation data; non-finite -> inf."""
-        if self.cost == "itae":
-            c = itae(self.y, Y, self.t)
-        elif self.cost == "mse":
-            c = mse(self.y, Y)
-        elif self.cost == "rmse":
-            c = np.sqrt(mse(self.y, Y))
-        else:
-            c = mse(self.y, Y) * self.y.size
-        c = np.asarray(c, dtype=float)
-        return np.where(np.isfinite(c), c, np.inf)
+        """Cost of simulated outputs (n, N) against the estimation data; non-finite -> inf.
+
+        The same definition as the fused cost of :meth:`__call__` (one weighted
+        sum, :meth:`_cost_weights`), evaluated in NumPy on given trajectories.
+        """
+        loss, weights, post = self._cost_weights()
+        e = np.atleast_2d(np.asarray(Y, dtype=float)) - self.y[None, :]
+        per = np.abs(e) if loss == "abs" else e * e
+        c = per.sum(axis=1) if weights is None else per @ weights
+        c = np.asarray(post(c), dtype=float)
+        c = np.where(np.isfinite(c), c, np.inf)
+        return c if np.ndim(Y) > 1 else c[0]
 
     def __call__(self, Z: np.ndarray) -> np.ndarray:
         """Vectorised objective in fitting coordinates: (n, n_free) -> (n,) costs.
@@ -369,27 +427,7 @@ class Problem:
         if getattr(self, "_residual_fn", None) is not None:
             return self._residual_fn
         z = ca.MX.sym("z", self.n_free)
-        vals = []
-        for i, p in enumerate(self.free_params):
-            vals.append(10 ** z[i] if p.scale == "log" else z[i] * self._scale[i])
-        pv = ca.MX(self.base)
-        nm = len(self._model_free)
-        pieces = [pv[j] for j in range(self.model.n_params)]
-        for k, j in enumerate(self._model_free):
-            pieces[j] = vals[k]
-        p_full = ca.vertcat(*pieces)
-        x0_list = [ca.MX(float(v)) for v in self.model.x0()]
-        if self.initial_state in ("data", "fit") and self._observed is not None:
-            ix = self.model.state_names.index(self._observed)
-            if self.initial_state == "fit":
-                x0_list[ix] = vals[nm]
-            elif self._observed == "theta":
-                x0_list[ix] = ca.MX(math.radians(float(self.data.y[0])))
-            else:
-                names = self.model.params.names
-                x0_list[ix] = (float(self.data.y[0]) - p_full[names.index("p_offset")]) / \
-                    p_full[names.index("p_gain")]
-        x0 = ca.vertcat(*x0_list)
+        p_full, x0 = self.symbolic(z)
         traj = self.sim.trajectory_function(self.y.size)
         U = self.sim.input_matrix(self.u)
         y_sim = traj(x0, p_full, ca.DM(U))
@@ -467,16 +505,25 @@ def estimate_initial_state(
     return x
 
 
-def initial_guess(model: Model, y0: float, p: np.ndarray) -> np.ndarray:
-    """Rest state with the observed state set from the first output sample ``y0``.
+def initial_guess(model: Model, y0: float, p: np.ndarray, u0: float = 0.0,
+                  dt: float = 0.004) -> np.ndarray:
+    """Initial state of the ``"data"`` rule (module docstring) for a first output sample ``y0``.
 
-    Angle output: ``theta = radians(y0)``; pressure output: ``p = (y0 - p_offset)/p_gain``.
+    Parameters
+    ----------
+    model : Model
+    y0 : float
+        First measured output sample (output units).
+    p : ndarray, shape (n_params,)
+        Model parameters.
+    u0 : float
+        First input sample (input units).
+    dt : float
+        Sample period [s] (for models with discrete-time input parts).
+
+    Returns
+    -------
+    ndarray, shape (nx,)
     """
-    x = model.x0()
-    names = model.params.names
-    if model.has_part("angle_output"):
-        x[model.state_names.index("theta")] = math.radians(y0)
-    elif model.has_part("pressure_output"):
-        x[model.state_names.index("p")] = (y0 - p[names.index("p_offset")]) / p[
-            names.index("p_gain")]
-    return x
+    rule = data_rule_function(model, dt)
+    return np.array(rule(float(y0), float(u0), np.asarray(p, dtype=float)), dtype=float).ravel()

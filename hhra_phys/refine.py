@@ -370,17 +370,8 @@ def _ipopt_multiple_shooting(
     _, X_init = sim.simulate(problem.u, problem.full(v0),
                              x0=problem.initial_states(v0)[0], states=True)
     z = ca.MX.sym("z", problem.n_free)
-    vals = [10 ** z[i] if p.scale == "log" else z[i] * problem._scale[i]
-            for i, p in enumerate(problem.free_params)]
-    pieces = [ca.MX(float(b)) for b in problem.base]
-    for k, j in enumerate(problem._model_free):
-        pieces[j] = vals[k]
-    p_full = ca.vertcat(*pieces)
+    p_full, x_first = problem.symbolic(z)
     S = [ca.MX.sym(f"s{i}", nx) for i in range(1, segments)]
-    x_first = ca.vertcat(*[ca.MX(float(v)) for v in problem.initial_states(v0)[0]])
-    if problem.initial_state == "fit":
-        ix = m.state_names.index(problem._x0_state)  # type: ignore[arg-type]
-        x_first = ca.vertcat(*[vals[-1] if i == ix else x_first[i] for i in range(nx)])
     starts = [x_first, *S]
     residuals, gaps = [], []
     for i in range(segments):

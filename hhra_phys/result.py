@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from hhra_phys.errors import DataError, ParameterError
-from hhra_phys.model import HHRAModel, Model
+from hhra_phys.errors import DataError
+from hhra_phys.model import Model
 from hhra_phys.simulate import Simulator
 
 #: Condition number of the scaled information matrix beyond which parameters are
@@ -144,6 +144,10 @@ class FitResult:
     physical : dict or None
         Physical symbols recovered from the groups with a datasheet (see
         :meth:`hhra_phys.physical.PhysicalParameters.from_groups`), if one was given.
+    problem : Problem or None
+        The live fitting problem (model, estimation data, simulator) the result
+        came from; ``None`` for a result read with :meth:`load` (the model is then
+        rebuilt from :attr:`model_spec`). Not saved.
     intervals : dict
         How :attr:`ci95` was obtained: ``{"method": "linear"}``, or for profile
         intervals ``{"method": "profile", "linear": {name: [lo, hi]}, "open_ends":
@@ -169,12 +173,31 @@ class FitResult:
     physical: dict[str, float] | None = None
     created: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
     intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
+    problem: Any = field(default=None, repr=False, compare=False)
 
     # -- reuse ------------------------------------------------------------------------
     @property
     def model(self) -> Model:
-        """The fitted model, rebuilt from its specification."""
-        return Model.from_json(self.model_spec)
+        """The fitted model: the live one of :attr:`problem`, or rebuilt from its specification."""
+        if self.problem is not None:
+            return self.problem.model
+        cached = self.__dict__.get("_model")
+        if cached is None:
+            cached = Model.from_json(self.model_spec)
+            self.__dict__["_model"] = cached
+        return cached
+
+    def simulator(self, fs: float | None = None) -> Simulator:
+        """A simulator of the fitted model at ``fs`` [Hz] (the fit's own when it matches)."""
+        fs = float(fs or self.settings["fs"])
+        pr = self.problem
+        if pr is not None and abs(pr.sim.fs - fs) <= 1e-9 * fs:
+            return pr.sim
+        sims = self.__dict__.setdefault("_sims", {})
+        if fs not in sims:
+            sims[fs] = Simulator(self.model, fs=fs,
+                                 substeps=self.settings.get("substeps", "auto"))
+        return sims[fs]
 
     def parameter_vector(self) -> np.ndarray:
         """Full parameter vector in the model's order."""
@@ -200,8 +223,7 @@ class FitResult:
         ndarray, shape (N,)
         """
         model = self.model
-        fs = float(fs or self.settings["fs"])
-        sim = Simulator(model, fs=fs, substeps=self.settings.get("substeps", "auto"))
+        sim = self.simulator(fs)
         if isinstance(x0, dict):
             x = model.x0()
             for k, v in x0.items():
@@ -227,9 +249,9 @@ class FitResult:
         from hhra_phys.problem import estimate_initial_state, initial_guess
 
         model = self.model
-        sim = Simulator(model, fs=data.fs, substeps=self.settings.get("substeps", "auto"))
+        sim = self.simulator(data.fs)
         p = self.parameter_vector()
-        x0 = initial_guess(model, float(data.y[0]), p)
+        x0 = initial_guess(model, float(data.y[0]), p, float(data.u[0]), 1.0 / data.fs)
         if estimate_x0:
             x0 = estimate_initial_state(sim, data.u, data.y, p, x0)
         return sim.simulate(data.u, p, x0=x0)
@@ -363,13 +385,3 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return _clean(obj.tolist())
     return obj
-
-
-def tf_of(model: Model, values: dict[str, float]) -> dict[str, float]:
-    """The paper's transfer-function coefficients of a fitted HHRA (empty for other models)."""
-    if not isinstance(model, HHRAModel):
-        return {}
-    try:
-        return model.tf_coefficients(np.array([values[n] for n in model.params.names]))
-    except (KeyError, ParameterError):
-        return {}

@@ -26,7 +26,7 @@ def add_data_arguments(p: argparse.ArgumentParser) -> None:
 def load_data(args: argparse.Namespace) -> Dataset:
     """The dataset named on the command line (or the simulated rig)."""
     if args.data is None or args.data == "rig":
-        from hhra_phys.rig import simulate_rig
+        from hhra_phys.models.hhra.rig import simulate_rig
 
         return simulate_rig(seed=args.rig_seed)
     if args.data == "public":

@@ -108,7 +108,7 @@ def register(subparsers: Any) -> None:
 
 def _load(args: argparse.Namespace) -> Any:
     from hhra_phys.data import load, load_public_actuator
-    from hhra_phys.rig import simulate_rig
+    from hhra_phys.models.hhra.rig import simulate_rig
 
     word = (args.data or "").lower()
     if args.public and args.data and word not in PUBLIC_WORDS:

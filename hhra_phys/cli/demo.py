@@ -39,8 +39,8 @@ def _step(i: int, n: int, text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
     from hhra_phys.fit import fit
+    from hhra_phys.models.hhra.rig import simulate_rig
     from hhra_phys.plots import plot_fit
-    from hhra_phys.rig import simulate_rig
 
     out = Path(args.out) if args.out else Path(f"hhra-demo-{time.strftime('%Y%m%d-%H%M%S')}")
     files = {"plot": out / "demo_fit.png", "json": out / "demo_fit.json",
@@ -112,8 +112,8 @@ def _linear_summary(res: Any, data: Any) -> list[str]:
     import numpy as np
 
     from hhra_phys.control import linearize
-    from hhra_phys.physical import PhysicalParameters
-    from hhra_phys.rig import rig_model
+    from hhra_phys.models.hhra.physical import PhysicalParameters
+    from hhra_phys.models.hhra.rig import rig_model
 
     def resonance(sys: Any) -> tuple[float, float]:
         with np.errstate(invalid="ignore", divide="ignore"):  # the integrator's pole at 0

@@ -8,7 +8,7 @@ from typing import Any
 
 from hhra_phys.data import save
 from hhra_phys.errors import HHRAError
-from hhra_phys.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
+from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
 
 def register(subparsers: Any) -> None:
