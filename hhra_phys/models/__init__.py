@@ -1,0 +1,1 @@
+"""Bundled actuator models built from :mod:`hhra_phys.parts` (one module or package per model)."""
