@@ -524,15 +524,20 @@ class LinearCylinderModel(Model):
 #: Default position noise (standard deviation) of the simulated record [mm]
 #: (a magnetostrictive position sensor's noise is of this order).
 DEFAULT_NOISE_MM = 0.05
-#: Largest valve current of the default excitation [mA] (about 0.1 m/s on the
-#: nominal cylinder, enough to drive the load pressure to about half of p_s at steps).
-DEFAULT_AMPLITUDE_MA = 4.0
-#: Aimed hold length of the excitation's steps [s]: shorter than a settling time
-#: (0.3 s) so that the piston travels little per step, long enough to show it.
-DEFAULT_HOLD_S = 0.2
+#: Largest valve current of the default excitation [mA], before the stroke and
+#: pressure limits below scale it down (they decide on the nominal cylinder).
+DEFAULT_AMPLITUDE_MA = 8.0
+#: Aimed hold length of the excitation's steps [s]: about two periods of the
+#: hydraulic resonance, shorter than a settling time (0.3 s), so that the piston
+#: travels little per step while every step shows the resonance.
+DEFAULT_HOLD_S = 0.1
 #: The input is scaled down if a linear estimate of the position leaves this
 #: fraction of the half stroke (the rest is margin for the nonlinear plant).
 STROKE_FRACTION = 0.6
+#: ... or if a linear estimate of the load-pressure peak at a step exceeds this
+#: fraction of the supply pressure: enough to make the orifice law (and so the
+#: pressure scale) identifiable, without driving a chamber towards cavitation.
+PRESSURE_FRACTION = 0.6
 
 
 def position_estimate(
@@ -546,6 +551,20 @@ def position_estimate(
     """
     gain = (physical or CylinderPhysical()).velocity_gain()
     return MM_PER_M * gain * np.concatenate(([0.0], np.cumsum(u)[:-1])) / fs
+
+
+def pressure_estimate(u: np.ndarray, physical: CylinderPhysical | None = None) -> float:
+    """Linear estimate of the largest load-pressure swing ``|P_L|/p_s`` [-] of a step input.
+
+    A step of the current changes the steady velocity by ``dv = velocity_gain * dI``;
+    the undamped hydraulic resonance then carries a pressure swing of
+    ``dv * sqrt(m/C_h) / p_s`` (kinetic energy of the mass into the oil spring).
+    Damping makes the real peak smaller, so this bounds it.
+    """
+    phys = physical or CylinderPhysical()
+    jump = float(np.max(np.abs(np.diff(u)))) if u.size > 1 else 0.0
+    jump = max(jump, float(np.abs(u[0])) if u.size else 0.0)  # the start from rest
+    return jump * phys.velocity_gain() * math.sqrt(phys.m / phys.compliance) / phys.p_s
 
 
 def cylinder_input(
@@ -567,7 +586,9 @@ def cylinder_input(
     every period mirrors the first, so the travel returns near its start at the
     end of every period. Periods are chosen so the holds last about ``hold``
     seconds, and the whole signal is scaled down if the linear position estimate
-    (:func:`position_estimate`) leaves ``STROKE_FRACTION`` of the half stroke.
+    (:func:`position_estimate`) leaves ``STROKE_FRACTION`` of the half stroke or
+    the pressure estimate (:func:`pressure_estimate`) exceeds
+    ``PRESSURE_FRACTION`` of the supply pressure.
 
     Parameters
     ----------
@@ -595,10 +616,9 @@ def cylinder_input(
     periods = max(1, int(round(duration / (30.0 * hold))))
     u = irregular_steps(n, levels=levels, amplitude=amplitude, n_periods=periods, seed=seed)
     reach = float(np.max(np.abs(position_estimate(u, fs, phys))))
-    limit = STROKE_FRACTION * 0.5 * phys.stroke * MM_PER_M
-    if reach > limit:
-        u = u * (limit / reach)
-    return u
+    scale = min(1.0, STROKE_FRACTION * 0.5 * phys.stroke * MM_PER_M / reach,
+                PRESSURE_FRACTION / pressure_estimate(u, phys))
+    return u * scale
 
 
 def perturbed_physical(
