@@ -324,7 +324,6 @@ def cylinder_parameter(name: str, nominal: float | None = None) -> Parameter:
 # --- the parts ------------------------------------------------------------------------
 
 
-@register_part
 @dataclass(frozen=True)
 class CylinderOrificeValve(Part):
     """4-way critical-centre valve, orifice law: ``q = c_valve I sqrt(1 - sign(I) p)``.
@@ -350,7 +349,6 @@ class CylinderOrificeValve(Part):
         ctx.signals["flow"] = ctx.p["c_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
 
 
-@register_part
 @dataclass(frozen=True)
 class CylinderLinearValve(Part):
     """Linearised valve ``q = c_valve I - c_kp p`` (flow gain and flow-pressure gain)."""
@@ -367,7 +365,6 @@ class CylinderLinearValve(Part):
         ctx.signals["flow"] = ctx.p["c_valve"] * cmd - ctx.p["c_kp"] * ctx.x["p"]
 
 
-@register_part
 @dataclass(frozen=True)
 class CylinderChambers(Part):
     """Flow continuity of both chambers: ``dp/dt = flow - c_compress v - c_leak p``.
@@ -392,7 +389,6 @@ class CylinderChambers(Part):
         ctx.add_rate("p", -ctx.p["c_compress"] * ctx.x["v"] - ctx.p["c_leak"] * ctx.x["p"])
 
 
-@register_part
 @dataclass(frozen=True)
 class LinearMotion(Part):
     """Load balance of piston and load: ``dv/dt = c_force p - c_damping v - c_spring x - c_load``.
@@ -425,7 +421,6 @@ class LinearMotion(Part):
         )
 
 
-@register_part
 @dataclass(frozen=True)
 class PositionOutput(Part):
     """Measured output: the piston position in millimetres."""
@@ -435,6 +430,13 @@ class PositionOutput(Part):
 
     def apply(self, ctx: Context) -> None:
         ctx.signals["y"] = MM_PER_M * ctx.x["x"]
+
+
+# Registered so that saved fits containing these parts load again (a loop, not a
+# decorator, keeps the classes' own types for type checkers).
+for _cls in (CylinderOrificeValve, CylinderLinearValve, CylinderChambers, LinearMotion,
+             PositionOutput):
+    register_part(_cls)
 
 
 # --- the model ---------------------------------------------------------------------------
@@ -636,7 +638,7 @@ def perturbed_physical(
     """
     if not spread > min_factor >= 1:
         raise ParameterError(f"need spread > min_factor >= 1, got {spread}, {min_factor}")
-    rng = np.random.default_rng(seed) if not isinstance(seed, np.random.Generator) else seed
+    rng = np.random.default_rng(seed)  # a Generator passes through unchanged
     phys = base or CylinderPhysical()
     changes = {}
     for name in ("m", "B_p", "beta_e", "k_x", "C_tp"):
