@@ -527,7 +527,7 @@ class LinearCylinderModel(Model):
 #: (a magnetostrictive position sensor's noise is of this order).
 DEFAULT_NOISE_MM = 0.05
 #: Largest valve current of the default excitation [mA], before the stroke and
-#: pressure limits below scale it down (they decide on the nominal cylinder).
+#: pressure limits below scale it down (estimated on the simulated plant).
 DEFAULT_AMPLITUDE_MA = 8.0
 #: Aimed hold length of the excitation's steps [s]: about two periods of the
 #: hydraulic resonance, shorter than a settling time (0.3 s), so that the piston
