@@ -94,9 +94,9 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.excitation import irregular_steps, samples
-from hhra_phys.model import CurrentCommand, Model, register_part
+from hhra_phys.model import Model
 from hhra_phys.parameters import Parameter
-from hhra_phys.parts import Context, Part, State, smooth_sign, smooth_signed_sqrt
+from hhra_phys.parts import Context, Part, State, register_part, smooth_sign, smooth_signed_sqrt
 
 #: Metres to millimetres (the output unit).
 MM_PER_M = 1000.0
@@ -280,6 +280,8 @@ NOMINAL_GROUPS["c_kp"] = 0.5 * NOMINAL_GROUPS["c_valve"]
 
 #: Groups meant to be held fixed (at 0: no spring, no load) unless freed explicitly.
 DEFAULT_FIXED: tuple[str, ...] = ("c_spring", "c_load")
+#: The cylinder's stages, in the order they run (names of its own: stages are free).
+CYLINDER_STAGES: tuple[str, ...] = ("valve", "chambers", "load", "sensor")
 #: The positive groups a fit frees by default for the orifice valve.
 DEFAULT_FREE: tuple[str, ...] = ("c_force", "c_damping", "c_compress", "c_leak", "c_valve")
 
@@ -344,7 +346,7 @@ class CylinderOrificeValve(Part):
         return (cylinder_parameter("c_valve"),)
 
     def apply(self, ctx: Context) -> None:
-        cmd = ctx.signal("command", self.name)
+        cmd = ctx.u  # the valve current, after any input-side effect
         drop = 1 - smooth_sign(cmd, self.sign_eps) * ctx.x["p"]
         ctx.signals["flow"] = ctx.p["c_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
 
@@ -361,7 +363,7 @@ class CylinderLinearValve(Part):
         return (cylinder_parameter("c_valve"), cylinder_parameter("c_kp"))
 
     def apply(self, ctx: Context) -> None:
-        cmd = ctx.signal("command", self.name)
+        cmd = ctx.u  # the valve current, after any input-side effect
         ctx.signals["flow"] = ctx.p["c_valve"] * cmd - ctx.p["c_kp"] * ctx.x["p"]
 
 
@@ -373,7 +375,7 @@ class CylinderChambers(Part):
     the cross-piston leakage (normalised pressure per second). Adds state ``p``.
     """
 
-    stage: ClassVar[str] = "flow"
+    stage: ClassVar[str] = "chambers"
     name: ClassVar[str] = "cylinder_chambers"
 
     @property
@@ -397,7 +399,7 @@ class LinearMotion(Part):
     groups are parameters but meant to be held fixed (:data:`DEFAULT_FIXED`).
     """
 
-    stage: ClassVar[str] = "motion"
+    stage: ClassVar[str] = "load"
     name: ClassVar[str] = "linear_motion"
 
     @property
@@ -408,7 +410,7 @@ class LinearMotion(Part):
     @property
     def states(self) -> Sequence[State]:
         return (
-            State("x", "m", 0.0, "piston position from mid-stroke"),
+            State("x", "m", 0.0, "piston position from mid-stroke", scale=0.02),
             State("v", "m/s", 0.0, "piston velocity"),
         )
 
@@ -425,7 +427,7 @@ class LinearMotion(Part):
 class PositionOutput(Part):
     """Measured output: the piston position in millimetres."""
 
-    stage: ClassVar[str] = "output"
+    stage: ClassVar[str] = "sensor"
     name: ClassVar[str] = "position_output"
 
     def apply(self, ctx: Context) -> None:
@@ -460,9 +462,8 @@ class LinearCylinderModel(Model):
     (zero-order hold); output position [mm]. Parameters: the groups
     ``c_valve`` (and ``c_kp``), ``c_compress``, ``c_leak``, ``c_force``,
     ``c_damping``, ``c_spring``, ``c_load`` (module docstring); ``c_spring`` and
-    ``c_load`` are meant to be held fixed (:data:`DEFAULT_FIXED`): pass
-    ``free=`` to :func:`hhra_phys.fit.fit`, whose defaults only know the HHRA's
-    names.
+    ``c_load`` are held fixed by a fit unless freed (:data:`DEFAULT_FIXED`, the
+    model's ``held``). Stages ``valve -> chambers -> load -> sensor``.
 
     Examples
     --------
@@ -479,15 +480,18 @@ class LinearCylinderModel(Model):
     ) -> None:
         if valve not in ("orifice", "linear"):
             raise ModelError(f"valve must be 'orifice' or 'linear', got {valve!r}")
+        # Listed load first so that the state vector reads x, v, p; the stages fix
+        # the order the parts run in (the valve's flow before the chambers).
         parts: list[Part] = [
-            CurrentCommand(),
-            CylinderOrificeValve() if valve == "orifice" else CylinderLinearValve(),
-            CylinderChambers(),
             LinearMotion(),
+            CylinderChambers(),
+            CylinderOrificeValve() if valve == "orifice" else CylinderLinearValve(),
             PositionOutput(),
             *effects,
         ]
-        super().__init__(parts, name="cylinder")
+        # Records start at rest: only the measured position's initial value is fitted.
+        super().__init__(parts, stages=CYLINDER_STAGES, name="cylinder", pinned=("v", "p"),
+                         held=DEFAULT_FIXED)
         if nominal:
             derived = self.with_nominal(nominal)
             self.params = derived.params
@@ -497,6 +501,13 @@ class LinearCylinderModel(Model):
     def valve(self) -> str:
         """``"orifice"`` or ``"linear"``."""
         return "linear" if self.has_part("cylinder_linear_valve") else "orifice"
+
+    def tf_coefficients_of(self, values: Mapping[str, float]) -> dict[str, float]:
+        """:meth:`tf_coefficients` from fitted values by name (``{}`` if any is missing)."""
+        try:
+            return self.tf_coefficients(np.array([values[n] for n in self.params.names]))
+        except (KeyError, ParameterError):
+            return {}
 
     def tf_coefficients(self, p: np.ndarray | None = None) -> dict[str, float]:
         """Transfer function at rest ``x/I = kv / (s^3 + b s^2 + c s + d)`` (``a = 1``).
