@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from hhra_phys.data import Dataset, load, load_public_actuator
 from hhra_phys.errors import ParameterError
@@ -73,3 +74,30 @@ def check_outputs(paths: list[str | None], overwrite: bool) -> None:
     for p in paths:
         if p and Path(p).exists() and not overwrite:
             raise ParameterError(f"{p} exists; pass --overwrite to replace it")
+
+
+def add_model_arguments(p: argparse.ArgumentParser, effects: bool = False) -> None:
+    """``--model FILE.py:FACTORY`` (and ``--effects-from`` for the diagnosis)."""
+    p.add_argument("--model", default=None, metavar="FILE.py:FACTORY",
+                   help="your own model: FILE.py:FACTORY or package.module:FACTORY, a callable "
+                        "returning a hhra_phys Model (default: the HHRA)")
+    if effects:
+        p.add_argument("--effects-from", action="append", default=None,
+                       metavar="FILE.py|MODULE",
+                       help="import this file or module first, so the effects it registers "
+                            "with @register_effect become candidates (repeatable)")
+
+
+def model_for(args: argparse.Namespace, data: Dataset,
+              valve: str | None = None) -> tuple[Any, dict[str, tuple[float, float]]]:
+    """The model to fit (``--model`` or the HHRA for the record) and its automatic bounds."""
+    if getattr(args, "model", None):
+        from hhra_phys.extensions import model_from_spec
+
+        if valve is not None:
+            raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
+                                 "combined with --model")
+        return model_from_spec(args.model, data), {}
+    from hhra_phys.fit import default_model
+
+    return default_model(data, valve=valve or "orifice")

@@ -9,7 +9,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hhra_phys.cli._common import add_data_arguments, check_outputs, load_data
+from hhra_phys.cli._common import (
+    add_data_arguments,
+    add_model_arguments,
+    check_outputs,
+    load_data,
+    model_for,
+)
 from hhra_phys.errors import HHRAError
 
 
@@ -26,6 +32,7 @@ def register(subparsers: Any) -> None:
         ),
     )
     add_data_arguments(p)
+    add_model_arguments(p, effects=True)
     p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
     p.add_argument("--report", metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
@@ -33,7 +40,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--top", type=int, default=None,
                    help="candidates refitted per round, best ranked first (default: all)")
     p.add_argument("--effects", default=None,
-                   help="comma-separated library effects to consider (default: all)")
+                   help="comma-separated effects to consider (default: all registered, the "
+                        "library's and those of --effects-from)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
     p.add_argument("--split", type=float, default=None,
                    help="estimation fraction (default 0.5)")
@@ -48,7 +56,8 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the loop and write the outputs; 0 on success, 1 on a user error."""
     from hhra_phys.cli._common import parse_names
-    from hhra_phys.loop import augment, base_model_for
+    from hhra_phys.extensions import import_effects
+    from hhra_phys.loop import augment
 
     figs: list[str | None] = []
     if args.report:
@@ -58,8 +67,11 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([args.json, args.report, *figs], args.overwrite)
         if args.max_effects < 0:
             raise HHRAError(f"--max-effects must be >= 0, got {args.max_effects}")
+        added = import_effects(args.effects_from)
+        if added:
+            print(f"registered effects: {', '.join(added)}", file=sys.stderr)
         data = load_data(args)
-        model, bounds = base_model_for(data)
+        model, bounds = model_for(args, data)
         split = args.split if args.split is not None else 0.5
         print(f"diagnosing {data.name or data.source or 'record'} ({len(data)} samples, "
               f"split {split})", file=sys.stderr)

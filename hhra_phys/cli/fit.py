@@ -8,8 +8,10 @@ from typing import Any
 
 from hhra_phys.cli._common import (
     add_data_arguments,
+    add_model_arguments,
     check_outputs,
     load_data,
+    model_for,
     parse_fixed,
     parse_names,
 )
@@ -21,7 +23,7 @@ def register(subparsers: Any) -> None:
     """Add the ``fit`` sub-command."""
     p = subparsers.add_parser(
         "fit",
-        help="fit the HHRA's physical parameter groups to a record",
+        help="fit a physical model (the HHRA by default) to a record",
         description=(
             "Global search (H-GWO by default, population 100, 200 iterations as in the paper) "
             "over the identifiable parameter groups, then local refinement with IPOPT or NLopt, "
@@ -29,12 +31,13 @@ def register(subparsers: Any) -> None:
         ),
     )
     add_data_arguments(p)
+    add_model_arguments(p)
     p.add_argument("--optimizer", choices=OPTIMIZERS, default="hgwo", help="global search")
     p.add_argument("--refine", default="ipopt",
                    help="ipopt | nlopt | nlopt:ALGORITHM (e.g. nlopt:LN_BOBYQA) | none")
     p.add_argument("--free", default=None, metavar="NAMES",
-                   help="comma-separated free parameters (default: all groups but g_spring, "
-                        "g_load)")
+                   help="comma-separated free parameters (default: all but those the model "
+                        "holds, for the HHRA g_spring and g_load)")
     p.add_argument("--fix", action="extend", nargs="+", default=None, metavar="NAME=VALUE",
                    help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable)")
     p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
@@ -45,8 +48,8 @@ def register(subparsers: Any) -> None:
                    help="global-search cost (default itae, the paper's)")
     p.add_argument("--lam", type=float, default=1.0,
                    help="H-GWO mutation factor lambda (paper 0.25; default 1, see docs)")
-    p.add_argument("--valve", choices=("orifice", "linear"), default="orifice",
-                   help="valve law of the model")
+    p.add_argument("--valve", choices=("orifice", "linear"), default=None,
+                   help="valve law of the HHRA (default orifice)")
     p.add_argument("--intervals", choices=("linear", "profile"), default="linear",
                    help="95 %% intervals: linearised at the optimum (default) or profile "
                         "likelihood (a few seconds more)")
@@ -59,12 +62,12 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the fit; returns the exit code."""
-    from hhra_phys.fit import default_free, default_model
+    from hhra_phys.fit import default_free
 
     try:
         check_outputs([args.json, args.plot], args.overwrite)
         data = load_data(args)
-        model, auto_bounds = default_model(data, valve=args.valve)
+        model, auto_bounds = model_for(args, data, args.valve)
         free = parse_names(args.free)
         fixed = parse_fixed(args.fix)
         chosen = set(free) if free is not None else set(default_free(model, fixed))
