@@ -41,6 +41,7 @@ from hhra_phys.data.errors import (
     UnsupportedFormatError,
 )
 from hhra_phys.data.formats import (
+    check_save_path,
     load,
     load_csv,
     load_mat,
@@ -73,6 +74,7 @@ __all__ = [
     "TimeAxisError",
     "TooFewSamplesError",
     "UnsupportedFormatError",
+    "check_save_path",
     "find_public_data",
     "load",
     "load_csv",

@@ -8,7 +8,7 @@ generic handlers keep working.
 
 from __future__ import annotations
 
-from hhra_phys.errors import DataError
+from hhra_phys.errors import DataError, OutputExistsError
 
 __all__ = [
     "DataFileExistsError",
@@ -32,8 +32,12 @@ class DataFileNotFoundError(DataError, FileNotFoundError):
     """A data file (or the public data set) does not exist where it was looked for."""
 
 
-class DataFileExistsError(DataError, FileExistsError):
-    """A writer refused to replace an existing file (pass ``overwrite=True``)."""
+class DataFileExistsError(DataError, OutputExistsError):
+    """A writer refused to replace an existing file (pass ``overwrite=True``).
+
+    Also an :class:`~hhra_phys.errors.OutputExistsError` (and ``FileExistsError``), like every
+    "exists" refusal of the package.
+    """
 
 
 class UnsupportedFormatError(DataError):

@@ -10,20 +10,22 @@ names the file. See ``docs/data.md``.
 from __future__ import annotations
 
 import csv
+import io
 import json
+import math
 import os
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import scipy.io
 
+from hhra_phys.data import _text
 from hhra_phys.data.checks import (
     DataChecks,
     _check_rate,
-    _is_number,
     _rows_text,
     _time_axis,
     _validate,
@@ -39,7 +41,8 @@ from hhra_phys.data.errors import (
     NonNumericError,
     UnsupportedFormatError,
 )
-from hhra_phys.errors import DataError, ParameterError
+from hhra_phys.errors import DataError, OutputExistsError, ParameterError
+from hhra_phys.outputs import atomic_path, atomic_write_text, check_output_path, jsonable
 
 __all__ = [
     "load",
@@ -49,6 +52,7 @@ __all__ = [
     "save",
     "save_csv",
     "save_npz",
+    "check_save_path",
     "sidecar_path",
 ]
 
@@ -76,26 +80,50 @@ def _existing_file(path: PathLike) -> Path:
     return p
 
 
-def _writable(path: PathLike, overwrite: bool) -> Path:
-    p = Path(path).expanduser()
-    if p.exists() and not overwrite:
-        raise DataFileExistsError(f"{p} exists; pass overwrite=True to replace it")
-    if p.is_dir():
-        raise DataFormatError(f"{p} is a directory")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    return p
+def _writable(path: PathLike, overwrite: bool, what: str = "data file") -> Path:
+    """The package's output check, with the data layer's own "exists" error."""
+    try:
+        return check_output_path(path, overwrite=overwrite, what=what)
+    except OutputExistsError as exc:
+        raise DataFileExistsError(str(exc)) from None
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, set | frozenset):
-        return sorted(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+def check_save_path(path: PathLike, overwrite: bool = False) -> list[Path]:
+    """Check, before any work, that :func:`save` could write ``path``.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.csv`` (its side-car is checked too) or ``.npz`` file.
+    overwrite : bool
+        Accept existing files.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files :func:`save` would write.
+
+    Raises
+    ------
+    UnsupportedFormatError, DataFileExistsError, OutputPathError
+        Naming the path and the problem.
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".csv", ".npz"):
+        raise UnsupportedFormatError(
+            f"{path}: can write .csv or .npz, not {suffix or '(no suffix)'!r}"
+        )
+    p = _writable(path, overwrite)
+    if suffix == ".npz":
+        return [p]
+    side = sidecar_path(p)
+    try:
+        _writable(side, overwrite, what="side-car")
+    except DataFileExistsError:
+        raise DataFileExistsError(
+            f"{side} (the side-car of {p.name}) exists; pass overwrite=True to replace it"
+        ) from None
+    return [p, side]
 
 
 def _description(ds: Dataset) -> dict[str, Any]:
@@ -117,7 +145,7 @@ def _description(ds: Dataset) -> dict[str, Any]:
 
 def _to_json(ds: Dataset, target: Path) -> str:
     try:
-        return json.dumps(_description(ds), default=_json_default, indent=2)
+        return json.dumps(jsonable(_description(ds)), indent=2)
     except (TypeError, ValueError) as exc:
         raise DataError(f"{target}: metadata is not JSON-able ({exc})") from None
 
@@ -125,11 +153,81 @@ def _to_json(ds: Dataset, target: Path) -> str:
 def _from_json(text: str, source: PathLike) -> dict[str, Any]:
     try:
         info = json.loads(text)
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise DataFormatError(f"{source}: invalid JSON ({exc})") from None
     if not isinstance(info, dict) or info.get("format") != _SIDECAR_FORMAT:
         return {}  # someone else's JSON file: not ours to interpret
+    # Ours: check the types here so that a hand-edited side-car gives a message, not a
+    # TypeError deep in the loader.
+    expected: dict[str, tuple[type, ...]] = {
+        "name": (str,), "input_name": (str,), "input_unit": (str,), "output_name": (str,),
+        "output_unit": (str,), "extra": (list,), "n": (int,), "fs": (int, float),
+        "metadata": (dict,),
+    }
+    for key, types in expected.items():
+        value = info.get(key)
+        if value is not None and (not isinstance(value, types) or isinstance(value, bool)):
+            raise DataFormatError(
+                f"{source}: field {key!r} must be {' or '.join(t.__name__ for t in types)}, "
+                f"got {value!r}"
+            )
+    if not all(isinstance(e, str) for e in info.get("extra") or []):
+        raise DataFormatError(f"{source}: 'extra' must list channel names, got {info['extra']!r}")
     return info
+
+
+def _read_sidecar(side: Path) -> dict[str, Any]:
+    try:
+        data = side.read_bytes()
+    except OSError as exc:
+        raise DataFormatError(f"{side}: cannot read the side-car ({exc.strerror})") from None
+    text, _ = _text.decode(data, str(side))
+    return _from_json(text, side)
+
+
+def _sidecar_fs(info: Mapping[str, Any]) -> float | None:
+    fs = info.get("fs")
+    return float(fs) if isinstance(fs, int | float) and math.isfinite(fs) and fs > 0 else None
+
+
+def _check_description(
+    info: Mapping[str, Any],
+    where: str,
+    ds: Dataset,
+    *,
+    time_from_file: bool,
+    channels: Sequence[str],
+    units: Mapping[str, str | None] | None = None,
+) -> None:
+    """A side-car (or NPZ meta entry) that disagrees with the samples is an error.
+
+    It would otherwise silently relabel the record (a wrong fs changes every time constant).
+    ``channels`` are the columns/keys the file has; ``units`` the units found in the file
+    for "input_unit"/"output_unit" (e.g. ``angle [deg]`` in a CSV header).
+    """
+    fix = "; fix or delete it (or pass sidecar=False)"
+    n = info.get("n")
+    if n is not None and n != ds.n:
+        raise DataError(f"{where} says n = {n} samples but {ds.source} has {ds.n}{fix}")
+    fs = _sidecar_fs(info)
+    if time_from_file and fs is not None and abs(ds.fs - fs) > max(ds.checks.time_rtol, 1e-9) * fs:
+        raise DataError(
+            f"{where} says fs = {fs:.9g} Hz but the time column of {ds.source} implies "
+            f"fs = {ds.fs:.9g} Hz{fix}"
+        )
+    missing = [e for e in info.get("extra") or [] if e not in channels]
+    if missing:
+        raise DataError(
+            f"{where} lists extra channel {missing[0]!r} but {ds.source} has no such column "
+            f"(it has: {', '.join(channels)}){fix}"
+        )
+    for key, found in (units or {}).items():
+        said = info.get(key)
+        if found is not None and said is not None and found != said:
+            raise DataError(
+                f"{where} says {key} = {said!r} but the header of {ds.source} says {found!r}"
+                f"{fix}"
+            )
 
 
 def _dataset_fields(
@@ -166,27 +264,43 @@ def _dataset_fields(
 
 
 def _csv_records(
-    path: Path, delimiter: str | None, comments: str | None
-) -> Iterator[tuple[int, list[str]]]:
-    """``(line_number, fields)`` for every non-blank, non-comment line (1-based lines)."""
-    with path.open("r", newline="", encoding="utf-8-sig") as fh:  # -sig: drop an Excel BOM
-        kept: list[int] = []
+    path: Path, delimiter: str | None, comments: str | None, encoding: str | None
+) -> tuple[str, list[tuple[int, list[str]]], str]:
+    """``(delimiter, [(line_number, fields), ...], header_text)`` of a text record.
 
-        def data_lines() -> Iterator[str]:
-            for number, line in enumerate(fh, start=1):
-                stripped = line.strip()
-                if not stripped or (comments and stripped.startswith(comments)):
-                    continue
-                kept.append(number)
-                yield line
-
-        if delimiter is None:
-            for line in data_lines():
-                yield kept[-1], line.split()
-        else:
-            # One record per line: numeric data has no quoted multi-line fields.
-            for fields in csv.reader(data_lines(), delimiter=delimiter):
-                yield kept[-1], [f.strip() for f in fields]
+    Every non-blank, non-comment line is one record (numeric data has no quoted
+    multi-line fields); line numbers are 1-based lines of the file. The bytes are decoded
+    by :func:`hhra_phys.data._text.decode` and ``delimiter=None`` is detected.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read ({exc.strerror})") from None
+    text, _ = _text.decode(data, str(path), encoding)
+    numbers: list[int] = []
+    kept: list[str] = []
+    # newline="": split on \n, \r\n and \r only, as open(newline="") does for csv.
+    for number, line in enumerate(io.StringIO(text, newline=""), start=1):
+        stripped = line.strip()
+        if not stripped or (comments and stripped.startswith(comments)):
+            continue
+        numbers.append(number)
+        kept.append(line)
+    if delimiter is None:
+        delimiter = _text.detect_delimiter(kept)
+    header_text = kept[0] if kept else ""
+    if delimiter == _text.WHITESPACE:
+        split = [(n, ln.split()) for n, ln in zip(numbers, kept, strict=True)]
+        return delimiter, split, header_text
+    records: list[tuple[int, list[str]]] = []
+    reader = csv.reader(kept, delimiter=delimiter)
+    try:
+        for fields in reader:
+            records.append((numbers[reader.line_num - 1], [f.strip() for f in fields]))
+    except csv.Error as exc:
+        line = numbers[min(reader.line_num, len(numbers)) - 1] if numbers else 0
+        raise DataFormatError(f"{path}: line {line}: {exc}") from None
+    return delimiter, records, header_text
 
 
 def _role(role: str) -> str:
@@ -199,14 +313,23 @@ def _role(role: str) -> str:
 def _parse_column(cells: list[str], label: str, lines: np.ndarray, path: Path) -> np.ndarray:
     try:
         return np.array(cells, dtype=np.float64)
-    except ValueError:
+    except (ValueError, OverflowError):
         pass
-    bad = np.array([i for i, c in enumerate(cells) if not _is_number(c)])
-    first = cells[int(bad[0])]
+    # NumPy and float() disagree on a few spellings ("1_000"): float() decides, cell by cell.
+    values = np.empty(len(cells))
+    bad: list[int] = []
+    for i, cell in enumerate(cells):
+        try:
+            values[i] = float(cell)
+        except (TypeError, ValueError, OverflowError):
+            bad.append(i)
+    if not bad:
+        return values
+    first = cells[bad[0]]
     what = "an empty cell" if first == "" else repr(first)
     raise NonNumericError(
-        f"{path}: column {label!r} has {bad.size} non-numeric cell{'s' * (bad.size > 1)} "
-        f"at {_rows_text(bad, lines)}; first: {what}"
+        f"{path}: column {label!r} has {len(bad)} non-numeric cell{'s' * (len(bad) > 1)} "
+        f"at {_rows_text(np.array(bad), lines)}; first: {what}"
     )
 
 
@@ -218,12 +341,14 @@ def _check_extra_name(key: str, source: PathLike) -> None:
         )
 
 
-def _column_index(spec: str | int, header: list[str], path: Path, role: str) -> int:
+def _column_index(
+    spec: str | int, header: list[str], path: Path, role: str, hint: str = ""
+) -> int:
     if isinstance(spec, int | np.integer) and not isinstance(spec, bool):
         if not -len(header) <= spec < len(header):
             raise MissingColumnError(
                 f"{path}: column index {spec} for {_role(role)} is out of range; the file has "
-                f"{len(header)} columns: {', '.join(header)}"
+                f"{len(header)} columns: {', '.join(header)}{hint}"
             )
         return int(spec) % len(header)
     if not isinstance(spec, str):
@@ -233,10 +358,20 @@ def _column_index(spec: str | int, header: list[str], path: Path, role: str) -> 
         raise MissingColumnError(
             f"{path}: no column {spec!r} (for {_role(role)}); available columns: "
             + ", ".join(header)
+            + hint
         )
     if len(hits) > 1:
         raise DataFormatError(f"{path}: the header names column {spec!r} {len(hits)} times")
     return hits[0]
+
+
+_UNIT = re.compile(r"\[([^\[\]]+)\]\s*$")
+
+
+def _header_unit(name: str) -> str | None:
+    """``"Winkel [°]"`` -> ``"°"``: the unit a CSV header gives in brackets, if any."""
+    m = _UNIT.search(name)
+    return m.group(1).strip() if m else None
 
 
 def load_csv(
@@ -245,10 +380,11 @@ def load_csv(
     u: str | int = "u",
     y: str | int = "y",
     extra: Sequence[str | int] | Mapping[str, str | int] | None = None,
-    delimiter: str | None = ",",
+    delimiter: str | None = None,
     fs: float | None = None,
     *,
     comments: str | None = "#",
+    encoding: str | None = None,
     sidecar: bool = True,
     input_name: str | None = None,
     input_unit: str | None = None,
@@ -267,19 +403,28 @@ def load_csv(
         remaining line is the header.
     t, u, y : str or int
         Column names (or 0-based indices) of time [s], input and output. When the time
-        column is absent (or ``t=None``) and ``fs`` is given, ``t = arange(N) / fs``; with
-        ``t=None`` and no ``fs`` the record is in sample units (fs = 1,
-        ``metadata["time_unit"] = "samples"``).
+        column is absent (or ``t=None``) the time axis is built from ``fs`` (or the
+        side-car's fs): ``t = arange(N) / fs``; with neither the record is in sample units
+        (fs = 1, ``metadata["time_unit"] = "samples"``).
     extra : sequence of str or int, or mapping of name to column, optional
-        Further columns to keep in ``Dataset.extra`` (a mapping renames them, e.g.
-        ``{"p_a": "u"}``). ``None`` (default): the extras the side-car lists, else none.
+        Further columns to keep in ``Dataset.extra``. A mapping is ``{new name: column}``:
+        ``{"p_a": "pressure A"}`` stores the column "pressure A" as ``extra["p_a"]``.
+        ``None`` (default): the extras the side-car lists, else none.
     delimiter : str or None
-        Field separator (default ","); ``None`` splits on runs of whitespace.
+        Field separator: ``","``, ``";"``, ``"\\t"``, any one character, or ``"whitespace"``
+        (runs of blanks and tabs). ``None`` (default) detects it among ``,`` ``;`` tab and
+        whitespace from the header and the first lines.
     fs : float, optional
         Sample rate [Hz]; checked against the time column when both exist.
+    comments : str or None
+        Prefix of comment lines (default "#").
+    encoding : str or None
+        Text encoding; ``None`` (default) detects UTF-8 (with or without BOM), UTF-16/32
+        with a BOM, and Windows-1252/Latin-1.
     sidecar : bool
         Read ``sidecar_path(path)`` (written by :func:`save_csv`) for names, units and
-        metadata when it exists.
+        metadata when it exists. Its ``n``, ``fs``, extra channels and units must agree
+        with the file.
     input_name, input_unit, output_name, output_unit, name : str, optional
         Override the side-car (and the defaults current/mA, angle/deg).
     metadata : dict, optional
@@ -296,34 +441,44 @@ def load_csv(
     ------
     DataFileNotFoundError, MissingColumnError, NonNumericError, DataFormatError
         And every validation error of :class:`Dataset`; messages give the file, the column,
-        the row (0-based sample index) and the line of the file.
+        the row (0-based sample index) and the line of the file. A binary or undecodable
+        file raises :class:`DataFormatError`; a missing column in a header that looks
+        delimited by something else says which delimiter to pass.
     """
     p = _existing_file(path)
     checks = checks or DataChecks()
+    if delimiter is not None:
+        try:
+            delimiter = _text.parse_delimiter(delimiter)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
     info: dict[str, Any] = {}
     side = sidecar_path(p)
     if sidecar and side.is_file() and side != p:
-        info = _from_json(side.read_text(encoding="utf-8"), side)
+        info = _read_sidecar(side)
+    where = f"the side-car {side}"
 
-    records = _csv_records(p, delimiter, comments)
-    try:
-        header_line, header = next(records)
-    except StopIteration:
-        raise DataFormatError(f"{p}: empty file (no header row)") from None
+    used, records, header_text = _csv_records(p, delimiter, comments, encoding)
+    if not records:
+        raise DataFormatError(f"{p}: empty file (no header row)")
+    (header_line, header), body = records[0], records[1:]
+    hint = _text.delimiter_hint(header_text, used)
     rows: list[list[str]] = []
     lines: list[int] = []
-    for number, fields in records:
+    for number, fields in body:
         if len(fields) != len(header):
             raise DataFormatError(
                 f"{p}: line {number} has {len(fields)} fields but the header (line {header_line}) "
-                f"has {len(header)}"
+                f"has {len(header)} (delimiter {_text.display(used)!r}){hint}"
             )
         rows.append(fields)
         lines.append(number)
     line_of = np.array(lines, dtype=np.int64)
 
     if extra is None:
-        extra = [e for e in info.get("extra", []) if e in header]
+        extra = [e for e in info.get("extra") or [] if e in header]
+    if fs is None and (t is None or (not isinstance(t, int) and t not in header)):
+        fs = _sidecar_fs(info)  # no time column: the side-car knows the sample rate
     roles: dict[str, str | int] = {}
     if t is not None and (isinstance(t, int) or t in header or fs is None):
         roles["t"] = t
@@ -331,10 +486,10 @@ def load_csv(
     pairs = extra.items() if isinstance(extra, Mapping) else ((e, e) for e in extra)
     for key, e in pairs:
         if not isinstance(key, str):  # an index without a name: use the header's
-            key = header[_column_index(e, header, p, "extra")]
+            key = header[_column_index(e, header, p, "extra", hint)]
         _check_extra_name(key, p)
         roles[key] = e
-    index = {role: _column_index(spec, header, p, role) for role, spec in roles.items()}
+    index = {role: _column_index(spec, header, p, role, hint) for role, spec in roles.items()}
     columns = {role: [r[i] for r in rows] for role, i in index.items()}
     values = {
         role: _parse_column(cells, header[index[role]], line_of, p)
@@ -373,6 +528,18 @@ def load_csv(
     )
     if "t" in values and fs is not None:
         _check_rate(ds.fs, fs, checks, ds.source)
+    if info:
+        _check_description(
+            info,
+            where,
+            ds,
+            time_from_file="t" in values,
+            channels=header,
+            units={
+                "input_unit": _header_unit(labels["u"]),
+                "output_unit": _header_unit(labels["y"]),
+            },
+        )
     return ds
 
 
@@ -380,13 +547,14 @@ def save_csv(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
     """Write ``ds`` as CSV (columns ``t,u,y`` then the extras) plus a JSON side-car.
 
     Values are written with ``repr`` precision, so a round trip is exact. Names, units and
-    metadata go to ``sidecar_path(path)`` (``rig.csv`` -> ``rig.json``).
+    metadata go to ``sidecar_path(path)`` (``rig.csv`` -> ``rig.json``). Both files are
+    written atomically (a failure leaves no partial file).
 
     Parameters
     ----------
     ds : Dataset
     path : str or path-like
-        Target CSV file; parent directories are created.
+        Target CSV file; its folder must exist.
     overwrite : bool
         Replace existing files (the CSV and its side-car); otherwise raise
         :class:`DataFileExistsError`.
@@ -405,18 +573,19 @@ def save_csv(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
             raise DataError(f"{p}: extra channel {bad!r} clashes with the columns t, u, y")
     _writable(p, overwrite)
     try:
-        _writable(side, overwrite)
+        _writable(side, overwrite, what="side-car")
     except DataFileExistsError:
         raise DataFileExistsError(
             f"{side} (the side-car of {p.name}) exists; pass overwrite=True to replace it"
         ) from None
     text = _to_json(ds, side)
     data = np.column_stack([ds.t, ds.u, ds.y, *ds.extra.values()])
-    with p.open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["t", "u", "y", *ds.extra])
-        writer.writerows(data.tolist())  # csv writes floats with repr(): exact round trip
-    side.write_text(text + "\n", encoding="utf-8")
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(["t", "u", "y", *ds.extra])
+    writer.writerows(data.tolist())  # csv writes floats with repr(): exact round trip
+    atomic_write_text(p, buffer.getvalue())
+    atomic_write_text(side, text + "\n")
     return p
 
 
@@ -654,12 +823,11 @@ def load_npz(
         raise DataFormatError(f"{p}: not a readable .npz archive ({exc})") from None
     info: dict[str, Any] = {}
     if _NPZ_META_KEY in variables:
-        info = _from_json(str(variables.pop(_NPZ_META_KEY)), p)
+        info = _from_json(str(variables.pop(_NPZ_META_KEY)), f"{p} ({_NPZ_META_KEY})")
+    stored = [k[len(_NPZ_EXTRA_PREFIX) :] for k in variables if k.startswith(_NPZ_EXTRA_PREFIX)]
     if extra is None:
-        extra = {
-            k[len(_NPZ_EXTRA_PREFIX) :]: k for k in variables if k.startswith(_NPZ_EXTRA_PREFIX)
-        }
-    return _from_variables(
+        extra = {name: _NPZ_EXTRA_PREFIX + name for name in stored}
+    ds = _from_variables(
         variables,
         str(p),
         t=t,
@@ -678,6 +846,16 @@ def load_npz(
         name=name,
         metadata=metadata,
     )
+    if info:
+        time_key = _parse_spec(t)[0] if t is not None else None
+        _check_description(
+            info,
+            f"the {_NPZ_META_KEY} entry of {p}",
+            ds,
+            time_from_file=time_key in variables,
+            channels=stored,
+        )
+    return ds
 
 
 def save_npz(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
@@ -696,7 +874,8 @@ def save_npz(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
     arrays = {"t": ds.t, "u": ds.u, "y": ds.y}
     arrays.update({_NPZ_EXTRA_PREFIX + k: v for k, v in ds.extra.items()})
     arrays[_NPZ_META_KEY] = np.array(_to_json(ds, p))
-    with p.open("wb") as fh:  # a file object keeps numpy from appending ".npz"
+    with atomic_path(p) as tmp, tmp.open("wb") as fh:
+        # A file object keeps numpy from appending ".npz"; it is closed before the rename.
         np.savez_compressed(fh, **arrays)
     return p
 
@@ -707,9 +886,17 @@ def save_npz(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
 def load(path: PathLike, **kw: Any) -> Dataset:
     """Load by suffix: ``.csv`` / ``.tsv`` (tab-separated), ``.mat``, ``.npz``.
 
-    Keyword arguments go to :func:`load_csv`, :func:`load_mat` or :func:`load_npz`.
+    Keyword arguments go to :func:`load_csv`, :func:`load_mat` or :func:`load_npz`;
+    ``delimiter`` and ``encoding`` (text options) are accepted as ``None`` for every format,
+    so a caller may pass them unconditionally.
     """
     suffix = Path(path).suffix.lower()
+    if suffix in (".mat", ".npz"):
+        for key in ("delimiter", "encoding"):
+            if kw.pop(key, None) is not None:
+                raise ParameterError(
+                    f"{path}: {key} applies to text files (.csv, .tsv), not {suffix}"
+                )
     if suffix == ".csv":
         return load_csv(path, **kw)
     if suffix == ".tsv":
@@ -726,10 +913,8 @@ def load(path: PathLike, **kw: Any) -> Dataset:
 
 
 def save(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
-    """Write by suffix: ``.csv`` (with side-car) or ``.npz``."""
-    suffix = Path(path).suffix.lower()
-    if suffix == ".csv":
+    """Write by suffix: ``.csv`` (with side-car) or ``.npz``; see :func:`check_save_path`."""
+    check_save_path(path, overwrite)
+    if Path(path).suffix.lower() == ".csv":
         return save_csv(ds, path, overwrite=overwrite)
-    if suffix == ".npz":
-        return save_npz(ds, path, overwrite=overwrite)
-    raise UnsupportedFormatError(f"{path}: can write .csv or .npz, not {suffix or '(no suffix)'!r}")
+    return save_npz(ds, path, overwrite=overwrite)
