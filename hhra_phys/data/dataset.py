@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -259,3 +259,100 @@ class Dataset:
         if t is not None and fs is not None:
             _check_rate(ds.fs, fs, checks, ds.source)
         return ds
+
+    # ---------------------------------------------------------------- pandas
+
+    @classmethod
+    def from_dataframe(
+        cls,
+        df: Any,
+        time: str | None = "t",
+        input: str = "u",  # shadows the builtin: the role's name, like u= elsewhere
+        output: str = "y",
+        extra: Sequence[str] | Mapping[str, str] | None = None,
+        *,
+        fs: float | None = None,
+        **meta: Any,
+    ) -> Dataset:
+        """Build a dataset from columns of a :class:`pandas.DataFrame`.
+
+        Parameters
+        ----------
+        df : pandas.DataFrame
+        time, input, output : str
+            Column names of time [s], input and output. ``time=None`` builds the time axis
+            from ``fs`` (or sample units), as :meth:`from_arrays` does; to use the index,
+            ``df.reset_index()`` first.
+        extra : sequence of str, or mapping of name to column, optional
+            Further columns for ``Dataset.extra`` (a mapping is ``{new name: column}``).
+        fs : float, optional
+            Sample rate [Hz]; see :meth:`from_arrays`.
+        **meta
+            As in :meth:`from_arrays`. Names, units, name and metadata default to what
+            :meth:`to_dataframe` stored in ``df.attrs["hhra_phys"]``.
+
+        Raises
+        ------
+        DataError
+            A missing column (:class:`MissingColumnError`, listing the columns) and every
+            validation error; ``ImportError`` naming the extra when pandas is missing.
+        """
+        pd = _pandas()
+        from hhra_phys.data.errors import MissingColumnError
+
+        if not isinstance(df, pd.DataFrame):
+            raise ParameterError(f"from_dataframe needs a pandas.DataFrame, got {type(df)}")
+        pairs = dict(extra.items()) if isinstance(extra, Mapping) else {e: e for e in extra or ()}
+        roles = {"u": input, "y": output, **pairs}
+        if time is not None:
+            roles["t"] = time
+        available = [str(c) for c in df.columns]
+        cols: dict[str, np.ndarray] = {}
+        for role, column in roles.items():
+            if column not in df.columns:
+                raise MissingColumnError(
+                    f"DataFrame: no column {column!r} (for {role}); columns: "
+                    + ", ".join(available)
+                )
+            series = df[column]
+            try:  # nullable dtypes: pd.NA -> NaN, reported by the finiteness check
+                cols[role] = series.to_numpy(dtype=np.float64, na_value=np.nan)
+            except (TypeError, ValueError):
+                cols[role] = series.to_numpy()  # validation names the non-numeric rows
+        stored = df.attrs.get("hhra_phys") if isinstance(df.attrs, Mapping) else None
+        defaults = {k: v for k, v in (stored or {}).items() if k in _FRAME_FIELDS}
+        ex = {k: v for k, v in cols.items() if k not in ("t", "u", "y")}
+        return cls.from_arrays(
+            cols["u"], cols["y"], fs=fs, t=cols.get("t"), **{**defaults, "extra": ex, **meta}
+        )
+
+    def to_dataframe(self) -> Any:
+        """The record as a :class:`pandas.DataFrame` with columns ``t``, ``u``, ``y``, extras.
+
+        Names, units, name and metadata go to ``df.attrs["hhra_phys"]``, so
+        ``Dataset.from_dataframe(ds.to_dataframe())`` gives the same record back.
+        """
+        pd = _pandas()
+        df = pd.DataFrame({"t": self.t, "u": self.u, "y": self.y, **self.extra})
+        df.attrs["hhra_phys"] = copy.deepcopy(
+            {k: getattr(self, k) for k in _FRAME_FIELDS}
+        )
+        return df
+
+
+#: Dataset fields that travel with a DataFrame in ``df.attrs["hhra_phys"]``.
+_FRAME_FIELDS = (
+    "input_name", "input_unit", "output_name", "output_unit", "name", "source", "metadata",
+)
+
+
+def _pandas() -> Any:
+    """pandas, imported on first use: it is an optional dependency."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(
+            "pandas is needed for Dataset.from_dataframe/to_dataframe; install it with "
+            "pip install 'hhra-phys[pandas]' (or pip install pandas)"
+        ) from None
+    return pandas
