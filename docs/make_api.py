@@ -28,7 +28,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "api.md"
 PACKAGE = "hhra_phys"
-SKIP = ("hhra_phys.cli",)
+SKIP = ("hhra_phys.cli", "hhra_phys.data.")  # data: documented once, via its __all__
 
 
 def _modules() -> list[str]:

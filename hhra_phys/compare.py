@@ -54,6 +54,13 @@ from hhra_phys import arx
 from hhra_phys.data import Dataset
 from hhra_phys.errors import DataError, HHRAError, ParameterError
 from hhra_phys.metrics import KEYS, score
+from hhra_phys.outputs import (
+    FIGURE_SUFFIXES,
+    atomic_path,
+    atomic_write_text,
+    check_output_path,
+    jsonable,
+)
 
 __all__ = [
     "ARX_METHODS",
@@ -169,7 +176,7 @@ class CompareSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able copy."""
-        return _jsonable(asdict(self))
+        return jsonable(asdict(self), default=str)
 
 
 # --------------------------------------------------------------------------- registry
@@ -461,7 +468,7 @@ class MethodResult:
                 "best": np.asarray(o.history, dtype=float).tolist(),
                 "nfev": None if o.history_nfev is None else np.asarray(o.history_nfev).tolist(),
             }
-        return _jsonable(entry)
+        return jsonable(entry, default=str)
 
 
 @dataclass
@@ -478,7 +485,7 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         """The JSON report (layout in the module docstring)."""
         ds = self.dataset
-        return _jsonable(
+        return jsonable(
             {
                 "dataset": ds.name or ds.source or "dataset",
                 "split": self.split,
@@ -665,27 +672,6 @@ def compare(
 # --------------------------------------------------------------------------- JSON
 
 
-def _jsonable(obj: Any) -> Any:
-    """Plain Python types; non-finite floats become None (JSON null)."""
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, complex | np.complexfloating):
-        return [_jsonable(obj.real), _jsonable(obj.imag)]
-    if obj is None or isinstance(obj, str):
-        return obj
-    return str(obj)
-
-
 def write_json(report: Mapping[str, Any], path: str | Path, overwrite: bool = False) -> Path:
     """Write a report (or any JSON-able mapping) as indented JSON.
 
@@ -694,11 +680,9 @@ def write_json(report: Mapping[str, Any], path: str | Path, overwrite: bool = Fa
     ParameterError
         If ``path`` exists and ``overwrite`` is False.
     """
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise ParameterError(f"{p} exists; pass overwrite=True (--overwrite) to replace it")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(_jsonable(report), indent=1, allow_nan=False) + "\n")
+    p = check_output_path(path, overwrite=overwrite, what="JSON report")
+    text = json.dumps(jsonable(report, default=str), indent=1, allow_nan=False) + "\n"
+    atomic_write_text(p, text)
     return p
 
 
@@ -893,11 +877,9 @@ def markdown_summary(agg: Mapping[str, Any], paper: bool = True) -> str:
 def _save(fig: Any, path: str | Path | None, overwrite: bool, dpi: int) -> None:
     if path is None:
         return
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise ParameterError(f"{p} exists; pass overwrite=True (--overwrite) to replace it")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=dpi)
+    p = check_output_path(path, overwrite=overwrite, what="figure", suffixes=FIGURE_SUFFIXES)
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, dpi=dpi)
 
 
 def plot_outputs(

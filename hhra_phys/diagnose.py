@@ -42,6 +42,7 @@ from scipy import stats
 from hhra_phys.data import Dataset
 from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
 from hhra_phys.errors import ParameterError
+from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
 from hhra_phys.problem import Problem
 
 #: Detectability (probe-size output change over noise) below which an effect is
@@ -92,7 +93,7 @@ class EffectEvidence:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able dictionary."""
-        return _clean(asdict(self))
+        return jsonable(asdict(self))
 
 
 @dataclass
@@ -119,7 +120,7 @@ class Diagnosis:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able summary (no long arrays)."""
-        return _clean({
+        return jsonable({
             "n": self.n,
             "rmse": self.rmse,
             "noise": self.noise,
@@ -147,22 +148,6 @@ class Diagnosis:
             lines.append(f"  {e.name:18s} score {e.score:.3f}  detectability "
                          f"{e.detectability:.3g}{flag}")
         return "\n".join(lines)
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 # --- statistics ---------------------------------------------------------------------
@@ -523,15 +508,13 @@ def plot_residuals(diag: Diagnosis, path: str, title: str = "", overwrite: bool 
     FileExistsError
         ``path`` exists and ``overwrite`` is False.
     """
-    import os
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if os.path.exists(path) and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    target = check_output_path(path, overwrite=overwrite, what="residual figure",
+                               suffixes=FIGURE_SUFFIXES)
     fig, ax = plt.subplots(2, 2, figsize=(10, 6.5))
     ax[0, 0].plot(diag.t, diag.residual, lw=0.7)
     ax[0, 0].set(title=f"residual (RMSE {diag.rmse:.3g}, noise {diag.noise:.2g})",
@@ -551,6 +534,7 @@ def plot_residuals(diag: Diagnosis, path: str, title: str = "", overwrite: bool 
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with atomic_path(target) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path

@@ -27,3 +27,15 @@ class ModelError(HHRAError, ValueError):
 
 class SimulationError(HHRAError, RuntimeError):
     """A simulation could not be set up (not raised for diverging population members)."""
+
+
+class OutputPathError(ParameterError):
+    """An output file cannot be written: bad folder, directory, suffix (see ``outputs``).
+
+    A :class:`ParameterError` because the path is an argument the caller chose; raised
+    before any work is done.
+    """
+
+
+class OutputExistsError(OutputPathError, FileExistsError):
+    """An output file exists and replacing it was not allowed (pass ``overwrite=True``)."""

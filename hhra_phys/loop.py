@@ -43,6 +43,7 @@ from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.model import Model
+from hhra_phys.outputs import jsonable
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
 from hhra_phys.simulate import Simulator
@@ -124,7 +125,7 @@ class LoopResult:
         final = part(self.final)
         final["params"] = self.final.values
         final["ci95"] = {k: list(v) for k, v in self.final.ci95.items()}
-        return _finite({
+        return jsonable({
             "base": part(self.base),
             "steps": [s.to_json() for s in self.steps],
             "chosen": list(self.chosen),
@@ -136,18 +137,6 @@ class LoopResult:
             "skipped": dict(self.skipped),
             "settings": self.settings,
         })
-
-
-def _finite(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 class _Fitter:

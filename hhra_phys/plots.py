@@ -16,14 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hhra_phys.data import Dataset  # noqa: E402
-
-
-def _target(path: str | Path, overwrite: bool) -> Path:
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise FileExistsError(f"{p} exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    return p
+from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path  # noqa: E402
 
 
 def plot_fit(
@@ -48,7 +41,7 @@ def plot_fit(
     overwrite : bool
         Replace an existing file.
     """
-    p = _target(path, overwrite)
+    p = check_output_path(path, overwrite=overwrite, what="figure", suffixes=FIGURE_SUFFIXES)
     rows = 3 if history else 2
     fig, axes = plt.subplots(rows, 1, figsize=(10, 2.6 * rows + 0.6))
     ax_y, ax_r = axes[0], axes[1]
@@ -71,7 +64,8 @@ def plot_fit(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(p, dpi=110)
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return p
 
@@ -84,7 +78,7 @@ def plot_outputs(
     overwrite: bool = False,
 ) -> Path:
     """Measured output against several models' simulated outputs on one record."""
-    p = _target(path, overwrite)
+    p = check_output_path(path, overwrite=overwrite, what="figure", suffixes=FIGURE_SUFFIXES)
     fig, ax = plt.subplots(figsize=(10, 3.6))
     ax.plot(data.t, data.y, color="k", lw=1.0, label="measured")
     for label, y in outputs.items():
@@ -95,6 +89,7 @@ def plot_outputs(
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    fig.savefig(p, dpi=110)
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return p

@@ -13,7 +13,6 @@ warning: they are not identifiable from this record.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 
 from hhra_phys.errors import DataError
 from hhra_phys.model import Model
+from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.simulate import Simulator
 
 #: Condition number of the scaled information matrix beyond which parameters are
@@ -326,13 +326,8 @@ class FitResult:
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the result as JSON; an existing file is kept unless ``overwrite``."""
-        p = Path(path)
-        if p.exists() and not overwrite:
-            raise FileExistsError(
-                f"{p} exists; pass overwrite=True (CLI: --overwrite) to replace it"
-            )
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(_clean(self.to_json()), indent=1))
+        p = check_output_path(path, overwrite=overwrite, what="fit result")
+        atomic_write_text(p, json.dumps(jsonable(self.to_json()), indent=1))
         return p
 
     @classmethod
@@ -372,16 +367,3 @@ class FitResult:
         )
 
 
-def _clean(obj: Any) -> Any:
-    """Replace NaN/Inf by None and numpy scalars by Python numbers, recursively."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    return obj

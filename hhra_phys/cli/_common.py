@@ -7,7 +7,9 @@ from pathlib import Path
 from typing import Any
 
 from hhra_phys.data import Dataset, load, load_public_actuator
+from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
+from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
 
 
 def add_data_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,7 +23,24 @@ def add_data_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input-col", default=None, help="input column / variable (CSV default 'u')")
     p.add_argument("--output-col", default=None, help="output column / variable (CSV default 'y')")
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz if the file has none")
+    add_delimiter_argument(p)
     p.add_argument("--rig-seed", type=int, default=0, help="seed of the simulated rig (no DATA)")
+
+
+def _delimiter(text: str) -> str | None:
+    try:
+        return parse_delimiter(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_delimiter_argument(p: argparse.ArgumentParser) -> None:
+    """``--delimiter`` of text records, for every command that reads one."""
+    p.add_argument(
+        "--delimiter", type=_delimiter, default=None, metavar="SEP",
+        help="field separator of a .csv/.tsv record: ',', ';', 'tab', 'whitespace' or any one "
+             "character (default: detected)",
+    )
 
 
 def load_data(args: argparse.Namespace) -> Dataset:
@@ -40,6 +59,7 @@ def load_data(args: argparse.Namespace) -> Dataset:
             kw[key] = value
     if args.fs is not None:
         kw["fs"] = args.fs
+    kw["delimiter"] = getattr(args, "delimiter", None)
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
     return load(args.data, **kw)
@@ -69,11 +89,19 @@ def parse_names(text: str | None) -> list[str] | None:
     return names
 
 
-def check_outputs(paths: list[str | None], overwrite: bool) -> None:
-    """Refuse to start a long run whose outputs would overwrite existing files."""
+def check_outputs(
+    paths: list[str | None], overwrite: bool, *, figures: list[str | None] | None = None
+) -> None:
+    """Check every output file before a long run starts (see ``check_output_path``).
+
+    ``figures`` are checked as ``paths`` and must also have a suffix matplotlib writes.
+    """
     for p in paths:
-        if p and Path(p).exists() and not overwrite:
-            raise ParameterError(f"{p} exists; pass --overwrite to replace it")
+        if p:
+            check_output_path(p, overwrite=overwrite)
+    for p in figures or []:
+        if p:
+            check_output_path(p, overwrite=overwrite, what="figure", suffixes=FIGURE_SUFFIXES)
 
 
 def add_model_arguments(p: argparse.ArgumentParser, effects: bool = False) -> None:

@@ -7,7 +7,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.cli._common import add_delimiter_argument
 from hhra_phys.errors import HHRAError, ParameterError
+from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
 
 #: Words accepted as DATA for the built-in records.
 PUBLIC_WORDS = ("public",)
@@ -55,6 +57,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--public", action="store_true", help="use the public actuator record")
     p.add_argument("--u", metavar="SPEC", help="input column/variable of DATA (see docs/data.md)")
     p.add_argument("--y", metavar="SPEC", help="output column/variable of DATA")
+    add_delimiter_argument(p)
     p.add_argument(
         "--split",
         type=_split,
@@ -120,7 +123,7 @@ def _load(args: argparse.Namespace) -> Any:
             raise ParameterError(f"--duration must be positive, got {args.duration}")
         return simulate_rig(seed=args.seed, duration=args.duration), 0.5
     kw = {k: v for k, v in (("u", args.u), ("y", args.y)) if v is not None}
-    return load(args.data, **kw), 0.5
+    return load(args.data, delimiter=args.delimiter, **kw), 0.5
 
 
 def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
@@ -133,10 +136,10 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
         else None,
         "report": Path(args.report) if args.report else None,
     }
-    if not args.overwrite:
-        taken = [str(p) for p in paths.values() if p is not None and p.exists()]
-        if taken:
-            raise ParameterError(f"output exists: {', '.join(taken)} (use --overwrite)")
+    for key, p in paths.items():
+        if p is not None:
+            suffixes = FIGURE_SUFFIXES if key in ("plot", "convergence") else None
+            check_output_path(p, overwrite=args.overwrite, what=key, suffixes=suffixes)
     return paths
 
 
@@ -176,9 +179,8 @@ def run(args: argparse.Namespace) -> int:
         if paths["json"]:
             C.write_json(report, paths["json"], overwrite=args.overwrite)
         if paths["report"]:
-            p = paths["report"]
-            p.parent.mkdir(parents=True, exist_ok=True)
-            p.write_text(f"# Identification comparison: {report['dataset']}\n\n{table}")
+            text = f"# Identification comparison: {report['dataset']}\n\n{table}"
+            atomic_write_text(paths["report"], text)
         if paths["plot"]:
             C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
             if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):

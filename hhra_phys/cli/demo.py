@@ -8,7 +8,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.data import check_save_path, save_csv
 from hhra_phys.errors import HHRAError
+from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
 
 
 def register(subparsers: Any) -> None:
@@ -45,20 +47,19 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(f"hhra-demo-{time.strftime('%Y%m%d-%H%M%S')}")
     files = {"plot": out / "demo_fit.png", "json": out / "demo_fit.json",
              "data": out / "demo_rig.csv"}
-    if not args.overwrite:
-        clash = [str(f) for f in files.values() if f.exists()]
-        if clash:
-            print(f"hhra-phys demo: error: {', '.join(clash)} exist; pass --overwrite or "
-                  "another --out", file=sys.stderr)
-            return 2
+    try:  # every output checked before the first simulation
+        out.mkdir(parents=True, exist_ok=True)
+        check_save_path(files["data"], args.overwrite)
+        check_output_path(files["json"], overwrite=args.overwrite)
+        check_output_path(files["plot"], overwrite=args.overwrite, suffixes=FIGURE_SUFFIXES)
+    except (HHRAError, OSError) as exc:
+        print(f"hhra-phys demo: error: {exc} (or choose another --out)", file=sys.stderr)
+        return 2
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
     n_steps = 5
     try:
         _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
         data = simulate_rig(seed=args.seed, duration=duration)
-        out.mkdir(parents=True, exist_ok=True)
-        from hhra_phys.data import save_csv
-
         save_csv(data, files["data"], overwrite=args.overwrite)
         _step(2, n_steps, f"fitting the physical model: H-GWO (pop {pop}, {iters} it.) + IPOPT")
         res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)

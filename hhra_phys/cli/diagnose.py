@@ -17,6 +17,7 @@ from hhra_phys.cli._common import (
     model_for,
 )
 from hhra_phys.errors import HHRAError
+from hhra_phys.outputs import atomic_write_text
 
 
 def register(subparsers: Any) -> None:
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         stem = Path(args.report).with_suffix("")
         figs = [f"{stem}_before.png", f"{stem}_after.png"]
     try:
-        check_outputs([args.json, args.report, *figs], args.overwrite)
+        check_outputs([args.json, args.report], args.overwrite, figures=figs)
         if args.max_effects < 0:
             raise HHRAError(f"--max-effects must be >= 0, got {args.max_effects}")
         added = import_effects(args.effects_from)
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
               f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2))
+        atomic_write_text(args.json, json.dumps(out, indent=2))
         print(f"wrote {args.json}")
     if args.report:
         from hhra_phys.diagnose import plot_residuals
@@ -100,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
                                 args.overwrite) if res.diagnoses else None,
                  plot_residuals(res.final_diagnosis, figs[1], "after (augmented model)",
                                 args.overwrite) if res.final_diagnosis else None]
-        Path(args.report).write_text(markdown_report(res, paths, args.report))
+        atomic_write_text(args.report, markdown_report(res, paths, args.report))
         print(f"wrote {args.report}")
     return 0
 

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from hhra_phys.fit import default_free
 
     try:
-        check_outputs([args.json, args.plot], args.overwrite)
+        check_outputs([args.json], args.overwrite, figures=[args.plot])
         data = load_data(args)
         model, auto_bounds = model_for(args, data, args.valve)
         free = parse_names(args.free)

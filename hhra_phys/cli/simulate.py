@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from hhra_phys.data import save
+from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
@@ -41,6 +41,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the record; returns the exit code."""
     try:
+        check_save_path(args.out, args.overwrite)  # before simulating
         ds = simulate_rig(seed=args.seed, noise=args.noise, duration=args.duration, fs=args.fs,
                           amplitude=args.amplitude, quantization=args.quantization)
         path = save(ds, args.out, overwrite=args.overwrite)

@@ -50,6 +50,13 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.optim.core import check_int
 from hhra_phys.optim.driver import METHODS, make_optimiser, minimize
 from hhra_phys.optim.history import noi
+from hhra_phys.outputs import (
+    FIGURE_SUFFIXES,
+    atomic_path,
+    atomic_write_text,
+    check_output_path,
+    jsonable,
+)
 
 #: The paper's four methods, in the order of our tables.
 PAPER_METHODS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de")
@@ -553,7 +560,8 @@ def plot_convergence(report: dict[str, Any], table: str, path: str) -> None:
     axes.flat[0].legend(fontsize=7)
     fig.suptitle(f"{table}: median and inter-quartile range over runs")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
 
 
@@ -580,25 +588,17 @@ def check_outputs(paths: dict[str, Path | None], overwrite: bool) -> None:
         Naming the option whose file exists.
     """
     for name, p in paths.items():
-        if p is not None and Path(p).exists() and not overwrite:
-            raise ParameterError(f"{name}: {p} exists; pass overwrite (--overwrite) to replace it")
-
-
-def _finite_or_none(obj: Any) -> Any:
-    """Strict JSON: non-finite floats become ``null`` (failed runs are counted in the cells)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite_or_none(v) for v in obj]
-    return obj
+        if p is not None:
+            figure = name.startswith("plot")  # plot_convergence's files go to savefig
+            check_output_path(p, overwrite=overwrite, what=name,
+                              suffixes=FIGURE_SUFFIXES if figure else None)
 
 
 def write_json(report: dict[str, Any], path: str | Path, overwrite: bool = False) -> None:
     """Write ``report`` as strict JSON (``NaN``/``inf`` as ``null``)."""
     check_outputs({"json": Path(path)}, overwrite)
-    Path(path).write_text(json.dumps(_finite_or_none(report), indent=1) + "\n")
+    # Strict JSON: non-finite floats become null (failed runs are counted in the cells).
+    atomic_write_text(path, json.dumps(jsonable(report), indent=1) + "\n")
 
 
 def run_and_write(
@@ -638,7 +638,7 @@ def run_and_write(
         f"total {report['timing']['total']:.1f} s with {jobs} job(s)\n"
     )
     if markdown_path:
-        Path(markdown_path).write_text(text)
+        atomic_write_text(markdown_path, text)
     if json_path:
         write_json(report, json_path, overwrite=True)  # checked above
     for table, path in plots.items():

@@ -1,0 +1,105 @@
+"""The public hydraulic-actuator record (Sjöberg et al. 1995): where it is and how to load it.
+
+The record is read from where it lies (``../shared/data`` or ``HHRA_SHARED_DATA``), never
+copied into the repository.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+from hhra_phys.data.checks import DataChecks
+from hhra_phys.data.dataset import Dataset
+from hhra_phys.data.errors import DataFileNotFoundError
+from hhra_phys.data.formats import PathLike, load_mat
+
+__all__ = ["PUBLIC_ACTUATOR_FILE", "find_public_data", "load_public_actuator"]
+
+#: File name of the public hydraulic-actuator record (see ``/work/shared/data/README.md``).
+PUBLIC_ACTUATOR_FILE = "hydraulic_actuator.mat"
+
+
+def _public_candidates(path: PathLike | None) -> Iterable[Path]:
+    if path is not None:
+        p = Path(path).expanduser()
+        yield p / PUBLIC_ACTUATOR_FILE if p.is_dir() else p
+        return
+    env = os.environ.get("HHRA_SHARED_DATA")
+    if env:
+        p = Path(env).expanduser()
+        yield p if p.suffix == ".mat" else p / PUBLIC_ACTUATOR_FILE
+    repo_root = Path(__file__).resolve().parents[2]  # hhra_phys/data/ -> repo
+    for base in (Path.cwd(), repo_root):
+        yield (base / ".." / "shared" / "data" / PUBLIC_ACTUATOR_FILE).resolve()
+
+
+def find_public_data(path: PathLike | None = None) -> Path:
+    """Locate ``hydraulic_actuator.mat``.
+
+    Search order: ``path`` (a file or its directory) when given, and nothing else; else the
+    directory in the environment variable ``HHRA_SHARED_DATA``; else ``../shared/data``
+    relative to the current directory and then to the repository root.
+
+    Raises
+    ------
+    DataFileNotFoundError
+        Listing every place tried.
+    """
+    tried = []
+    for candidate in _public_candidates(path):
+        if candidate.is_file():
+            return candidate
+        tried.append(str(candidate))
+    raise DataFileNotFoundError(
+        f"public data file {PUBLIC_ACTUATOR_FILE} not found; tried: {'; '.join(tried)}. Pass its "
+        "path or set HHRA_SHARED_DATA to the directory that holds it"
+    )
+
+
+def load_public_actuator(
+    path: PathLike | None = None, *, checks: DataChecks | None = None
+) -> Dataset:
+    """Load the public hydraulic-actuator record (Sjöberg et al. 1995), 1024 samples.
+
+    Input ``u`` = row 0 of ``X`` (valve opening, raw units); output ``y`` = ``y`` (oil
+    pressure, ``output_name="pressure"``, ``output_unit="raw"``); extra channel ``"x1"`` =
+    row 1 of ``X`` (undocumented; most likely the arm or piston position, with a one-sample
+    glitch near sample 985). The sample period is not stored, so the record is in sample
+    units (fs = 1, ``metadata["time_unit"] = "samples"``). The usual split is 512 + 512
+    (``ds.split(0.5)``).
+
+    Parameters
+    ----------
+    path : str or path-like, optional
+        The file or its directory; see :func:`find_public_data` for the search otherwise.
+    checks : DataChecks, optional
+        Validation thresholds.
+    """
+    found = find_public_data(path)
+    return load_mat(
+        found,
+        u="X[0]",
+        y="y[0]",
+        extra={"x1": "X[1]"},
+        input_name="valve_opening",
+        input_unit="raw",
+        output_name="pressure",
+        output_unit="raw",
+        name="hydraulic_actuator",
+        metadata={
+            "description": "Hydraulic actuator of a robot arm: valve opening -> oil pressure",
+            "reference": (
+                "Sjoberg et al., Nonlinear black-box modeling in system identification: a "
+                "unified overview, Automatica 31(12), 1995"
+            ),
+            "usual_split_index": 512,
+            "notes": [
+                "x1 = X row 1: undocumented third channel, likely arm/piston position",
+                "x1 has a one-sample glitch near sample 985",
+                "the output oscillates with a period of about 25 samples",
+            ],
+        },
+        checks=checks,
+    )
