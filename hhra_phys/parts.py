@@ -285,7 +285,7 @@ class Effect(Part):
         if clash:
             return f"model already has states {sorted(clash)}"
         have = set(model.state_names) | set(model.signal_names()) | {"u", "y"}
-        missing = [n for n in (*self.reads, *self.writes) if n not in have]
+        missing = [n for n in dict.fromkeys((*self.reads, *self.writes)) if n not in have]
         if missing:
             return (f"needs {', '.join(repr(n) for n in missing)}, which the model has neither "
                     f"as a state nor as a signal (states: {', '.join(model.state_names)}; "
