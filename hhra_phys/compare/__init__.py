@@ -5,9 +5,10 @@ Every method is an entry of the registry :data:`METHODS`: a function
 its *free-run simulated* output on both parts. :func:`run_comparison` times each method, scores
 both outputs with :func:`hhra_phys.metrics.score` (never a one-step prediction) and collects
 everything in a :class:`Comparison`, whose :meth:`~Comparison.to_dict` is the JSON report.
-More methods plug in with :func:`register_method`, from any module; the CLI imports such
-modules with ``--plugin MODULE`` and every module named by an entry point of the group
-``hhra_phys.compare_methods`` (see :mod:`.registry`).
+The package's ARX and physical-model rows are registered on import. More methods plug in
+with :func:`register_method`, from any module; the CLI imports such modules with
+``--plugin MODULE`` and every module named by an entry point of the group
+``hhra_phys.compare_methods`` (see :mod:`.registry`, also for name clashes).
 
 Modules:
 
@@ -16,6 +17,8 @@ Modules:
     :func:`register_method` and the plug-ins.
 :mod:`.arx`
     The built-in ARX rows (the paper's methods) and their initial conditions.
+:mod:`.physical`
+    The built-in physical-model rows (``phys_*``, fits of :mod:`hhra_phys.fit`).
 :mod:`.runner`
     :func:`run_comparison` and :func:`compare`: split, run, time and score.
 :mod:`.report`
@@ -42,6 +45,8 @@ from __future__ import annotations
 
 # The built-in rows register on import, ARX first: the report lists methods in that order.
 from hhra_phys.compare.arx import ARX_METHODS, arx_outcome
+from hhra_phys.compare.physical import ROWS as PHYSICAL_ROWS
+from hhra_phys.compare.physical import register as register_physical
 from hhra_phys.compare.plots import plot_convergence, plot_outputs
 from hhra_phys.compare.registry import (
     ENTRY_POINT_GROUP,
@@ -71,6 +76,7 @@ __all__ = [
     "METHODS",
     "METHOD_LABELS",
     "PAPER_TABLE3",
+    "PHYSICAL_ROWS",
     "CompareSettings",
     "Comparison",
     "MethodFn",
@@ -87,6 +93,7 @@ __all__ = [
     "plot_convergence",
     "plot_outputs",
     "register_method",
+    "register_physical",
     "run_comparison",
     "write_json",
 ]

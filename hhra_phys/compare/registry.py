@@ -4,8 +4,9 @@ A method is a function ``fn(est, val, settings) -> MethodOutcome``: it fits on t
 part ``est`` (a :class:`~hhra_phys.data.Dataset`), and returns its *free-run simulated*
 output on both parts in a :class:`MethodOutcome`; ``settings`` is the :class:`CompareSettings`
 of the comparison. :func:`register_method` adds one to :data:`METHODS` under a name (the key
-of the report). The package's ARX rows (:mod:`.arx`) are registered when
-:mod:`hhra_phys.compare` is imported.
+of the report). The package's own methods (the ARX rows of :mod:`.arx` and the physical rows
+of :mod:`.physical`) are registered directly when :mod:`hhra_phys.compare` is imported, so
+they are there whether or not the package is installed.
 
 Other methods plug in from any module that calls :func:`register_method` when imported:
 :func:`load_plugins` imports such modules by name (the CLI's ``--plugin MODULE``) and, once,
@@ -15,6 +16,14 @@ way a third-party package adds methods::
     [project.entry-points."hhra_phys.compare_methods"]
     mymethods = "mypackage.compare_rows"            # a module that registers on import
     # or "mypackage.compare_rows:register"          # a callable, called once
+
+Name clashes: an entry point never replaces a method that is already registered (a built-in
+row, or one registered before the plug-ins were loaded), not even with ``replace=True``: the
+registered method is kept and a warning names the plug-in and the names, which the plug-in
+must change. Entry points into :mod:`hhra_phys` itself are skipped: the package registers its
+own rows on import and declares no entry point, so such an entry is left over in the metadata
+of an older installation, and loading it would register the rows twice. Replacing a method
+on purpose stays possible from code, with :func:`register_method` and ``replace=True``.
 """
 
 from __future__ import annotations
@@ -25,7 +34,7 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from importlib import import_module
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 import numpy as np
@@ -215,7 +224,7 @@ _plugins_loaded = False
 
 
 def load_plugins(modules: Iterable[str] = ()) -> list[str]:
-    """Import modules that register methods, and those named by entry points.
+    """Import modules that register methods, and (once) those named by entry points.
 
     Parameters
     ----------
@@ -232,6 +241,11 @@ def load_plugins(modules: Iterable[str] = ()) -> list[str]:
     ------
     ParameterError
         If a given module cannot be imported. A broken entry point only warns.
+
+    Notes
+    -----
+    Entry points never replace registered methods and entry points into :mod:`hhra_phys`
+    are skipped (module docstring).
     """
     global _plugins_loaded
     for mod in modules:
@@ -242,13 +256,34 @@ def load_plugins(modules: Iterable[str] = ()) -> list[str]:
     if not _plugins_loaded:
         _plugins_loaded = True
         for ep in entry_points(group=ENTRY_POINT_GROUP):
-            try:
-                obj = ep.load()
-                if callable(obj):
-                    obj()
-            except Exception as exc:  # a broken third-party plugin must not stop the built-ins
-                warnings.warn(f"compare plugin {ep.name!r} failed to load: {exc}", stacklevel=2)
+            _load_entry_point(ep)
     return list(METHODS)
+
+
+def _load_entry_point(ep: EntryPoint) -> None:
+    """Load one third-party entry point; it may add methods, never replace them."""
+    if ep.module.partition(".")[0] == "hhra_phys":
+        return  # the package's own rows are registered on import (module docstring)
+    taken, labels = dict(METHODS), dict(METHOD_LABELS)
+    try:
+        obj = ep.load()
+        if callable(obj):
+            obj()
+    except Exception as exc:  # a broken third-party plugin must not stop the built-ins
+        warnings.warn(f"compare plugin {ep.name!r} failed to load: {exc}", stacklevel=3)
+    clashes = [name for name, fn in taken.items() if METHODS.get(name) is not fn]
+    for name in clashes:
+        METHODS[name] = taken[name]
+        if name in labels:
+            METHOD_LABELS[name] = labels[name]
+        else:
+            METHOD_LABELS.pop(name, None)
+    if clashes:
+        warnings.warn(
+            f"compare plugin {ep.name!r} registered {clashes}, names already taken; the "
+            "registered methods are kept (the plugin must use names of its own)",
+            stacklevel=3,
+        )
 
 
 def available_methods() -> tuple[str, ...]:
