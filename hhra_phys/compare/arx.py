@@ -28,6 +28,7 @@ __all__ = ["ARX_METHODS", "arx_outcome"]
 #: The built-in ARX methods, in the order of the paper's Table 3 (plus plain H-GWO).
 ARX_METHODS: tuple[str, ...] = ("ls", "rls", "ffrls", "pso", "gwo", "hgwo", "ffrls_hgwo")
 
+#: Display names of the ARX rows (registered with them).
 _LABELS: dict[str, str] = {
     "ls": "LS",
     "rls": "RLS",
