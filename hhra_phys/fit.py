@@ -35,11 +35,11 @@ import numpy as np
 
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
+from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.optim import minimize
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
-from hhra_phys.profile import profile_intervals
 from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
 from hhra_phys.result import FitResult, uncertainty
 

@@ -548,7 +548,7 @@ def test_cli_rejects_unknown_function(capsys):
 
 
 def test_study_in_two_processes_matches_one():
-    from hhra_phys.optim.study import StudySettings, run_study
+    from hhra_phys.study import StudySettings, run_study
 
     s = StudySettings(runs=2, max_iter=3, functions=("f7", "f9"), tables=("results", "shifted"))
     one, two = run_study(s, jobs=1), run_study(s, jobs=2)

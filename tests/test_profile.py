@@ -7,8 +7,8 @@ import pytest
 
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import default_model, fit
+from hhra_phys.likelihood import _Profiler, profile_parameter, threshold
 from hhra_phys.problem import Problem, default_free
-from hhra_phys.profile import _Profiler, profile_parameter, threshold
 from hhra_phys.refine import CompiledLeastSquares
 from hhra_phys.result import FitResult
 from hhra_phys.rig import simulate_rig

@@ -8,7 +8,7 @@ from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
 from hhra_phys.errors import HHRAError
-from hhra_phys.optim.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
+from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
 
 
 def _names(text: str) -> tuple[str, ...]:

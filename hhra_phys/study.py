@@ -1,5 +1,9 @@
 """The benchmark study: the reference paper's Table 2, reproduced and extended.
 
+An experiment run with the optimisers of :mod:`hhra_phys.optim` (``hhra-phys benchmark``,
+``experiments/table2.py``), kept outside that package, which holds only the algorithms and
+their driver.
+
 Tables (each a ``{function: {method: cell}}`` mapping):
 
 ``results``

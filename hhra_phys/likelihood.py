@@ -21,6 +21,9 @@ steps that double and then located by :func:`scipy.optimize.brentq`.
 Everything happens in the problem's fitting coordinates (``log10`` for positive
 groups), where the profile is closer to quadratic; intervals are mapped back to
 physical units, so they are asymmetric where the profile is.
+
+The module is named ``likelihood``, not ``profile``, so that it does not shadow the
+standard library's :mod:`profile`.
 """
 
 from __future__ import annotations

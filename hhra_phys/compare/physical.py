@@ -1,7 +1,7 @@
 """Physical-model rows of the method comparison (``hhra-phys compare``).
 
-Registers, in :mod:`hhra_phys.compare`'s method registry (through the entry
-point ``hhra_phys.compare_methods``), the physical HHRA fits so they are scored
+Registers, in the method registry (:mod:`hhra_phys.compare.registry`), when
+:mod:`hhra_phys.compare` is imported, the physical HHRA fits so they are scored
 on the same split and by the same free-run metrics as the ARX methods:
 
 =====================  ============================================================
@@ -21,12 +21,14 @@ initial state estimated on the validation record (parameters fixed).
 from __future__ import annotations
 
 import time
-from typing import Any
 
-from hhra_phys.compare import CompareSettings, MethodOutcome, register_method
+from hhra_phys.compare.registry import CompareSettings, MethodFn, MethodOutcome, register_method
 from hhra_phys.data import Dataset
 from hhra_phys.fit import fit
 
+__all__ = ["ROWS", "register"]
+
+#: Method name -> (global optimiser, local refinement or None, display label).
 ROWS: dict[str, tuple[str, str | None, str]] = {
     "phys_hgwo": ("hgwo", None, "physical H-GWO"),
     "phys_hgwo_ipopt": ("hgwo", "ipopt", "physical H-GWO+IPOPT"),
@@ -35,7 +37,7 @@ ROWS: dict[str, tuple[str, str | None, str]] = {
 }
 
 
-def _method(optimizer: str, refine: str | None) -> Any:
+def _method(optimizer: str, refine: str | None) -> MethodFn:
     def run(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
         t0 = time.perf_counter()
         extra = dict(s.extra.get("physical", {})) if s.extra else {}
@@ -61,10 +63,26 @@ def _method(optimizer: str, refine: str | None) -> Any:
     return run
 
 
+# One function per row, made once, so registering again is a no-op, not a replacement.
+_FUNCTIONS: dict[str, MethodFn] = {
+    name: _method(optimizer, refine) for name, (optimizer, refine, _) in ROWS.items()
+}
+
+
 def register() -> None:
-    """Register the physical rows (idempotent)."""
-    for name, (optimizer, refine, label) in ROWS.items():
-        register_method(name, _method(optimizer, refine), label=label, replace=True)
+    """Register the physical rows; done on import of :mod:`hhra_phys.compare`.
+
+    Idempotent: a row already registered with its own function is left as it is, so calling
+    it again (after clearing :data:`~hhra_phys.compare.registry.METHODS`, say) only restores
+    missing rows.
+
+    Raises
+    ------
+    ParameterError
+        If a row's name was registered meanwhile by another method (that one is kept).
+    """
+    for name, (_, _, label) in ROWS.items():
+        register_method(name, _FUNCTIONS[name], label=label)
 
 
 register()

@@ -1,0 +1,271 @@
+"""Running the registered methods on one record: the split, the timing and the scores.
+
+:func:`run_comparison` splits the record, gives every method the estimation and validation
+parts, times it, scores both free-run outputs with :func:`hhra_phys.metrics.score` (never a
+one-step prediction) and collects everything in a :class:`Comparison`, whose
+:meth:`~Comparison.to_dict` is the JSON report (layout: :mod:`hhra_phys.compare`).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from hhra_phys.compare.registry import (
+    METHODS,
+    CompareSettings,
+    MethodOutcome,
+    available_methods,
+)
+from hhra_phys.compare.report import PAPER_TABLE3
+from hhra_phys.data import Dataset
+from hhra_phys.errors import DataError, HHRAError, ParameterError
+from hhra_phys.metrics import KEYS, score
+from hhra_phys.outputs import jsonable
+
+__all__ = ["Comparison", "MethodResult", "compare", "run_comparison"]
+
+
+@dataclass
+class MethodResult:
+    """One method's outcome and scores (``error`` set, scores empty, if it failed)."""
+
+    name: str
+    outcome: MethodOutcome | None
+    est: dict[str, float]
+    val: dict[str, float]
+    seconds: float
+    error: str | None = None
+
+    @property
+    def diverged(self) -> bool:
+        """Whether a simulated output was non-finite on either part."""
+        return any(not math.isfinite(v) for part in (self.est, self.val) for v in part.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The method's entry of the JSON report."""
+        o = self.outcome
+        entry: dict[str, Any] = {
+            "est": dict(self.est) if o is not None else None,
+            "val": dict(self.val) if o is not None else None,
+            "noi": None if o is None else o.noi,
+            "nfev": None if o is None else o.nfev,
+            "seconds": self.seconds,
+            "diverged": self.diverged if o is not None else None,
+            "error": self.error,
+            "info": {} if o is None else o.info,
+            "convergence": None,
+            "paper": PAPER_TABLE3.get(self.name),
+        }
+        if o is not None and o.history is not None:
+            entry["convergence"] = {
+                "fitness": o.fitness,
+                "best": np.asarray(o.history, dtype=float).tolist(),
+                "nfev": None if o.history_nfev is None else np.asarray(o.history_nfev).tolist(),
+            }
+        return jsonable(entry, default=str)
+
+
+@dataclass
+class Comparison:
+    """A finished comparison: the data, the settings and one :class:`MethodResult` per method."""
+
+    dataset: Dataset
+    est: Dataset
+    val: Dataset
+    split: float | int
+    settings: CompareSettings
+    results: dict[str, MethodResult]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON report (layout: :mod:`hhra_phys.compare`)."""
+        ds = self.dataset
+        return jsonable(
+            {
+                "dataset": ds.name or ds.source or "dataset",
+                "split": self.split,
+                "split_index": self.est.n,
+                "n_est": self.est.n,
+                "n_val": self.val.n,
+                "time_unit": ds.time_unit,
+                "settings": self.settings.to_dict(),
+                "data": {
+                    "source": ds.source,
+                    "n": ds.n,
+                    "dt": ds.dt,
+                    "input": f"{ds.input_name} [{ds.input_unit}]",
+                    "output": f"{ds.output_name} [{ds.output_unit}]",
+                    "std_y_est": float(np.std(self.est.y)),
+                    "std_y_val": float(np.std(self.val.y)),
+                    "metadata_seed": ds.metadata.get("seed"),
+                },
+                "scoring": {
+                    "simulation": "free run from the measured input (never one-step prediction)",
+                    "metrics": list(KEYS),
+                    "itae": "sum_k (t_k - t_0) |e_k| dt, t from the start of each part "
+                    f"[{ds.output_unit} * {ds.time_unit}^2]",
+                    "noi": "first iteration whose best fitness is within 0.1 % of the run's final "
+                    "best (iteration 0 = initial population)",
+                },
+                "methods": {name: r.to_dict() for name, r in self.results.items()},
+                "paper_table3": PAPER_TABLE3,
+            },
+            default=str,
+        )
+
+
+def _split(dataset: Dataset, split: Any) -> tuple[Dataset, Dataset]:
+    if isinstance(split, bool):
+        raise ParameterError(f"split must be a fraction in (0, 1) or a sample index, got {split!r}")
+    if isinstance(split, int | np.integer):
+        return dataset.split_at(int(split))
+    if isinstance(split, float) and 0.0 < split < 1.0:
+        return dataset.split(split)
+    raise ParameterError(
+        f"split must be a fraction strictly between 0 and 1 or an integer sample index, got "
+        f"{split!r}"
+    )
+
+
+def _reporter(progress: bool | Callable[[str], None]) -> Callable[[str], None] | None:
+    if callable(progress):
+        return progress
+    if progress:
+        return lambda line: print(line, file=sys.stderr, flush=True)
+    return None
+
+
+def run_comparison(
+    dataset: Dataset,
+    split: float | int = 0.5,
+    methods: Sequence[str] | None = None,
+    seed: int = 0,
+    pop_size: int = 100,
+    max_iter: int = 200,
+    progress: bool | Callable[[str], None] = False,
+    *,
+    settings: CompareSettings | None = None,
+    **overrides: Any,
+) -> Comparison:
+    """Fit and score every method on one dataset.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The record; split into estimation (first) and validation parts.
+    split : float or int
+        Fraction of samples for estimation (strictly between 0 and 1), or the sample index of
+        the split (e.g. 512 for the public record).
+    methods : sequence of str, optional
+        Registered method names, in report order; default every registered method.
+    seed, pop_size, max_iter : int
+        See :class:`CompareSettings`.
+    progress : bool or callable
+        True: a line per method on stderr plus optimiser progress bars; a callable receives
+        the lines instead (no bars).
+    settings : CompareSettings, optional
+        Full settings; ``seed``, ``pop_size``, ``max_iter`` and ``overrides`` replace its fields.
+    **overrides
+        Further :class:`CompareSettings` fields (``na``, ``nb``, ``nk``, ``zeta_s``, ...).
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    ParameterError
+        On an unknown method, bad settings or split.
+    DataError
+        If a method returns outputs of the wrong length.
+
+    Notes
+    -----
+    A method that raises an :class:`~hhra_phys.errors.HHRAError` (e.g. no stable candidate
+    found) is reported with ``error`` set and null scores; other exceptions propagate.
+    """
+    if not isinstance(dataset, Dataset):
+        raise ParameterError(f"dataset must be a hhra_phys.data.Dataset, got {type(dataset)}")
+    base = settings or CompareSettings()
+    fields = {**asdict(base), "seed": seed, "pop_size": pop_size, "max_iter": max_iter}
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ParameterError(f"unknown settings {unknown}; known: {sorted(fields)}")
+    fields.update(overrides)
+    # Bars only for progress=True: a callable receives lines and would be garbled by bars.
+    fields["progress"] = progress is True or (not callable(progress) and base.progress)
+    s = CompareSettings(**fields)
+    if isinstance(methods, str):
+        raise ParameterError("methods must be a sequence of names, e.g. ['ls', 'pso']")
+    names = list(available_methods() if methods is None else methods)
+    registered = available_methods()
+    bad = [m for m in names if m not in registered]
+    if bad or not names or len(set(names)) != len(names):
+        raise ParameterError(
+            f"methods: unknown or repeated {bad or names}; registered: {', '.join(registered)}"
+        )
+    est, val = _split(dataset, split)
+    say = _reporter(progress)
+    results: dict[str, MethodResult] = {}
+    for i, name in enumerate(names, 1):
+        if say:
+            say(f"[{i}/{len(names)}] {name} ...")
+        start = time.perf_counter()
+        try:
+            outcome = METHODS[name](est, val, s)
+        except HHRAError as exc:
+            results[name] = MethodResult(name, None, {}, {}, time.perf_counter() - start, str(exc))
+            if say:
+                say(f"[{i}/{len(names)}] {name}: failed: {exc}")
+            continue
+        elapsed = time.perf_counter() - start
+        results[name] = _scored(name, outcome, est, val, elapsed)
+        if say:
+            v = results[name].val
+            say(
+                f"[{i}/{len(names)}] {name}: {results[name].seconds:.1f} s, validation "
+                f"MSE {v['mse']:.4g}, VAF {v['vaf']:.2f} %"
+            )
+    return Comparison(dataset, est, val, split, s, results)
+
+
+def _scored(
+    name: str, outcome: MethodOutcome, est: Dataset, val: Dataset, elapsed: float
+) -> MethodResult:
+    if not isinstance(outcome, MethodOutcome):
+        raise ParameterError(
+            f"method {name!r} returned {type(outcome).__name__}, not MethodOutcome"
+        )
+    parts = {}
+    for label, part, y in (("est", est, outcome.y_est), ("val", val, outcome.y_val)):
+        yy = np.asarray(y, dtype=float)
+        if yy.shape != part.y.shape:
+            raise DataError(
+                f"method {name!r}: y_{label} has shape {yy.shape}, the {label} part has "
+                f"{part.y.shape}"
+            )
+        parts[label] = {k: float(v) for k, v in score(part.y, yy, part.t).items()}
+    seconds = elapsed if outcome.seconds is None else float(outcome.seconds)
+    return MethodResult(name, outcome, parts["est"], parts["val"], seconds)
+
+
+def compare(
+    dataset: Dataset,
+    split: float | int = 0.5,
+    methods: Sequence[str] | None = None,
+    seed: int = 0,
+    pop_size: int = 100,
+    max_iter: int = 200,
+    progress: bool | Callable[[str], None] = False,
+    **kw: Any,
+) -> dict[str, Any]:
+    """Run :func:`run_comparison` and return its JSON report (layout: :mod:`hhra_phys.compare`)."""
+    return run_comparison(
+        dataset, split, methods, seed, pop_size, max_iter, progress, **kw
+    ).to_dict()
