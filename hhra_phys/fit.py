@@ -158,7 +158,7 @@ def fit(
         search's first population (warm start). Default: when ``start`` is given.
     intervals : {"linear", "profile"}
         95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
-        profile-likelihood intervals (:mod:`hhra_phys.profile`; a few seconds more,
+        profile-likelihood intervals (:mod:`hhra_phys.likelihood`; a few seconds more,
         better founded along curved, weakly determined directions).
 
     Returns
