@@ -257,7 +257,11 @@ def _command(x: dict[str, float], u_lags: np.ndarray, s: _Spec, rates: dict[str,
     return c
 
 
-def _rates(x: dict[str, float], u_lags: np.ndarray, s: _Spec) -> dict[str, float]:
+def _rates(
+    x: dict[str, float], u_lags: np.ndarray, s: _Spec, mode: int | None = None
+) -> dict[str, float]:
+    """Rates of every state. ``mode`` (exact friction only): 0 stuck, +-1 sliding in
+    that direction, None: decide from the state (Karnopp band, for single points)."""
     rates: dict[str, float] = {}
     P = s.p
     th, w, p = x["theta"], x["omega"], x["p"]
@@ -286,6 +290,10 @@ def _rates(x: dict[str, float], u_lags: np.ndarray, s: _Spec) -> dict[str, float
             # Width tied to the sample period: the package's choice for its RK4.
             width = v["eps"] + 0.5 * v["dt"] * level
             acc -= level * _sgn(w, width, True)
+        elif mode == 0:
+            acc = 0.0  # stuck: the simulation set omega = 0 exactly and holds it
+        elif mode is not None:
+            acc -= level * mode  # sliding: the direction is fixed until omega reaches 0
         elif abs(w) <= s.stick_band and abs(acc) <= level:
             # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
             acc = -w / max(s.dt, 1e-12)
@@ -309,9 +317,96 @@ def _rates(x: dict[str, float], u_lags: np.ndarray, s: _Spec) -> dict[str, float
     return rates
 
 
-def _xdot(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> np.ndarray:
-    r = _rates(dict(zip(s.state_names, x, strict=True)), u_lags, s)
+def _xdot(x: np.ndarray, u_lags: np.ndarray, s: _Spec, mode: int | None = None) -> np.ndarray:
+    r = _rates(dict(zip(s.state_names, x, strict=True)), u_lags, s, mode)
+    if mode == 0:
+        r["theta"] = 0.0
     return np.array([r.get(n, 0.0) for n in s.state_names])
+
+
+def _sticky(s: _Spec) -> bool:
+    """Whether the simulation must track stick and slip (exact Coulomb friction)."""
+    return not s.smooth and "coulomb_friction" in s.effects
+
+
+def _push_and_level(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> tuple[float, float]:
+    """Acceleration without friction at ``omega = 0`` and the static friction level."""
+    xz = x.copy()
+    xz[1] = 0.0
+    v = s.effects["coulomb_friction"]
+    level = v["g_coulomb"] + v.get("g_stribeck", 0.0)
+    # At omega = 0 the sliding rate with direction +1 is push - level.
+    return float(_xdot(xz, u_lags, s, mode=1)[1]) + level, level
+
+
+def _initial_mode(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
+    if x[1] != 0.0:
+        return 1 if x[1] > 0 else -1
+    push, level = _push_and_level(x, u_lags, s)
+    return 0 if abs(push) <= level else (1 if push > 0 else -1)
+
+
+def _segment(
+    x: np.ndarray, u_lags: np.ndarray, s: _Spec, t_eval: np.ndarray, method: str,
+    rtol: float, atol: float,
+) -> np.ndarray:
+    """States at ``t_eval`` (starting at 0) with the input held; shape (nx, len(t_eval)).
+
+    With exact Coulomb friction the integration is hybrid: while sliding in
+    direction ``d`` an event stops it where ``d*omega`` falls to 0; there the shaft
+    sticks if the rest of the acceleration is within the static level, or slides
+    back; while stuck (``omega = 0`` held) an event stops it where that
+    acceleration reaches the level (breakaway). Nothing chatters across 0.
+    """
+    if not _sticky(s):
+        sol = solve_ivp(lambda _t, xx: _xdot(xx, u_lags, s), (0.0, t_eval[-1]), x,
+                        method=method, t_eval=t_eval, rtol=rtol, atol=atol)
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        return sol.y
+    out = np.empty((x.size, t_eval.size))
+    out[:, 0] = x
+    done, t0, mode = 1, 0.0, _initial_mode(x, u_lags, s)
+    if mode == 0:
+        x = x.copy()
+        x[1] = 0.0
+    for _ in range(10000):
+        if done == t_eval.size:
+            return out
+        if mode == 0:
+            def event(_t: float, xx: np.ndarray) -> float:
+                push, level = _push_and_level(xx, u_lags, s)
+                return abs(push) - level
+            event.direction = 1.0  # type: ignore[attr-defined]
+        else:
+            def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
+                return d * xx[1]
+            event.direction = -1.0  # type: ignore[attr-defined]
+        event.terminal = True  # type: ignore[attr-defined]
+        te = t_eval[done:]
+        sol = solve_ivp(lambda _t, xx, m=mode: _xdot(xx, u_lags, s, m), (t0, t_eval[-1]), x,
+                        method=method, t_eval=te, rtol=rtol, atol=atol, events=event)
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        k = len(sol.t)  # (an empty t_eval tail comes back as a list)
+        if k:
+            out[:, done:done + k] = sol.y
+        done += k
+        if sol.status != 1:
+            continue
+        t0, x = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
+        if mode == 0:
+            push, _ = _push_and_level(x, u_lags, s)
+            mode = 1 if push > 0 else -1
+        else:
+            x[1] = 0.0
+            push, level = _push_and_level(x, u_lags, s)
+            mode = 0 if abs(push) <= level else (1 if push > 0 else -1)
+        if t_eval[-1] - t0 <= 1e-12 * max(1.0, t_eval[-1]):
+            # The event fell on the end of the segment: its state is the last sample's.
+            out[:, done:] = x[:, None]
+            return out
+    raise RuntimeError("too many stick-slip switches in one held sample segment")
 
 
 def _y(x: np.ndarray, s: _Spec) -> float:
@@ -523,12 +618,12 @@ def simulate_reference(
     for a, b in zip(starts, stops, strict=True):
         ul = lags[a]
         t_eval = np.arange(b - a + 1) * dt
-        sol = solve_ivp(lambda _t, xx, ul=ul: _xdot(xx, ul, s), (0.0, t_eval[-1]), x,
-                        method=method, t_eval=t_eval, rtol=rtol, atol=atol)
-        if not sol.success:
-            raise RuntimeError(f"solve_ivp failed at sample {a}: {sol.message}")
-        X[a:b] = sol.y[:, :-1].T
-        x = sol.y[:, -1]
+        try:
+            Y = _segment(x, ul, s, t_eval, method, rtol, atol)
+        except RuntimeError as exc:
+            raise RuntimeError(f"at sample {a}: {exc}") from exc
+        X[a:b] = Y[:, :-1].T
+        x = Y[:, -1]
     y = np.array([_y(xk, s) for xk in X])
     return (y, X) if states else y
 
