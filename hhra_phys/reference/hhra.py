@@ -467,7 +467,8 @@ def reference_rhs(
         (see :func:`reference_state_names`).
     u_lags : array, shape (n_lags + 1,), or float
         Current input [mA] and past samples ``u[n], u[n-1], ...`` (only the
-        ``input_delay`` effect reads past samples; missing ones count as ``u[n]``'s oldest).
+        ``input_delay`` effect reads past samples; if fewer are given than the delay
+        needs, the oldest given sample is repeated).
     params : mapping
         Group values by name: ``g_torque`` [rad/s^2], ``g_damping`` [1/s], ``g_spring``
         [1/s^2] and ``g_load`` [rad/s^2] (default 0), ``g_compress`` [1/rad],
@@ -709,7 +710,7 @@ def reference_record(
         (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
         ``truth``: everything :func:`simulate_reference` needs to reproduce the
         noise-free output (``params``, ``effects`` with settings, ``valve``,
-        ``spool_lag``, ``smooth``, ``x0``, ``y_true`` is not stored). No
+        ``spool_lag``, ``smooth``, ``x0``, ``integrator``). No
         ``physical`` entry: the reference works in groups only.
     """
     if not (math.isfinite(noise_deg) and noise_deg >= 0):
