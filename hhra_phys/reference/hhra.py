@@ -1,0 +1,772 @@
+"""A second, independent implementation of the HHRA and its effects (NumPy/SciPy only).
+
+The package's model (:mod:`hhra_phys.model`, :mod:`hhra_phys.parts`,
+:mod:`hhra_phys.effects`) is assembled from CasADi parts and integrated with a
+fixed-step RK4 (:mod:`hhra_phys.simulate`). A simulated rig built from that same
+code cannot reveal an error in its equations: the data would carry the error too
+(MEASURED_NOTES point 14). This module writes the model a second time, from the
+equations in ``docs/model.md`` and the documented formulas of the effects, and
+integrates it with :func:`scipy.integrate.solve_ivp` at tight tolerances under an
+exact zero-order hold. It imports nothing from the package's model code; only
+:class:`hhra_phys.data.Dataset` (to return records) and
+:mod:`hhra_phys.excitation` (input signals).
+
+The model (``docs/model.md``; states ``theta`` [rad], ``omega`` [rad/s],
+``p = P_L/p_s`` [-])::
+
+    dtheta/dt = omega
+    domega/dt = g_torque*p - g_damping*omega - g_spring*theta - g_load   (+ motion effects)
+    dp/dt     = q - g_compress*omega - g_leak*p
+    q         = g_valve*c*sqrt(1 - sign(c)*p)       (orifice valve)
+              = g_valve*c - g_kp*p                  (linear valve)
+
+with ``c`` the valve command: the input current [mA], after the optional spool
+lag ``tau_v*dxs/dt = c - xs`` and the input-stage effects. Output: the angle in
+degrees, or ``p_gain*p + p_offset``.
+
+State vector: ``[theta, omega, p]``, then ``xs`` (``spool_lag=True``), then
+``x_spool`` (effect ``valve_dynamics``), then ``gap`` (effect ``backlash``): the
+package's order for the same model.
+
+Effects (argument ``effects``: a mapping from the library name to its parameter
+values and optional settings; parameter values not given there are taken from
+``params``)::
+
+    coulomb_friction  domega/dt -= level*sgn(omega),
+                      level = g_coulomb [+ g_stribeck*exp(-(omega/v_stribeck)^2)]
+                      (Stribeck term when g_stribeck is given); settings eps [rad/s], dt [s]
+    valve_deadzone    c -> max(c - i_dead, 0) - max(-c - i_dead, 0); settings u_scale, eps
+    valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, eps
+    input_delay       c from u(t - delay*dt): (1-f)*u[n-k] + f*u[n-k-1], delay = k + f [samples]
+    valve_dynamics    tau_spool*dx_spool/dt = c - x_spool, c -> x_spool
+    gravity_load      domega/dt -= g_grav_cos*cos(theta) + g_grav_sin*sin(theta)
+    backlash          dgap/dt = omega*(1 - contact), y -= gap [deg]; play [deg]; setting eps_omega
+    sensor_offset     y += y_offset
+    asymmetric_valve  q *= 1 + asym*sgn(c); settings u_scale, eps
+
+Smoothing. With ``smooth=True`` (default) the documented smoothings of the
+package are used, so that a comparison with it can be tight:
+``sgn(v) ~ v/sqrt(v^2 + eps^2)``; the orifice's signed root
+``sign(z)*(sqrt(|z| + delta) - sqrt(delta))/(sqrt(1 + delta) - sqrt(delta))``;
+``max(v, 0) ~ (v + sqrt(v^2 + eps^2))/2``; friction width ``eps + level*dt/2``;
+backlash contact ``sigma((sgn(omega)*gap - play/2)/e + 3)`` with
+``e = 0.1*play + 0.03`` deg. With ``smooth=False`` every switch is exact
+(``sign``, ``sqrt``, ``clip``, ``max``, an ideal play operator, and Coulomb
+friction that sticks: within ``stick_band`` of zero velocity the friction cancels
+the rest of the acceleration up to its level, Karnopp's model, so that the
+integrator does not chatter across ``omega = 0``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from hhra_phys.data import Dataset
+from hhra_phys.excitation import irregular_steps, samples
+
+RAD2DEG = 180.0 / math.pi
+
+#: The built-in rig's identifiable groups as printed in ``docs/model.md`` (table
+#: "The two parameter views"), and the linear valve's ``g_kp``. Taken from the
+#: documentation, not from :mod:`hhra_phys.physical`, on purpose.
+REFERENCE_GROUPS: dict[str, float] = {
+    "g_torque": 175.6,
+    "g_damping": 4.206,
+    "g_spring": 0.0,
+    "g_load": 0.0,
+    "g_compress": 50.93,
+    "g_leak": 6.4,
+    "g_valve": 31.76,
+    "g_kp": 2.0,
+}
+
+#: Library effect names this module implements, in the order their states appear.
+EFFECT_NAMES: tuple[str, ...] = (
+    "coulomb_friction", "valve_deadzone", "valve_saturation", "input_delay",
+    "valve_dynamics", "gravity_load", "backlash", "sensor_offset", "asymmetric_valve",
+)
+
+_INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dynamics")
+
+#: Default smoothing settings of each effect (the package's documented defaults).
+_SETTINGS: dict[str, dict[str, float]] = {
+    "coulomb_friction": {"eps": 0.05},  # dt: the sample period unless given
+    "valve_deadzone": {"u_scale": 1.0, "eps": 0.01},
+    "valve_saturation": {"u_scale": 1.0, "eps": 0.01},
+    "asymmetric_valve": {"u_scale": 1.0, "eps": 0.01},
+    "backlash": {"eps_omega": 0.01},
+    "input_delay": {},
+    "valve_dynamics": {},
+    "gravity_load": {},
+    "sensor_offset": {},
+}
+
+#: Parameters each effect needs (``coulomb_friction`` also takes the optional
+#: ``g_stribeck`` and ``v_stribeck``).
+_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
+    "coulomb_friction": ("g_coulomb",),
+    "valve_deadzone": ("i_dead",),
+    "valve_saturation": ("i_sat",),
+    "input_delay": ("delay",),
+    "valve_dynamics": ("tau_spool",),
+    "gravity_load": ("g_grav_cos", "g_grav_sin"),
+    "backlash": ("play",),
+    "sensor_offset": ("y_offset",),
+    "asymmetric_valve": ("asym",),
+}
+
+#: Orifice smoothing of the package (``docs/model.md``, "Numerical choices").
+SIGN_EPS = 1e-3  # [mA]
+SQRT_DELTA = 1e-6  # [-]
+
+
+# --- elementary switches, smooth or exact ----------------------------------------------
+
+
+def _sgn(v: float, eps: float, smooth: bool) -> float:
+    if smooth:
+        return v / math.sqrt(v * v + eps * eps)
+    return float(np.sign(v))
+
+
+def _relu(v: float, eps: float, smooth: bool) -> float:
+    if smooth:
+        return 0.5 * (v + math.sqrt(v * v + eps * eps))
+    return max(v, 0.0)
+
+
+def _signed_sqrt(z: float, delta: float, smooth: bool) -> float:
+    if smooth:
+        norm = math.sqrt(1.0 + delta) - math.sqrt(delta)
+        return math.copysign((math.sqrt(abs(z) + delta) - math.sqrt(delta)) / norm, z) if z else 0.0
+    return math.copysign(math.sqrt(abs(z)), z) if z else 0.0
+
+
+# --- the model specification -------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """Resolved model: valve, output, parameters, effects with their values."""
+
+    valve: str
+    output: str
+    spool_lag: bool
+    dt: float
+    smooth: bool
+    stick_band: float
+    p: dict[str, float]
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    state_names: tuple[str, ...] = ()
+
+    @property
+    def n_lags(self) -> int:
+        """Past input samples needed (the delay's interpolation reaches ``k+1``)."""
+        if "input_delay" not in self.effects:
+            return 0
+        return int(math.floor(self.effects["input_delay"]["delay"])) + 1
+
+
+def _spec(
+    params: Mapping[str, float],
+    valve: str,
+    output: str,
+    spool_lag: bool,
+    effects: Mapping[str, Mapping[str, float]] | None,
+    dt: float,
+    smooth: bool,
+    stick_band: float,
+) -> _Spec:
+    if valve not in ("orifice", "linear"):
+        raise ValueError(f"valve must be 'orifice' or 'linear', got {valve!r}")
+    if output not in ("angle", "pressure"):
+        raise ValueError(f"output must be 'angle' or 'pressure', got {output!r}")
+    p = {k: float(v) for k, v in params.items()}
+    needed = ["g_torque", "g_damping", "g_compress", "g_leak", "g_valve"]
+    needed += ["g_kp"] if valve == "linear" else []
+    needed += ["tau_v"] if spool_lag else []
+    needed += ["p_gain", "p_offset"] if output == "pressure" else []
+    p.setdefault("g_spring", 0.0)
+    p.setdefault("g_load", 0.0)
+    missing = [k for k in needed if k not in p]
+    if missing:
+        raise ValueError(f"params lacks {missing}")
+    eff: dict[str, dict[str, float]] = {}
+    for name, given in (effects or {}).items():
+        if name not in _EFFECT_PARAMS:
+            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+        vals = dict(_SETTINGS[name])
+        if name == "coulomb_friction":
+            vals["dt"] = dt
+        for key in _EFFECT_PARAMS[name] + ("g_stribeck", "v_stribeck"):
+            if key in p:
+                vals[key] = p[key]
+        vals.update({k: float(v) for k, v in given.items()})
+        lacking = [k for k in _EFFECT_PARAMS[name] if k not in vals]
+        if lacking:
+            raise ValueError(f"effect {name!r} needs parameter(s) {lacking}")
+        if name == "coulomb_friction" and ("g_stribeck" in vals) != ("v_stribeck" in vals):
+            raise ValueError("the Stribeck term needs both g_stribeck and v_stribeck")
+        if name == "input_delay" and vals["delay"] < 0:
+            raise ValueError("delay must be >= 0 samples")
+        eff[name] = vals
+    names = ["theta", "omega", "p"]
+    names += ["xs"] if spool_lag else []
+    names += ["x_spool"] if "valve_dynamics" in eff else []
+    names += ["gap"] if "backlash" in eff else []
+    if output == "pressure" and "backlash" in eff:
+        raise ValueError("backlash is seen by an angle encoder; use output='angle'")
+    return _Spec(valve, output, spool_lag, float(dt), smooth, float(stick_band), p, eff,
+                 tuple(names))
+
+
+# --- right-hand side and output -------------------------------------------------------------
+
+
+def _command(x: dict[str, float], u_lags: np.ndarray, s: _Spec, rates: dict[str, float]) -> float:
+    """Valve command [input units] and the rates of the input-stage states."""
+    e = s.effects
+    if "input_delay" in e:
+        # Linear interpolation of the held samples: hat weights max(0, 1 - |delay - k|).
+        d = e["input_delay"]["delay"]
+        c = sum(max(0.0, 1.0 - abs(d - k)) * float(u_lags[k]) for k in range(len(u_lags)))
+    else:
+        c = float(u_lags[0])
+    if s.spool_lag:
+        rates["xs"] = (c - x["xs"]) / s.p["tau_v"]
+        c = x["xs"]
+    # The package runs the input stage in the order the parts were added; the
+    # mapping order of ``effects`` plays that role here (the delay always acts on
+    # the measured input, as documented).
+    for name, v in e.items():
+        if name == "valve_deadzone":
+            w = v["eps"] * v["u_scale"]
+            c = _relu(c - v["i_dead"], w, s.smooth) - _relu(-c - v["i_dead"], w, s.smooth)
+        elif name == "valve_saturation":
+            w = v["eps"] * v["u_scale"]
+            c = c - _relu(c - v["i_sat"], w, s.smooth) + _relu(-c - v["i_sat"], w, s.smooth)
+        elif name == "valve_dynamics":
+            rates["x_spool"] = (c - x["x_spool"]) / v["tau_spool"]
+            c = x["x_spool"]
+    return c
+
+
+def _rates(
+    x: dict[str, float], u_lags: np.ndarray, s: _Spec, mode: int | None = None
+) -> dict[str, float]:
+    """Rates of every state. ``mode`` (exact friction only): 0 stuck, +-1 sliding in
+    that direction, None: decide from the state (Karnopp band, for single points)."""
+    rates: dict[str, float] = {}
+    P = s.p
+    th, w, p = x["theta"], x["omega"], x["p"]
+    c = _command(x, u_lags, s, rates)
+    if s.valve == "orifice":
+        # The orifice law: the pressure drop across the open edge is p_s - sign(x_v)*P_L,
+        # i.e. 1 - sign(c)*p: the sign of the VALVE COMMAND, not of the pressure.
+        drop = 1.0 - _sgn(c, SIGN_EPS, s.smooth) * p
+        q = P["g_valve"] * c * _signed_sqrt(drop, SQRT_DELTA, s.smooth)
+    else:
+        q = P["g_valve"] * c - P["g_kp"] * p
+    if "asymmetric_valve" in s.effects:
+        v = s.effects["asymmetric_valve"]
+        q *= 1.0 + v["asym"] * _sgn(c, v["eps"] * v["u_scale"], s.smooth)
+    rates["p"] = q - P["g_compress"] * w - P["g_leak"] * p
+    acc = P["g_torque"] * p - P["g_damping"] * w - P["g_spring"] * th - P["g_load"]
+    if "gravity_load" in s.effects:
+        v = s.effects["gravity_load"]
+        acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
+    if "coulomb_friction" in s.effects:
+        v = s.effects["coulomb_friction"]
+        level = v["g_coulomb"]
+        if "g_stribeck" in v:
+            level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
+        if s.smooth:
+            # Width tied to the sample period: the package's choice for its RK4.
+            width = v["eps"] + 0.5 * v["dt"] * level
+            acc -= level * _sgn(w, width, True)
+        elif mode == 0:
+            acc = 0.0  # stuck: the simulation set omega = 0 exactly and holds it
+        elif mode is not None:
+            acc -= level * mode  # sliding: the direction is fixed until omega reaches 0
+        elif abs(w) <= s.stick_band and abs(acc) <= level:
+            # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
+            acc = -w / max(s.dt, 1e-12)
+        elif abs(w) <= s.stick_band:
+            acc -= level * math.copysign(1.0, acc)  # breaks away in the direction of the push
+        else:
+            acc -= level * math.copysign(1.0, w)
+    rates["theta"] = w
+    rates["omega"] = acc
+    if "backlash" in s.effects:
+        v = s.effects["backlash"]
+        half = 0.5 * v["play"] / RAD2DEG
+        gap = x["gap"]
+        if s.smooth:
+            e = (0.1 * v["play"] + 0.03) / RAD2DEG
+            z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
+            contact = 1.0 / (1.0 + math.exp(-z))
+        else:
+            contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
+        rates["gap"] = w * (1.0 - contact)
+    return rates
+
+
+def _xdot(x: np.ndarray, u_lags: np.ndarray, s: _Spec, mode: int | None = None) -> np.ndarray:
+    r = _rates(dict(zip(s.state_names, x, strict=True)), u_lags, s, mode)
+    if mode == 0:
+        r["theta"] = 0.0
+    return np.array([r.get(n, 0.0) for n in s.state_names])
+
+
+def _sticky(s: _Spec) -> bool:
+    """Whether the simulation must track stick and slip (exact Coulomb friction)."""
+    return not s.smooth and "coulomb_friction" in s.effects
+
+
+def _push_and_level(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> tuple[float, float]:
+    """Acceleration without friction at ``omega = 0`` and the static friction level."""
+    xz = x.copy()
+    xz[1] = 0.0
+    v = s.effects["coulomb_friction"]
+    level = v["g_coulomb"] + v.get("g_stribeck", 0.0)
+    # At omega = 0 the sliding rate with direction +1 is push - level.
+    return float(_xdot(xz, u_lags, s, mode=1)[1]) + level, level
+
+
+def _initial_mode(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
+    if x[1] != 0.0:
+        return 1 if x[1] > 0 else -1
+    push, level = _push_and_level(x, u_lags, s)
+    return 0 if abs(push) <= level else (1 if push > 0 else -1)
+
+
+def _segment(
+    x: np.ndarray, u_lags: np.ndarray, s: _Spec, t_eval: np.ndarray, method: str,
+    rtol: float, atol: float,
+) -> np.ndarray:
+    """States at ``t_eval`` (starting at 0) with the input held; shape (nx, len(t_eval)).
+
+    With exact Coulomb friction the integration is hybrid: while sliding in
+    direction ``d`` an event stops it where ``d*omega`` falls to 0; there the shaft
+    sticks if the rest of the acceleration is within the static level, or slides
+    back; while stuck (``omega = 0`` held) an event stops it where that
+    acceleration reaches the level (breakaway). Nothing chatters across 0.
+    """
+    if not _sticky(s):
+        sol = solve_ivp(lambda _t, xx: _xdot(xx, u_lags, s), (0.0, t_eval[-1]), x,
+                        method=method, t_eval=t_eval, rtol=rtol, atol=atol)
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        return sol.y
+    out = np.empty((x.size, t_eval.size))
+    out[:, 0] = x
+    done, t0, mode = 1, 0.0, _initial_mode(x, u_lags, s)
+    if mode == 0:
+        x = x.copy()
+        x[1] = 0.0
+    for _ in range(10000):
+        if done == t_eval.size:
+            return out
+        if mode == 0:
+            def event(_t: float, xx: np.ndarray) -> float:
+                push, level = _push_and_level(xx, u_lags, s)
+                return abs(push) - level
+            event.direction = 1.0  # type: ignore[attr-defined]
+        else:
+            def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
+                return d * xx[1]
+            event.direction = -1.0  # type: ignore[attr-defined]
+        event.terminal = True  # type: ignore[attr-defined]
+        te = t_eval[done:]
+        sol = solve_ivp(lambda _t, xx, m=mode: _xdot(xx, u_lags, s, m), (t0, t_eval[-1]), x,
+                        method=method, t_eval=te, rtol=rtol, atol=atol, events=event)
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        k = len(sol.t)  # (an empty t_eval tail comes back as a list)
+        if k:
+            out[:, done:done + k] = sol.y
+        done += k
+        if sol.status != 1:
+            continue
+        t0, x = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
+        if mode == 0:
+            push, _ = _push_and_level(x, u_lags, s)
+            mode = 1 if push > 0 else -1
+        else:
+            x[1] = 0.0
+            push, level = _push_and_level(x, u_lags, s)
+            mode = 0 if abs(push) <= level else (1 if push > 0 else -1)
+        if t_eval[-1] - t0 <= 1e-12 * max(1.0, t_eval[-1]):
+            # The event fell on the end of the segment: its state is the last sample's.
+            out[:, done:] = x[:, None]
+            return out
+    raise RuntimeError("too many stick-slip switches in one held sample segment")
+
+
+def _y(x: np.ndarray, s: _Spec) -> float:
+    xs = dict(zip(s.state_names, x, strict=True))
+    if s.output == "angle":
+        y = RAD2DEG * xs["theta"]
+    else:
+        y = s.p["p_gain"] * xs["p"] + s.p["p_offset"]
+    if "backlash" in s.effects:
+        gap = xs["gap"]
+        if not s.smooth:  # the ideal play operator keeps the gap inside the play
+            half = 0.5 * s.effects["backlash"]["play"] / RAD2DEG
+            gap = min(max(gap, -half), half)
+        y -= RAD2DEG * gap
+    if "sensor_offset" in s.effects:
+        y += s.effects["sensor_offset"]["y_offset"]
+    return float(y)
+
+
+def reference_state_names(
+    *,
+    spool_lag: bool = False,
+    effects: Mapping[str, Mapping[str, float]] | None = None,
+) -> list[str]:
+    """State names, in state-vector order, of the reference model with these options.
+
+    Returns
+    -------
+    list of str
+        ``["theta", "omega", "p"]`` then ``"xs"``, ``"x_spool"``, ``"gap"`` as present.
+    """
+    names = ["theta", "omega", "p"]
+    names += ["xs"] if spool_lag else []
+    names += ["x_spool"] if effects and "valve_dynamics" in effects else []
+    names += ["gap"] if effects and "backlash" in effects else []
+    return names
+
+
+def reference_rhs(
+    x: Sequence[float] | np.ndarray,
+    u_lags: Sequence[float] | np.ndarray | float,
+    params: Mapping[str, float],
+    *,
+    valve: str = "orifice",
+    output: str = "angle",
+    spool_lag: bool = False,
+    effects: Mapping[str, Mapping[str, float]] | None = None,
+    dt: float = 0.004,
+    smooth: bool = True,
+    stick_band: float = 1e-6,
+) -> np.ndarray:
+    """Time derivative of the state at one point.
+
+    Parameters
+    ----------
+    x : array, shape (nx,)
+        State ``[theta [rad], omega [rad/s], p [-], (xs [mA]), (x_spool [mA]), (gap [rad])]``
+        (see :func:`reference_state_names`).
+    u_lags : array, shape (n_lags + 1,), or float
+        Current input [mA] and past samples ``u[n], u[n-1], ...`` (only the
+        ``input_delay`` effect reads past samples; if fewer are given than the delay
+        needs, the oldest given sample is repeated).
+    params : mapping
+        Group values by name: ``g_torque`` [rad/s^2], ``g_damping`` [1/s], ``g_spring``
+        [1/s^2] and ``g_load`` [rad/s^2] (default 0), ``g_compress`` [1/rad],
+        ``g_leak`` [1/s], ``g_valve`` [1/(s mA)], ``g_kp`` [1/s] (linear valve), ``tau_v``
+        [s] (spool lag), ``p_gain``, ``p_offset`` (pressure output); effect parameters
+        may be given here too.
+    valve : {"orifice", "linear"}
+        Valve law.
+    output : {"angle", "pressure"}
+        Measured output (only matters for which parameters are required).
+    spool_lag : bool
+        First-order spool lag ``tau_v*dxs/dt = c - xs`` before the valve.
+    effects : mapping, optional
+        Library effect name -> its parameter values and settings (module docstring).
+    dt : float
+        Sample period [s]: sets the friction smoothing width (``smooth=True``) and the
+        decay of a residual velocity while stuck (``smooth=False``).
+    smooth : bool
+        The package's documented smoothings (True) or exact switching (False).
+    stick_band : float
+        Velocity [rad/s] below which exact Coulomb friction may stick (``smooth=False``).
+
+    Returns
+    -------
+    ndarray, shape (nx,)
+        ``dx/dt`` in state units per second.
+    """
+    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, stick_band)
+    return _xdot(np.asarray(x, dtype=float), _lags(u_lags, s.n_lags), s)
+
+
+def reference_output(
+    x: Sequence[float] | np.ndarray,
+    params: Mapping[str, float],
+    *,
+    valve: str = "orifice",
+    output: str = "angle",
+    spool_lag: bool = False,
+    effects: Mapping[str, Mapping[str, float]] | None = None,
+    smooth: bool = True,
+) -> float:
+    """Measured output at one state.
+
+    Parameters
+    ----------
+    x : array, shape (nx,)
+        State (see :func:`reference_rhs`).
+    params, valve, output, spool_lag, effects, smooth
+        As in :func:`reference_rhs`.
+
+    Returns
+    -------
+    float
+        The angle [deg] (``output="angle"``, minus the backlash gap, plus a sensor
+        offset) or ``p_gain*p + p_offset`` (``output="pressure"``).
+    """
+    s = _spec(params, valve, output, spool_lag, effects, 0.004, smooth, 1e-6)
+    return _y(np.asarray(x, dtype=float), s)
+
+
+def _lags(u_lags: Sequence[float] | np.ndarray | float, n_lags: int) -> np.ndarray:
+    u = np.atleast_1d(np.asarray(u_lags, dtype=float))
+    if u.size < n_lags + 1:  # before the record: the oldest sample given, held
+        u = np.concatenate([u, np.full(n_lags + 1 - u.size, u[-1])])
+    return u
+
+
+# --- simulation ----------------------------------------------------------------------------
+
+
+def simulate_reference(
+    u: Sequence[float] | np.ndarray,
+    fs: float,
+    params: Mapping[str, float],
+    *,
+    valve: str = "orifice",
+    output: str = "angle",
+    spool_lag: bool = False,
+    effects: Mapping[str, Mapping[str, float]] | None = None,
+    x0: Sequence[float] | np.ndarray | None = None,
+    smooth: bool = True,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    method: str = "LSODA",
+    stick_band: float = 1e-6,
+    states: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Simulate the sampled system with an exact zero-order hold of the input.
+
+    The input sample ``u[k]`` (and, for a delay, the samples before it) is held
+    over ``[t_k, t_k + 1/fs)``; ``y[k]`` is the output of the state at ``t_k``, so
+    ``y[0]`` is that of ``x0`` (the package's convention). Before the record the
+    input is taken equal to ``u[0]``. Consecutive samples with the same held inputs
+    are integrated in one :func:`~scipy.integrate.solve_ivp` call (the right-hand
+    side is smooth there); every change of the input restarts the integrator, so
+    no step crosses a jump.
+
+    Parameters
+    ----------
+    u : array, shape (N,)
+        Input [mA].
+    fs : float
+        Sample rate [Hz].
+    params : mapping
+        Parameters by name (see :func:`reference_rhs`).
+    valve, output, spool_lag, effects, smooth, stick_band
+        As in :func:`reference_rhs`.
+    x0 : array, shape (nx,), optional
+        Initial state (default: all zero, at rest).
+    rtol, atol : float
+        Tolerances of :func:`~scipy.integrate.solve_ivp`.
+    method : str
+        Integrator (``"LSODA"`` switches to a stiff method where needed; ``"Radau"``
+        for stiff sets; ``"DOP853"`` for smooth, non-stiff ones).
+    states : bool
+        Also return the state at every sample.
+
+    Returns
+    -------
+    y : ndarray, shape (N,)
+        Output (degrees for the angle).
+    X : ndarray, shape (N, nx)
+        States at the sample instants, only with ``states=True``.
+
+    Raises
+    ------
+    RuntimeError
+        When the integrator fails.
+    """
+    u = np.asarray(u, dtype=float).ravel()
+    if u.size < 1 or not np.isfinite(u).all():
+        raise ValueError("u must be a non-empty finite 1-D array")
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs must be a positive sample rate in Hz, got {fs}")
+    dt = 1.0 / fs
+    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, stick_band)
+    nl = s.n_lags
+    padded = np.concatenate([np.full(nl, u[0]), u])
+    # Row k: u[k], u[k-1], ..., u[k-nl].
+    lags = np.stack([padded[nl - j: nl - j + u.size] for j in range(nl + 1)], axis=1)
+    x = np.zeros(len(s.state_names)) if x0 is None else np.asarray(x0, dtype=float).copy()
+    if x.shape != (len(s.state_names),):
+        raise ValueError(f"x0 must have shape ({len(s.state_names)},) for states {s.state_names}")
+    X = np.empty((u.size, x.size))
+    change = np.flatnonzero(np.any(np.diff(lags, axis=0) != 0, axis=1)) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [u.size]])
+    for a, b in zip(starts, stops, strict=True):
+        ul = lags[a]
+        t_eval = np.arange(b - a + 1) * dt
+        try:
+            Y = _segment(x, ul, s, t_eval, method, rtol, atol)
+        except RuntimeError as exc:
+            raise RuntimeError(f"at sample {a}: {exc}") from exc
+        X[a:b] = Y[:, :-1].T
+        x = Y[:, -1]
+    y = np.array([_y(xk, s) for xk in X])
+    return (y, X) if states else y
+
+
+# --- records ---------------------------------------------------------------------------------
+
+
+def velocity_gain(params: Mapping[str, float], valve: str = "orifice") -> float:
+    """Steady angular velocity per valve current at rest [rad/s per mA].
+
+    ``kv/c`` of the linearisation at rest, ``g_torque*g_valve / (g_damping*(g_leak +
+    g_kp) + g_torque*g_compress)`` (``g_kp = 0`` for the orifice valve at zero current).
+    """
+    kp = params.get("g_kp", 0.0) if valve == "linear" else 0.0
+    den = params["g_damping"] * (params["g_leak"] + kp) + params["g_torque"] * params["g_compress"]
+    return params["g_torque"] * params["g_valve"] / den
+
+
+def reference_record(
+    seed: int = 0,
+    duration: float = 20.0,
+    fs: float = 250.0,
+    noise_deg: float = 0.05,
+    params: Mapping[str, float] | None = None,
+    effects: Mapping[str, Mapping[str, float]] | None = None,
+    *,
+    valve: str = "orifice",
+    spool_lag: bool = False,
+    u: Sequence[float] | np.ndarray | None = None,
+    amplitude: float = 1.0,
+    levels: int = 4,
+    angle_limit_deg: float = 80.0,
+    quantization: float | None = None,
+    smooth: bool = True,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    method: str = "LSODA",
+) -> Dataset:
+    """A simulated rig record generated by the reference implementation.
+
+    The counterpart of :func:`hhra_phys.rig.simulate_rig` written without the
+    package's model: the same input family (the paper's irregular multi-level steps
+    of :func:`hhra_phys.excitation.irregular_steps`, one M-sequence period per 20 s,
+    scaled down if a linear estimate of the angle would leave +-``angle_limit_deg``),
+    the shaft started so the linear estimate's stroke is centred on 0 deg, Gaussian
+    angle noise and optional quantisation.
+
+    Parameters
+    ----------
+    seed : int
+        Seeds the excitation and then the noise.
+    duration : float
+        Record length [s].
+    fs : float
+        Sample rate [Hz].
+    noise_deg : float
+        Standard deviation of the angle noise [deg].
+    params : mapping, optional
+        Groups (and effect parameters) by name; missing groups take
+        :data:`REFERENCE_GROUPS` (the rig's values as printed in ``docs/model.md``).
+    effects : mapping, optional
+        Effects in the plant (see :func:`simulate_reference`).
+    valve : {"orifice", "linear"}
+        Valve law.
+    spool_lag : bool
+        Spool lag (then ``params`` needs ``tau_v``).
+    u : array, optional
+        Valve current [mA] instead of the default excitation.
+    amplitude, levels : float, int
+        Largest current [mA] and number of levels of the excitation.
+    angle_limit_deg : float
+        Half range [deg] the linear angle estimate may reach before the input is scaled.
+    quantization : float, optional
+        Encoder resolution [deg].
+    smooth, rtol, atol, method
+        As in :func:`simulate_reference`.
+
+    Returns
+    -------
+    Dataset
+        ``t`` [s], ``u`` [mA], ``y`` [deg]. ``metadata``: ``generator`` (``"reference"``),
+        ``seed``, ``noise_deg``, ``quantization_deg``, ``valve``, ``true_params``
+        (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
+        ``truth``: everything :func:`simulate_reference` needs to reproduce the
+        noise-free output (``params``, ``effects`` with settings, ``valve``,
+        ``spool_lag``, ``smooth``, ``x0``, ``integrator``). No
+        ``physical`` entry: the reference works in groups only.
+    """
+    if not (math.isfinite(noise_deg) and noise_deg >= 0):
+        raise ValueError(f"noise_deg must be >= 0, got {noise_deg}")
+    p = dict(REFERENCE_GROUPS)
+    if valve == "orifice":
+        p.pop("g_kp")
+    p.update({k: float(v) for k, v in (params or {}).items()})
+    rng = np.random.default_rng(seed)
+    gain = velocity_gain(p, valve)
+    if u is None:
+        n = samples(duration, fs)
+        periods = max(1, int(round(duration / 20.0)))
+        u = irregular_steps(n, levels=levels, amplitude=amplitude, n_periods=periods, seed=rng)
+        est = np.degrees(np.cumsum(u) / fs * gain)
+        half = 0.5 * float(est.max() - est.min())
+        if half > angle_limit_deg:
+            u = u * (angle_limit_deg / half)
+    u = np.asarray(u, dtype=float)
+    est = np.degrees(np.cumsum(u) / fs * gain)
+    est -= est[0]
+    names = reference_state_names(spool_lag=spool_lag, effects=effects)
+    x0 = np.zeros(len(names))
+    x0[0] = -math.radians(0.5 * float(est.max() + est.min()))
+    y_true = simulate_reference(u, fs, p, valve=valve, spool_lag=spool_lag, effects=effects,
+                                x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method)
+    y = y_true + noise_deg * rng.standard_normal(u.size)
+    if quantization:
+        y = np.round(y / quantization) * quantization
+    eff = {k: dict(v) for k, v in (effects or {}).items()}
+    true_params = dict(p)
+    for vals in eff.values():
+        true_params.update({k: v for k, v in vals.items() if k in _ALL_EFFECT_PARAMS})
+    meta: dict[str, Any] = {
+        "generator": "reference",
+        "seed": seed,
+        "noise_deg": noise_deg,
+        "quantization_deg": quantization,
+        "valve": valve,
+        "true_params": true_params,
+        "effects": list(eff),
+        "x0": dict(zip(names, x0.tolist(), strict=True)),
+        "truth": {
+            "params": dict(p),
+            "effects": eff,
+            "valve": valve,
+            "spool_lag": spool_lag,
+            "smooth": smooth,
+            "x0": x0.tolist(),
+            "integrator": {"method": method, "rtol": rtol, "atol": atol},
+        },
+    }
+    return Dataset.from_arrays(
+        u, y, fs=fs, metadata=meta, name=f"reference-seed{seed}",
+        input_name="current", input_unit="mA", output_name="angle", output_unit="deg",
+    )
+
+
+_ALL_EFFECT_PARAMS = {k for v in _EFFECT_PARAMS.values() for k in v} | {"g_stribeck", "v_stribeck"}
