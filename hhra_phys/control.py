@@ -50,6 +50,7 @@ import scipy.signal
 
 from hhra_phys.arx import ARXFit, ARXModel
 from hhra_phys.errors import ModelError, ParameterError
+from hhra_phys.integrate import rk4
 from hhra_phys.model import Model
 from hhra_phys.models.hhra.model import RAD2DEG, HHRAModel
 from hhra_phys.result import FitResult
@@ -780,13 +781,7 @@ class ClosedLoop:
         x = ca.SX.sym("x", model.nx)
         u = ca.SX.sym("u", model.n_lags + 1)
         h = self.dt / m
-        xk = x
-        for _ in range(m):
-            k1 = f(xk, u, p)
-            k2 = f(xk + h / 2 * k1, u, p)
-            k3 = f(xk + h / 2 * k2, u, p)
-            k4 = f(xk + h * k3, u, p)
-            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xk = rk4(f, x, u, p, h, m)
         step_fn = ca.Function("cl_step", [x, u], [xk], {"cse": True})
         out_fn = ca.Function("cl_out", [x, u], [hfun(x, u, p)])
         self._n_lags = model.n_lags

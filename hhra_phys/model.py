@@ -33,13 +33,14 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, fields
+from dataclasses import fields
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from hhra_phys.errors import ModelError
+from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import ParameterSet
 from hhra_phys.parts import (
     INPUT_STAGE,
@@ -400,7 +401,7 @@ class Model:
         parts = []
         for part in self.parts:
             args = {f.name: getattr(part, f.name) for f in fields(part)} if fields(part) else {}
-            parts.append({"type": type(part).__name__, "args": _jsonable(args)})
+            parts.append({"type": type(part).__name__, "args": jsonable(args)})
         return {
             "class": type(self).__name__,
             "name": self.name,
@@ -447,18 +448,6 @@ def _time_power(unit: str) -> int:
     if re.search(r"/\(?s\b", u):
         return 1
     return 0
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if hasattr(obj, "__dataclass_fields__"):
-        return _jsonable(asdict(obj))
-    return obj
 
 
 

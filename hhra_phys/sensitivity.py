@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
+from hhra_phys.integrate import rk4
 from hhra_phys.simulate import Simulator
 
 #: Samples per compiled call (records are processed chunk after chunk).
@@ -52,13 +53,7 @@ class TrajectorySensitivity:
         u = ca.SX.sym("u", nu)
         f, h = sim._fns["f"], sim._fns["h"]
         hh = sim.h
-        xk = x
-        for _ in range(sim.substeps):
-            k1 = f(xk, u, p)
-            k2 = f(xk + hh / 2 * k1, u, p)
-            k3 = f(xk + hh / 2 * k2, u, p)
-            k4 = f(xk + hh * k3, u, p)
-            xk = xk + hh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xk = rk4(f, x, u, p, hh, sim.substeps)
         y = h(x, u, p)
         dp = ca.horzcat(ca.SX.zeros(self.np_, self.nx), ca.SX.eye(self.np_))
         S_next = ca.mtimes(ca.jacobian(xk, x), S) + ca.mtimes(ca.jacobian(xk, p), dp)

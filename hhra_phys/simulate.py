@@ -45,6 +45,7 @@ import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
 from hhra_phys.errors import ParameterError, SimulationError
+from hhra_phys.integrate import rk4
 from hhra_phys.model import Model
 from hhra_phys.vectorize import SimdTarget, simd_target, supports
 
@@ -243,12 +244,7 @@ class Simulator:
                 uk = U[k * nu:(k + 1) * nu]
                 ys.append(h(xk, uk, pk))
                 xs.append(xk)
-                for _ in range(self.substeps):
-                    k1 = f(xk, uk, pk)
-                    k2 = f(xk + hh / 2 * k1, uk, pk)
-                    k3 = f(xk + hh / 2 * k2, uk, pk)
-                    k4 = f(xk + hh * k3, uk, pk)
-                    xk = xk + hh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+                xk = rk4(f, xk, uk, pk, hh, self.substeps)
             x_next.append(xk)
             y_cols.append(ca.vertcat(*ys))
             x_cols.append(ca.horzcat(*xs))
