@@ -420,6 +420,10 @@ class Model:
         the package's own are when :mod:`hhra_phys` is imported; a user's when
         the module defining them is imported.
         """
+        target = MODEL_TYPES.get(str(spec.get("class")), Model)
+        upgrade = getattr(target, "upgrade_spec", None)
+        if upgrade is not None:
+            spec = upgrade(spec)
         parts = []
         for entry in spec["parts"]:
             typ = PART_TYPES.get(entry["type"])
@@ -430,7 +434,6 @@ class Model:
                 )
             args = {k: tuple(v) if isinstance(v, list) else v for k, v in entry["args"].items()}
             parts.append(typ(**args))
-        target = MODEL_TYPES.get(str(spec.get("class")), Model)
         new = Model.__new__(target)
         stages = spec.get("stages")
         Model.__init__(new, parts, stages, spec.get("name", "model"), spec.get("overrides"),

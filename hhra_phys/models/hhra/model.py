@@ -359,6 +359,27 @@ class HHRAModel(Model):
             self.params = derived.params
             self._overrides = derived._overrides
 
+    @classmethod
+    def upgrade_spec(cls, spec: dict[str, Any]) -> dict[str, Any]:
+        """A saved specification from before stages, pinned and held states were saved.
+
+        Such files (hhra-phys 0.1 before the generic core) relied on the HHRA's
+        fixed stage order and name-based rules; this restores them.
+        """
+        if "pinned" in spec:
+            return spec
+        spec = dict(spec)
+        types = [p["type"] for p in spec["parts"]]
+        pressure = "PressureOutput" in types
+        spec["stages"] = list(HHRA_STAGES)
+        spec["pinned"] = ["theta", "omega"] if pressure else ["omega", "p"]
+        spec["held"] = ["g_spring", "g_load"] + (["g_compress"] if pressure else [])
+        # State order theta, omega, p as the model builds it.
+        first = [p for p in spec["parts"] if p["type"] in ("RotaryMotion", "ChamberPressure")]
+        first.sort(key=lambda p: p["type"] != "RotaryMotion")
+        spec["parts"] = first + [p for p in spec["parts"] if p not in first]
+        return spec
+
     @property
     def valve(self) -> str:
         """``"orifice"`` or ``"linear"``."""
