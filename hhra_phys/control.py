@@ -113,22 +113,18 @@ class OperatingPoint:
     states: Mapping[str, float] | None = None
 
     def state_vector(self, model: Model) -> np.ndarray:
-        """The state vector of ``model`` at this point (model units)."""
+        """The state vector of ``model`` at this point (model units).
+
+        ``angle``, ``pressure`` and ``velocity`` are read by models that define
+        them (:meth:`Model.operating_state <hhra_phys.model.Model.operating_state>`,
+        the HHRA's); any model takes ``states`` by name.
+        """
         for name in ("current", "angle", "pressure", "velocity"):
             if not math.isfinite(getattr(self, name)):
                 raise ParameterError(f"operating_point.{name} must be finite")
-        if not -1.0 < self.pressure < 1.0:
-            raise ParameterError(
-                f"operating_point.pressure is P_L/p_s and must lie in (-1, 1), "
-                f"got {self.pressure}"
-            )
-        x = model.x0()
+        x = model.operating_state(model.x0(), current=self.current, angle=self.angle,
+                                  pressure=self.pressure, velocity=self.velocity)
         names = model.state_names
-        defaults = {"theta": math.radians(self.angle), "omega": math.radians(self.velocity),
-                    "p": self.pressure, "xs": self.current}
-        for name, value in defaults.items():
-            if name in names:
-                x[names.index(name)] = value
         for name, value in (self.states or {}).items():
             if name not in names:
                 raise ParameterError(
@@ -166,14 +162,6 @@ def _physical(
                     f"params must have shape ({model.n_params},) for this model, got {p.shape}"
                 )
     return model, p, dt
-
-
-def _output_name(model: Model) -> str:
-    if model.has_part("angle_output"):
-        return "angle"
-    if model.has_part("pressure_output"):
-        return "pressure"
-    return "y"
 
 
 def linearize(
@@ -241,7 +229,7 @@ def linearize(
     op = operating_point or OperatingPoint()
     x = op.state_vector(model)
     A, B, C, D = model.linearize(p, x, u=op.current, dt=dt if dt is not None else dt_fit)
-    return ct.ss(A, B, C, D, inputs=["current"], outputs=[_output_name(model)],
+    return ct.ss(A, B, C, D, inputs=[model.input_name], outputs=[model.output_name],
                  states=model.state_names, name=model.name)
 
 

@@ -200,6 +200,28 @@ class Model:
         return name in self.part_names()
 
     # -- model-specific views (overridden by models that have them) ------------------
+    #: Name of the input in linear systems and reports.
+    input_name: str = "u"
+
+    @property
+    def output_name(self) -> str:
+        """Name of the output in linear systems and reports."""
+        return "y"
+
+    def operating_state(self, x: np.ndarray, **named: float) -> np.ndarray:
+        """State vector ``x`` moved to an operating point given by model-specific names.
+
+        The generic model knows no such names: any non-zero value is an error
+        (give states by name instead). The HHRA reads ``current``, ``angle``,
+        ``pressure`` and ``velocity``.
+        """
+        extra = {k: v for k, v in named.items() if v and k != "current"}
+        if extra:
+            raise ModelError(
+                f"operating point {sorted(extra)} is not defined for model {self.name!r}; "
+                f"give its states by name ({', '.join(self.state_names)})")
+        return x
+
     def tf_coefficients_of(self, values: Mapping[str, float]) -> dict[str, float]:
         """A transfer function of the model from fitted values, if it defines one (else ``{}``)."""
         return {}

@@ -359,6 +359,32 @@ class HHRAModel(Model):
             self.params = derived.params
             self._overrides = derived._overrides
 
+    input_name: str = "current"
+
+    @property
+    def output_name(self) -> str:
+        """``"angle"`` or ``"pressure"``."""
+        return "pressure" if self.has_part("pressure_output") else "angle"
+
+    def operating_state(self, x: np.ndarray, **named: float) -> np.ndarray:
+        """The state at an operating point of the actuator.
+
+        ``angle`` [deg], ``velocity`` [deg/s], ``pressure`` (``P_L/p_s`` in (-1, 1))
+        and ``current`` [mA] (the spool-lag state follows the current).
+        """
+        pressure = float(named.get("pressure", 0.0))
+        if not -1.0 < pressure < 1.0:
+            raise ParameterError(
+                f"operating_point.pressure is P_L/p_s and must lie in (-1, 1), got {pressure}")
+        x = np.array(x, dtype=float)
+        values = {"theta": math.radians(float(named.get("angle", 0.0))),
+                  "omega": math.radians(float(named.get("velocity", 0.0))),
+                  "p": pressure, "xs": float(named.get("current", 0.0))}
+        for name, value in values.items():
+            if name in self.state_names:
+                x[self.state_names.index(name)] = value
+        return x
+
     @classmethod
     def upgrade_spec(cls, spec: dict[str, Any]) -> dict[str, Any]:
         """A saved specification from before stages, pinned and held states were saved.
