@@ -40,7 +40,7 @@ IGNORE = shutil.ignore_patterns(
 )
 
 OPTIM_TESTS = ("tests/unit/test_optim_steps.py",)
-METRICS_TESTS = ("tests/test_metrics.py",)
+METRICS_TESTS = ("tests/test_metrics.py", "tests/unit/test_metrics_hand.py")
 # the independent reference rig's tests will be added here by the lead
 MODEL_TESTS = ("tests/test_model.py", "tests/test_simulate.py")
 
