@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -627,7 +628,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         record = {
-            "command": " ".join([Path(sys.argv[0]).name, *(argv or sys.argv[1:])]),
+            "command": shlex.join(
+                ["python", "benchmarks/mutations.py", *(sys.argv[1:] if argv is None else argv)]
+            ),
             "outcomes": [
                 asdict(o) | {"description": m.description}
                 for o, m in zip(outcomes, chosen, strict=True)

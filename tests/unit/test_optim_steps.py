@@ -249,7 +249,7 @@ def test_hgwo_iterations_follow_the_paper(target_vector: str) -> None:
 def test_hgwo_alpha_excluded_from_difference_vectors() -> None:
     # with lam = 1, F = 1 and Cr = 1 the trial is alpha + X_r1 - X_r2 (nothing re-drawn in a
     # huge box); pack members at distinct powers of two make (r1, r2) readable from the trial
-    big = np.array([[-1e3, 1e3]] * 1)
+    big = [(-1e3, 1e3)]
     opt = HGWO(big, 6, max_iter=50, seed=5, lam=1.0, F=1.0, Cr=1.0)
     opt.ask()
     opt.tell(np.arange(12.0))
