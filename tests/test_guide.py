@@ -43,6 +43,7 @@ def test_guide_has_the_sections_and_blocks():
     for heading in ("Installation", "Quick start", "Preparing your own data", "Fitting",
                     "Reading the result and its uncertainty", "Comparing methods",
                     "The diagnosis loop", "Controller design", "A model of another actuator",
+                    "Your own system",
                     "Running on several machines", "API reference"):
         assert f"## {heading}\n" in text, heading
     assert sum(lang == "bash" for _, lang, _, _ in BLOCKS) >= 5
