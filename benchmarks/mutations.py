@@ -41,9 +41,13 @@ IGNORE = shutil.ignore_patterns(
 )
 
 OPTIM_TESTS = ("tests/unit/test_optim_steps.py",)
-METRICS_TESTS = ("tests/test_metrics.py", "tests/unit/test_metrics_hand.py")
-# the independent reference rig's tests will be added here by the lead
-MODEL_TESTS = ("tests/test_model.py", "tests/test_simulate.py")
+METRICS_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py")
+MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
+               "tests/integration/test_reference_rig.py")
+EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
+LOOP_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_diagnose.py")
+PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
+                 "tests/integration/test_fit.py")
 
 
 @dataclass(frozen=True)
@@ -434,7 +438,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "value = np.max(yy - yh, axis=-1)",
         METRICS_TESTS,
     ),
-    # -- model (the reference rig's tests will be added to MODEL_TESTS) --------------------------
+    # -- model ----------------------------------------------------------------------------------
     _m(
         "model-orifice-sign-of-p",
         "orifice law takes the sign of the pressure instead of the valve current",
@@ -462,6 +466,58 @@ MUTATIONS: tuple[Mutation, ...] = (
         '-ctx.p["g_compress"] * ctx.x["omega"] - ctx.p["g_leak"]',
         '+ctx.p["g_compress"] * ctx.x["omega"] - ctx.p["g_leak"]',
         MODEL_TESTS,
+    ),
+    # -- effects ---------------------------------------------------------------------------------
+    _m(
+        "effect-friction-sign",
+        "Coulomb friction pushes along the motion",
+        'ctx.add_rate("omega", -level * smooth_sign(w, width))',
+        'ctx.add_rate("omega", level * smooth_sign(w, width))',
+        EFFECT_TESTS,
+    ),
+    _m(
+        "effect-deadzone-even",
+        "dead zone output even in the input (both sides add)",
+        "ctx.u = smooth_relu(c - d, e) - smooth_relu(-c - d, e)",
+        "ctx.u = smooth_relu(c - d, e) + smooth_relu(-c - d, e)",
+        EFFECT_TESTS,
+    ),
+    _m(
+        "effect-offset-sign",
+        "sensor offset subtracted",
+        'ctx.signals["y"] = ctx.signal("y", self.name) + ctx.p["y_offset"]',
+        'ctx.signals["y"] = ctx.signal("y", self.name) - 2 * ctx.p["y_offset"]',
+        EFFECT_TESTS,
+    ),
+    # -- initial state and cost ------------------------------------------------------------------
+    _m(
+        "problem-data-rule-sign",
+        "the initial-state Newton step goes the wrong way",
+        "J.T * (y0 - hu) / jj",
+        "J.T * (hu - y0) / jj",
+        PROBLEM_TESTS,
+    ),
+    _m(
+        "problem-fit-x0-ignored",
+        "fitted initial values not used on the estimation record",
+        "X0[:, self.model.state_names.index(state)] = v[:, nm + k]",
+        "X0[:, self.model.state_names.index(state)] = 0.0",
+        PROBLEM_TESTS,
+    ),
+    # -- the loop --------------------------------------------------------------------------------
+    _m(
+        "loop-margin-inverted",
+        "a candidate is accepted when it makes validation worse by less than the margin",
+        "gain_ok = vr <= (1 - margin) * rmse_cur",
+        "gain_ok = vr <= (1 + margin) * rmse_cur",
+        LOOP_TESTS,
+    ),
+    _m(
+        "loop-best-is-worst",
+        "the loop accepts the worst of the passing candidates",
+        'best = min(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
+        'best = max(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
+        LOOP_TESTS,
     ),
 )
 

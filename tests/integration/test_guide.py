@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 GUIDE = REPO / "docs" / "guide.md"
 BLOCK = re.compile(
     r"(?:<!-- guide-test: (?P<mode>[\w-]+) -->\n)?```(?P<lang>bash|python)\n(?P<code>.*?)```",

@@ -1,0 +1,39 @@
+"""Shared test set-up.
+
+Layout: ``unit/`` checks one module against a reference it does not share code with
+(closed forms, hand-computed steps, SciPy, python-control, CVODES); ``integration/``
+runs whole paths (fit, diagnosis loop, CLI, guide, experiment scripts) and the
+package's models against independent implementations (``hhra_phys.reference``).
+Tests that take more than a few seconds are marked ``slow`` (still part of CI;
+``pytest -m "not slow"`` for a quick run).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+#: The repository's root.
+REPO = Path(__file__).resolve().parents[1]
+
+# Figures are written to files, never shown.
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The repository's root directory."""
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def public_record():
+    """The public hydraulic-actuator record, or a skip where ``shared/data`` is absent."""
+    from hhra_phys.data import DataError, load_public_actuator
+
+    try:
+        return load_public_actuator()
+    except DataError as exc:
+        pytest.skip(f"public data not available: {exc}")
