@@ -7,10 +7,11 @@ Usage::
     python docs/make_api.py --out FILE
 
 Every public module of ``hhra_phys`` (not the ``cli`` package, whose reference is
-``hhra-phys COMMAND --help``) gets a section with its docstring, then its public classes
-(with their public methods and properties) and functions, each with its signature and
-docstring. Public means: listed in the module's ``__all__`` if it has one, otherwise not
-starting with ``_`` and defined in that module. The output depends only on the code, so
+``hhra-phys COMMAND --help``, nor the modules kept only for old import paths) gets a
+section with its docstring, then its public classes (with their public methods and
+properties) and functions, each with its signature and docstring. Public means: listed
+in the module's curated ``__all__``; a module without one is an error, so that nothing
+becomes public API by accident. The output depends only on the code, so
 ``--check`` (run by ``tests/test_guide.py``) tells whether it was regenerated after the
 docstrings changed.
 """
@@ -29,6 +30,8 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "api.md"
 PACKAGE = "hhra_phys"
 SKIP = ("hhra_phys.cli", "hhra_phys.data.")  # data: documented once, via its __all__
+#: Modules kept only so that old import paths work (they re-export moved names).
+MOVED = ("hhra_phys.physical", "hhra_phys.rig")
 
 
 def _modules() -> list[str]:
@@ -38,18 +41,19 @@ def _modules() -> list[str]:
         parts = info.name.split(".")
         if any(p.startswith("_") for p in parts[1:]) or info.name.startswith(SKIP):
             continue
+        if info.name in MOVED:
+            continue
         names.append(info.name)
     return sorted(names)
 
 
 def _public(module) -> list[tuple[str, object]]:
     names = getattr(module, "__all__", None)
+    if names is None:
+        raise SystemExit(f"{module.__name__} has no __all__: list its public API there")
     out = []
     for name, obj in vars(module).items():
-        if names is not None:
-            if name not in names:
-                continue
-        elif name.startswith("_") or getattr(obj, "__module__", None) != module.__name__:
+        if name not in names:
             continue
         if inspect.isclass(obj) or inspect.isfunction(obj):
             out.append((name, obj))

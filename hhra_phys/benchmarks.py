@@ -22,6 +22,20 @@ import numpy as np
 
 from hhra_phys.errors import ParameterError
 
+__all__ = [
+    "sphere",
+    "rosenbrock",
+    "quartic",
+    "rastrigin",
+    "ackley",
+    "griewank",
+    "six_hump_camel",
+    "kowalik",
+    "goldstein_price",
+    "Benchmark",
+    "get_benchmark",
+]
+
 #: Kowalik's data (a_i and 1/b_i) as in the usual suite.
 KOWALIK_A = np.array(
     [0.1957, 0.1947, 0.1735, 0.1600, 0.0844, 0.0627, 0.0456, 0.0342, 0.0323, 0.0235, 0.0246]

@@ -36,6 +36,13 @@ import numpy as np
 
 from hhra_phys.vectorize import SimdTarget, transform_source
 
+__all__ = [
+    "cache_dir",
+    "find_compiler",
+    "CompiledFunction",
+    "compile_function",
+]
+
 #: Flags for the generated code. No -ffast-math: it would let the compiler drop
 #: the NaN/Inf propagation that flags diverging population members. No FMA
 #: contraction (GCC's default contracts where FMA is baseline, e.g. AArch64), so

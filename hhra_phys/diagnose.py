@@ -45,6 +45,22 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
 from hhra_phys.problem import Problem
 
+__all__ = [
+    "EffectEvidence",
+    "Diagnosis",
+    "noise_level",
+    "whiteness",
+    "cross_correlation",
+    "output_delay",
+    "generic_regressors",
+    "regressor_table",
+    "analyse",
+    "diagnose_fit",
+    "plot_residuals",
+    "DETECTABLE",
+    "ENTRY_ALIASES",
+]
+
 #: Detectability (probe-size output change over noise) below which an effect is
 #: reported as not identifiable from the record.
 DETECTABLE = 1.0

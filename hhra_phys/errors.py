@@ -8,6 +8,16 @@ so generic handlers keep working.
 
 from __future__ import annotations
 
+__all__ = [
+    "HHRAError",
+    "DataError",
+    "ParameterError",
+    "ModelError",
+    "SimulationError",
+    "OutputPathError",
+    "OutputExistsError",
+]
+
 
 class HHRAError(Exception):
     """Base class of all errors raised by hhra-phys for bad input or state."""

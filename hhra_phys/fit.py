@@ -43,6 +43,14 @@ from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
 from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
 from hhra_phys.result import FitResult, uncertainty
 
+__all__ = [
+    "OPTIMIZERS",
+    "default_model",
+    "fit",
+    "fit_many",
+    "best_of",
+]
+
 OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
 
 def default_model(

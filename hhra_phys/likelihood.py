@@ -38,6 +38,13 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.problem import Problem
 from hhra_phys.refine import CompiledLeastSquares
 
+__all__ = [
+    "Profile",
+    "threshold",
+    "profile_parameter",
+    "profile_intervals",
+]
+
 
 @dataclass
 class Profile:

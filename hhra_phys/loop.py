@@ -48,6 +48,14 @@ from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
 from hhra_phys.simulate import Simulator
 
+__all__ = [
+    "information_criterion",
+    "Step",
+    "LoopResult",
+    "augment",
+    "base_model_for",
+]
+
 METRIC_KEYS = ("rmse", "vaf", "mse", "itae")
 
 

@@ -16,6 +16,11 @@ import numpy as np
 
 from hhra_phys.errors import ParameterError
 
+__all__ = [
+    "Parameter",
+    "ParameterSet",
+]
+
 Scale = Literal["log", "linear"]
 
 

@@ -42,6 +42,24 @@ import numpy as np
 from hhra_phys.errors import ModelError
 from hhra_phys.parameters import Parameter
 
+__all__ = [
+    "State",
+    "Context",
+    "Part",
+    "PART_TYPES",
+    "register_part",
+    "Signals",
+    "Effect",
+    "EFFECTS",
+    "register_effect",
+    "INPUT_STAGE",
+    "OUTPUT_STAGE",
+    "smooth_sign",
+    "smooth_signed_sqrt",
+    "smooth_abs",
+    "smooth_relu",
+]
+
 #: Stage whose effects act on the model's input, before every part of the model.
 INPUT_STAGE = "input"
 #: Conventional last stage: where output-side effects attach.

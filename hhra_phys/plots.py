@@ -18,6 +18,11 @@ import numpy as np  # noqa: E402
 from hhra_phys.data import Dataset  # noqa: E402
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path  # noqa: E402
 
+__all__ = [
+    "plot_fit",
+    "plot_outputs",
+]
+
 
 def plot_fit(
     path: str | Path,

@@ -51,6 +51,15 @@ from hhra_phys.model import Model
 from hhra_phys.parameters import Parameter
 from hhra_phys.simulate import Simulator
 
+__all__ = [
+    "COSTS",
+    "Problem",
+    "default_free",
+    "data_rule_function",
+    "estimate_initial_state",
+    "initial_guess",
+]
+
 CostName = Literal["itae", "mse", "rmse", "ssr"]
 COSTS: tuple[str, ...] = ("itae", "mse", "rmse", "ssr")
 

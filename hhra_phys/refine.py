@@ -30,6 +30,14 @@ import numpy as np
 from hhra_phys.errors import ParameterError
 from hhra_phys.problem import Problem
 
+__all__ = [
+    "Stage",
+    "CompiledLeastSquares",
+    "least_squares_cost",
+    "refine_ipopt",
+    "refine_nlopt",
+]
+
 
 @dataclass
 class Stage:

@@ -25,6 +25,11 @@ from hhra_phys.model import Model
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.simulate import Simulator
 
+__all__ = [
+    "FitResult",
+    "uncertainty",
+]
+
 #: Condition number of the scaled information matrix beyond which parameters are
 #: reported as not identifiable from the data.
 IDENTIFIABILITY_COND = 1e10

@@ -28,6 +28,10 @@ from hhra_phys.compile import CompiledFunction, compile_function
 from hhra_phys.integrate import rk4
 from hhra_phys.simulate import Simulator
 
+__all__ = [
+    "TrajectorySensitivity",
+]
+
 #: Samples per compiled call (records are processed chunk after chunk).
 CHUNK = 250
 

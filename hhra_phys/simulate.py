@@ -49,6 +49,10 @@ from hhra_phys.integrate import rk4
 from hhra_phys.model import Model
 from hhra_phys.vectorize import SimdTarget, simd_target, supports
 
+__all__ = [
+    "Simulator",
+]
+
 #: Largest number of RK4 steps unrolled in one compiled step function
 #: (substeps x block x lanes); the block and then the lanes shrink to respect it.
 UNROLL_BUDGET = 80

@@ -62,6 +62,23 @@ from hhra_phys.outputs import (
     jsonable,
 )
 
+__all__ = [
+    "StudySettings",
+    "Run",
+    "Cell",
+    "run_study",
+    "run_function",
+    "run_method",
+    "run_scipy_de",
+    "iterations_for_budget",
+    "make_problem",
+    "table_rows",
+    "format_table",
+    "format_report",
+    "plot_convergence",
+    "plot_paths",
+]
+
 #: The paper's four methods, in the order of our tables.
 PAPER_METHODS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de")
 

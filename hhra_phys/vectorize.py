@@ -40,6 +40,14 @@ from dataclasses import dataclass
 
 import casadi as ca
 
+__all__ = [
+    "SimdTarget",
+    "simd_target",
+    "supports",
+    "transform_source",
+    "find_cxx",
+]
+
 #: SX operations the vector prelude implements lane by lane.
 SUPPORTED_OPS: frozenset[int] = frozenset(
     getattr(ca, name)

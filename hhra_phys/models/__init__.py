@@ -6,3 +6,5 @@
 * :mod:`hhra_phys.models.cylinder`: the valve-controlled double-acting linear
   cylinder.
 """
+
+__all__: list[str] = []

@@ -98,6 +98,25 @@ from hhra_phys.model import Model
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part, State, register_part, smooth_sign, smooth_signed_sqrt
 
+__all__ = [
+    "CylinderPhysical",
+    "cylinder_parameter",
+    "CylinderOrificeValve",
+    "CylinderLinearValve",
+    "CylinderChambers",
+    "LinearMotion",
+    "PositionOutput",
+    "LinearCylinderModel",
+    "CYLINDER_STAGES",
+    "DEFAULT_FIXED",
+    "DEFAULT_FREE",
+    "position_estimate",
+    "pressure_estimate",
+    "cylinder_input",
+    "perturbed_physical",
+    "simulate_cylinder",
+]
+
 #: Metres to millimetres (the output unit).
 MM_PER_M = 1000.0
 

@@ -9,6 +9,11 @@ import numpy as np
 
 from hhra_phys.errors import ParameterError
 
+__all__ = [
+    "Box",
+    "as_points",
+]
+
 
 @dataclass(frozen=True)
 class Box:

@@ -25,6 +25,10 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.optim.bounds import Box, as_points
 from hhra_phys.optim.history import History
 
+__all__ = [
+    "Optimiser",
+]
+
 SeedLike = int | np.random.Generator | np.random.SeedSequence | None
 
 

@@ -8,6 +8,11 @@ import numpy as np
 
 from hhra_phys.optim.core import Optimiser, SeedLike, check_float, distinct_indices
 
+__all__ = [
+    "DE",
+    "binomial_crossover",
+]
+
 
 def binomial_crossover(
     rng: np.random.Generator, mutant: np.ndarray, target: np.ndarray, cr: float | None

@@ -18,6 +18,12 @@ from hhra_phys.optim.gwo import GWO
 from hhra_phys.optim.hgwo import HGWO
 from hhra_phys.optim.pso import PSO
 
+__all__ = [
+    "IterationState",
+    "make_optimiser",
+    "minimize",
+]
+
 #: Optimiser class per method name.
 METHODS: dict[str, type[Optimiser]] = {cls.method: cls for cls in (HGWO, GWO, PSO, DE)}
 

@@ -9,6 +9,12 @@ import numpy as np
 
 from hhra_phys.optim.core import Optimiser, SeedLike
 
+__all__ = [
+    "GWO",
+    "gwo_move",
+    "gwo_a",
+]
+
 
 @functools.cache
 def _strictly_upper(m: int) -> np.ndarray:

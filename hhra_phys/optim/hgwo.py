@@ -11,6 +11,11 @@ from hhra_phys.optim.core import Optimiser, SeedLike, check_float, distinct_indi
 from hhra_phys.optim.de import binomial_crossover
 from hhra_phys.optim.gwo import best_distinct, gwo_a, gwo_move, update_leaders
 
+__all__ = [
+    "HGWO",
+    "tent_map_unit",
+]
+
 TARGET_VECTORS = ("moved", "previous")
 
 

@@ -6,6 +6,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = [
+    "History",
+    "noi",
+]
+
 #: Relative tolerance of the NOI definition (0.1 %).
 NOI_RTOL = 1e-3
 

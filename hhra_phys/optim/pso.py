@@ -9,6 +9,10 @@ import numpy as np
 from hhra_phys.errors import ParameterError
 from hhra_phys.optim.core import Optimiser, SeedLike, check_float
 
+__all__ = [
+    "PSO",
+]
+
 
 class PSO(Optimiser):
     """Global-best PSO with constant or linearly decreasing inertia, as in Mirjalili's code.

@@ -29,6 +29,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.integrate import solve_ivp
 
+__all__ = [
+    "cylinder_rhs",
+    "simulate_cylinder_reference",
+]
+
 #: Required entries of ``params`` and their units.
 PARAMETERS: dict[str, str] = {
     "A_p": "m^2",  # annulus area of each side (symmetric cylinder)

@@ -70,6 +70,17 @@ from scipy.integrate import solve_ivp
 from hhra_phys.data import Dataset
 from hhra_phys.excitation import irregular_steps, samples
 
+__all__ = [
+    "reference_state_names",
+    "reference_rhs",
+    "reference_output",
+    "simulate_reference",
+    "velocity_gain",
+    "reference_record",
+    "REFERENCE_GROUPS",
+    "EFFECT_NAMES",
+]
+
 RAD2DEG = 180.0 / math.pi
 
 #: The built-in rig's identifiable groups as printed in ``docs/model.md`` (table

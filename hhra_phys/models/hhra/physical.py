@@ -37,6 +37,10 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from hhra_phys.errors import ParameterError
 
+__all__ = [
+    "PhysicalParameters",
+]
+
 #: Which physical symbol :meth:`PhysicalParameters.from_groups` solves for, per group.
 SOLVED_BY_GROUP: dict[str, str] = {
     "g_torque": "J",

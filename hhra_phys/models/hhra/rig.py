@@ -30,6 +30,16 @@ from hhra_phys.models.hhra.physical import PhysicalParameters
 from hhra_phys.parts import Part
 from hhra_phys.simulate import Simulator
 
+__all__ = [
+    "default_input",
+    "angle_estimate",
+    "perturbed_physical",
+    "rig_model",
+    "simulate_rig",
+    "DEFAULT_AMPLITUDE_MA",
+    "DEFAULT_NOISE_DEG",
+]
+
 #: Default measurement noise of the rig's angle (standard deviation) [deg].
 DEFAULT_NOISE_DEG = 0.05
 #: Largest valve current step of the default experiment [mA].
