@@ -60,7 +60,8 @@ from hhra_phys.parts import (
     smooth_sign,
 )
 
-__all__ = ["EFFECTS", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL"]
+__all__ = ["EFFECTS", "LIBRARY", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL",
+           "output_offsets", "output_slope"]
 
 RAD2DEG = 180.0 / math.pi
 
@@ -531,6 +532,10 @@ class SensorOffset(Effect):
 
     def first_order(self, sig: Signals) -> np.ndarray:
         return np.full((sig.u.size, 1), 0.1 * self.y_scale)
+
+
+#: Names of the library's own effects (:data:`EFFECTS` also holds a user's registered ones).
+LIBRARY: tuple[str, ...] = tuple(EFFECTS)
 
 
 # --- structural checks ----------------------------------------------------------------
