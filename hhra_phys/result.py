@@ -192,6 +192,16 @@ class FitResult:
             self.__dict__["_model"] = cached
         return cached
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The live problem holds compiled code (ctypes handles) that cannot cross a
+        # process boundary: a pickled result (fit_many on an executor) carries its
+        # specification and rebuilds the model on the other side.
+        state = dict(self.__dict__)
+        state["problem"] = None
+        state.pop("_model", None)
+        state.pop("_sims", None)
+        return state
+
     def simulator(self, fs: float | None = None) -> Simulator:
         """A simulator of the fitted model at ``fs`` [Hz] (the fit's own when it matches)."""
         fs = float(fs or self.settings["fs"])

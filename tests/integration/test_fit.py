@@ -180,3 +180,16 @@ def test_fit_many_through_an_executor(clean):
                            refine="none")
     assert len(results) == 2
     assert results[0].seed == 0 and results[1].seed == 1
+
+
+def test_result_crosses_a_process_boundary_and_predicts_the_same():
+    """A result holds its live problem (compiled code); pickled, it rebuilds the model."""
+    import pickle
+
+    data = simulate_rig(seed=4, duration=4.0)
+    res = fit(data, pop_size=10, max_iter=3, seed=0)
+    assert res.problem is not None
+    back = pickle.loads(pickle.dumps(res))
+    assert back.problem is None and back.values == res.values
+    other = simulate_rig(seed=5, duration=2.0)
+    np.testing.assert_array_equal(back.predict(other), res.predict(other))
