@@ -7,8 +7,8 @@
     print(res.summary()); res.save("fit.json")
 
 The pipeline: split the record into estimation and validation parts; build a
-:class:`~hhra_phys.problem.Problem` (free groups, bounds, log coordinates,
-initial angle fitted); run a global optimiser of :mod:`hhra_phys.optim` over the
+:class:`~hhra_phys.problem.Problem` (free parameters, bounds, log coordinates,
+the initial values of the model's fitted states); run a global optimiser of :mod:`hhra_phys.optim` over the
 whole population at once through the compiled simulator; refine locally with
 IPOPT or NLopt on the least-squares cost with exact CasADi derivatives; compute
 Gauss-Newton confidence intervals; score estimation and validation data by
@@ -129,8 +129,9 @@ def fit(
         ``"nlopt:ALGORITHM"`` (e.g. ``"nlopt:LN_BOBYQA"``), a list of them run in
         turn, or ``"none"``.
     free, fixed, bounds, cost, initial_state
-        See :class:`~hhra_phys.problem.Problem` (default free set: all groups but
-        ``g_spring`` and ``g_load``; the initial angle is fitted).
+        See :class:`~hhra_phys.problem.Problem` (default free set: every parameter
+        but the model's ``held`` ones, for the HHRA ``g_spring`` and ``g_load``; the
+        initial values of the model's fitted states, the HHRA's angle, are fitted).
     split : float
         Fraction of the record used for estimation; the rest is validation.
     validation : Dataset, optional
