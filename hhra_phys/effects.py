@@ -376,7 +376,10 @@ class ValveDynamics(Effect):
     def first_order(self, sig: Signals) -> np.ndarray:
         tau = self.probe()["tau_spool"]
         a = math.exp(-sig.dt / tau)
-        lagged = sps.lfilter([1 - a], [1, -a], sig.u, zi=[a * sig.u[0]])[0]
+        # The spool at sample k has seen the held inputs up to k-1 (zero-order hold),
+        # starting at rest on u[0].
+        b, den = [0.0, 1 - a], [1.0, -a]
+        lagged = sps.lfilter(b, den, sig.u, zi=sps.lfilter_zi(b, den) * sig.u[0])[0]
         return (lagged - sig.u)[:, None]
 
 
