@@ -8,11 +8,11 @@
 
 The pipeline: split the record into estimation and validation parts; build a
 :class:`~hhra_phys.problem.Problem` (free parameters, bounds, log coordinates,
-the initial values of the model's fitted states); run a global optimiser of :mod:`hhra_phys.optim` over the
-whole population at once through the compiled simulator; refine locally with
-IPOPT or NLopt on the least-squares cost with exact CasADi derivatives; compute
-Gauss-Newton confidence intervals; score estimation and validation data by
-free-run simulation.
+the initial values of the model's fitted states); run a global optimiser of
+:mod:`hhra_phys.optim` over the whole population at once through the compiled
+simulator; refine locally with IPOPT or NLopt on the least-squares cost with
+exact CasADi derivatives; compute Gauss-Newton confidence intervals; score
+estimation and validation data by free-run simulation.
 
 H-GWO's ``lam``. The paper's mutation ``lam*X_alpha + F*(X_r1 - X_r2)`` with
 ``lam = 0.25`` pulls every mutant toward the coordinate origin (PAPER_NOTES
