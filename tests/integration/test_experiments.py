@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # each runs a script in a subprocess
+
 REPO = Path(__file__).resolve().parents[2]
 PUBLIC = REPO.parent / "shared" / "data"
 
