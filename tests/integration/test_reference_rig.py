@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from hhra_phys.effects import LIBRARY, make_effect
-from hhra_phys.model import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
 from hhra_phys.reference import (
     EFFECT_NAMES,
     REFERENCE_GROUPS,
