@@ -31,14 +31,13 @@ import numpy as np
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.model import GROUP_SPAN, Model
 from hhra_phys.models.hhra.physical import PhysicalParameters
+from hhra_phys.models.hydraulics import orifice_flow
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import (
     Context,
     Part,
     State,
     register_part,
-    smooth_sign,
-    smooth_signed_sqrt,
 )
 
 __all__ = [
@@ -101,9 +100,8 @@ class OrificeValve(Part):
 
     def apply(self, ctx: Context) -> None:
         cmd = ctx.signal("command", self.name)
-        p = ctx.x["p"]
-        drop = 1 - smooth_sign(cmd, self.sign_eps) * p
-        ctx.signals["flow"] = ctx.p["g_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
+        ctx.signals["flow"] = orifice_flow(cmd, ctx.x["p"], ctx.p["g_valve"], self.sign_eps,
+                                           self.sqrt_delta)
 
 
 @dataclass(frozen=True)
