@@ -612,7 +612,10 @@ def baseline(tests: tuple[str, ...], timeout: float) -> str | None:
         # an installed copy shadowing the temporary one would make every mutation survive
         if not probe.stdout.strip().startswith(str(copy)):
             return f"{PACKAGE} is not imported from the copy: {probe.stdout.strip()}"
-        proc = _pytest(copy, tests, timeout)
+        try:
+            proc = _pytest(copy, tests, timeout)
+        except subprocess.TimeoutExpired:
+            return f"the unmutated tests took longer than {timeout:g} s (raise --timeout)"
         if proc.returncode != 0:
             return f"unmutated tests fail: {_last_line(proc.stdout)}"
     return None
