@@ -136,10 +136,10 @@ def main(argv: list[str] | None = None) -> int:
         times = {k: math.inf for k in sims}
         for _ in range(args.repeats):
             for k, s in sims.items():
-                times[k] = min(times[k], _time(lambda s=s: s.simulate(u, P, x0=x0), 1))
+                times[k] = min(times[k], _time(lambda s=s, P=P: s.simulate(u, P, x0=x0), 1))
         width = next(iter(sims.values())).vector_width(args.pop)
-        lines.append(f"  {name:<9} " + ", ".join(f"{k}: {1e3 * v:.1f}" for k, v in times.items())
-                     + f"  (SIMD width {width})")
+        timed = ", ".join(f"{k}: {1e3 * v:.1f}" for k, v in times.items())
+        lines.append(f"  {name:<9} {timed}  (SIMD width {width})")
     print("\n".join(lines))
     if args.write:
         write_report(args.write, lines, argv)

@@ -94,7 +94,7 @@ RK4_ACCURACY = 0.25
 ROS4_ACCURACY = 0.25
 
 #: Fewest ROS4 substeps per sample for a model with a stiff mode.
-ROS4_MIN_STIFF = 4
+ROS4_MIN_STIFF = 8
 
 #: A real eigenvalue (``|Im| < 0.1 |lambda|``) with ``|lambda| * dt`` above this
 #: relaxes within a sample: ROS4 (A-stable, damping it) need not resolve it.
@@ -355,9 +355,9 @@ class Simulator:
         mod = np.abs(rest)
         stiff = (np.abs(rest.imag) < 0.1 * mod) & (mod * dt > STIFF_REAL)
         rho_ns = float(np.max(mod[~stiff])) if (~stiff).any() else 0.0
-        # A stiff mode is damped by R(-inf) = 1/3 per ROS4 step: at least 4 steps
-        # per sample (1/81) keep its transients after each friction reversal small
-        # (docs/performance.md: 2.7e-2 deg with 2, 2.2e-3 with 4 on the rig).
+        # A stiff mode is damped by R(-inf) = 1/3 per ROS4 step, and each friction
+        # reversal is resolved to first order only: at least 8 steps per sample
+        # (docs/performance.md: 2.7e-2 deg with 2, 2e-3 to 1e-2 with 4, 3e-4 with 8).
         n_ros = max(ROS4_MIN_STIFF if stiff.any() else 2,
                     math.ceil(rho_ns * dt / ROS4_ACCURACY))
         if not math.isfinite(rho_rest) or not math.isfinite(rho_pts):
@@ -365,9 +365,13 @@ class Simulator:
         figures = (f"spectral radius at rest {rho_rest:.4g} 1/s, over the check points "
                    f"{rho_pts:.4g} 1/s, of the non-stiff modes {rho_ns:.4g} 1/s")
         if method is None:
-            method = "rk4" if n_rk4 <= RK4_MAX_SUBSTEPS else "ros4"
+            # ROS4 pays off only when stiff real modes are what RK4 would resolve.
+            method = "rk4" if n_rk4 <= RK4_MAX_SUBSTEPS or n_ros >= n_rk4 else "ros4"
             if method == "rk4":
-                why = f"not stiff (RK4 needs {n_rk4} substeps): {figures}"
+                why = (f"not stiff (RK4 needs {n_rk4} substeps"
+                       + (")" if n_rk4 <= RK4_MAX_SUBSTEPS else
+                          ", its fastest modes are not real: ROS4 would need as many)")
+                       + f": {figures}")
             else:
                 why = (f"stiff (RK4 would need {n_rk4} substeps, more than "
                        f"{RK4_MAX_SUBSTEPS}): {figures}")
