@@ -360,6 +360,7 @@ def _result(
         "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
         "fs": problem.sim.fs,
         "substeps": problem.sim.substeps,
+        "method": problem.sim.method,
         "data": {"name": data.name, "source": data.source, "n": len(data),
                  "n_est": len(problem.data), "n_val": len(val) if val is not None else 0},
         "seconds": seconds,

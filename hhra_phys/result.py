@@ -210,8 +210,12 @@ class FitResult:
             return pr.sim
         sims = self.__dict__.setdefault("_sims", {})
         if fs not in sims:
+            # The fit's method and substeps (a result saved before methods existed
+            # used RK4 or the automatic choice); a single parameter vector is still
+            # refined if the stability check fails for it (Simulator.for_parameters).
             sims[fs] = Simulator(self.model, fs=fs,
-                                 substeps=self.settings.get("substeps", "auto"))
+                                 substeps=self.settings.get("substeps", "auto"),
+                                 method=self.settings.get("method", "auto"))
         return sims[fs]
 
     def parameter_vector(self) -> np.ndarray:
