@@ -25,7 +25,8 @@ the covariance of the model parameters with it marginalised, ``C = [F^-1]_MM``:
 
 All are minimised. Robustness to the fit's own uncertainty: the criterion is
 averaged over the fitted values and ``draws`` parameter sets drawn from the
-fit's covariance (seeded).
+fit's covariance (seeded, clipped to the fit's box; a draw whose simulation
+diverges for a candidate is skipped for it).
 
 Limits (all checked on the final design, :meth:`Design.check`): ``|u| <=
 max_input`` (default: the largest ``|u|`` of the fitted record), every hold
@@ -202,7 +203,10 @@ class InformationModel:
                        start={n: vals[n] for n in self.free})
 
     def draws(self, n: int, seed: int | np.random.Generator | None) -> list[dict[str, float]]:
-        """The fitted values and ``n`` parameter sets drawn from the fit's covariance."""
+        """The fitted values and ``n`` parameter sets drawn from the fit's covariance.
+
+        Drawn in the fitting coordinates and clipped to the fit's box.
+        """
         out = [dict(self.values)]
         if n <= 0:
             return out
@@ -210,9 +214,11 @@ class InformationModel:
         w, V = np.linalg.eigh(self.cov_z)
         L = V * np.sqrt(np.clip(w, 0, None))
         m = len(self.free)
+        box = self._coords.bounds_z()[:m]
         for _ in range(n):
             z = self.z_hat.copy()
-            z[:m] += L @ rng.standard_normal(m)
+            # Within the fit's box: a weakly determined fit's covariance reaches far outside.
+            z[:m] = np.clip(z[:m] + L @ rng.standard_normal(m), box[:, 0], box[:, 1])
             v = self._coords.from_z(z)[:m]
             out.append({**self.values, **dict(zip(self.free, map(float, v), strict=True))})
         return out
@@ -379,20 +385,22 @@ def design_input(
     counter = {"n": 0}
 
     def evaluate(u: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(robust criterion, peak |y|, the input actually used) with one rescale to fit."""
+        """(robust criterion, peak |y|, the input actually used) with one rescale to fit.
+
+        Draws whose simulation diverges are skipped; the fitted values must not.
+        """
         u = np.clip(u, -max_input, max_input)
         for attempt in range(2):
             counter["n"] += 1
-            crits, peak = [], 0.0
-            for vals in points:
-                cov, pk = info.covariance(u, vals)
-                peak = max(peak, pk)
-                if peak > output_limit and attempt == 0:
-                    break
-                crits.append(criterion_value(cov, criterion))
-            if peak <= output_limit and crits:
+            results = [info.covariance(u, vals) for vals in points]
+            if not math.isfinite(results[0][1]):
+                return math.inf, math.inf, u
+            ok = [(criterion_value(c, criterion), pk) for c, pk in results if math.isfinite(pk)]
+            peak = max(pk for _, pk in ok)
+            if peak <= output_limit:
+                crits = [c for c, _ in ok]
                 return float(np.mean(crits)), peak, u
-            if attempt == 0 and np.isfinite(peak):
+            if attempt == 0:
                 u = u * (0.97 * output_limit / peak)
         return math.inf, peak, u
 
