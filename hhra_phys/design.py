@@ -63,7 +63,9 @@ __all__ = [
     "FAMILIES",
     "Design",
     "InformationModel",
+    "criterion_value",
     "design_input",
+    "shortest_hold",
 ]
 
 #: Design criteria (module docstring).

@@ -45,10 +45,12 @@ from hhra_phys.simulate import Simulator
 
 __all__ = [
     "MultiProblem",
+    "fit_records",
     "per_record_params",
-    "record_name",
-    "split_record_name",
     "pooled_score",
+    "record_name",
+    "records_result",
+    "split_record_name",
 ]
 
 _REC = re.compile(r"^(?P<base>.+)_rec(?P<k>[1-9][0-9]*)$")
