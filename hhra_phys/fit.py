@@ -85,7 +85,7 @@ def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
 
 
 def fit(
-    data: Dataset | None = None,
+    data: Dataset | Sequence[Dataset] | None = None,
     model: Model | None = None,
     *,
     optimizer: str = "hgwo",
@@ -94,7 +94,7 @@ def fit(
     fixed: Mapping[str, float] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     split: float = 0.5,
-    validation: Dataset | None = None,
+    validation: Dataset | Sequence[Dataset] | None = None,
     cost: str = "itae",
     initial_state: str = "fit",
     pop_size: int = 100,
@@ -110,13 +110,19 @@ def fit(
     problem: Problem | None = None,
     seed_population: bool | None = None,
     intervals: str = "linear",
+    per_record: Sequence[str] | None = None,
 ) -> FitResult:
-    """Fit a physical model to a record.
+    """Fit a physical model to a record, or to several records at once.
 
     Parameters
     ----------
-    data : Dataset, optional
-        The whole record (default: the built-in simulated rig, seed 0).
+    data : Dataset or sequence of Dataset, optional
+        The whole record (default: the built-in simulated rig, seed 0), or a list
+        of records fitted jointly (:mod:`hhra_phys.multi`): shared parameters,
+        per-record initial states (``x0_<state>_rec<k>``) and per-record
+        parameters, each record split by ``split`` unless ``validation`` is
+        given; metrics per record in :attr:`FitResult.records`, pooled in
+        :attr:`FitResult.metrics`.
     model : Model, optional
         Model to fit (default: :func:`default_model`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
@@ -134,8 +140,10 @@ def fit(
         initial values of the model's fitted states, the HHRA's angle, are fitted).
     split : float
         Fraction of the record used for estimation; the rest is validation.
-    validation : Dataset, optional
-        Separate validation record (then ``data`` is all estimation).
+    validation : Dataset or sequence of Dataset, optional
+        Separate validation record(s) (then ``data`` is all estimation); with
+        several records, whole validation records have their initial state
+        estimated and the first record's per-record parameters.
     pop_size, max_iter : int
         Global search population and iterations (paper: 100 and 200).
     seed : int or None
@@ -169,6 +177,9 @@ def fit(
         95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
         profile-likelihood intervals (:mod:`hhra_phys.likelihood`; a few seconds more,
         better founded along curved, weakly determined directions).
+    per_record : sequence of str, optional
+        With several records: free model parameters estimated once per record
+        (default: those the model's parts declare, such as a sensor offset).
 
     Returns
     -------
@@ -183,6 +194,27 @@ def fit(
         data = simulate_rig(seed=0)
     if optimizer not in OPTIMIZERS:
         raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
+    if isinstance(data, (list, tuple)):
+        from hhra_phys.multi import fit_records
+
+        if not 0 < split <= 1:
+            raise ParameterError(f"split must be in (0, 1], got {split}")
+        if problem is None:
+            problem, val_parts, whole_val = fit_records(
+                data, model, validation, split,
+                {"cost": cost, "free": free, "fixed": fixed, "bounds": bounds,
+                 "initial_state": initial_state, "start": start}, per_record)
+        else:
+            val_parts, whole_val = [None] * len(problem.records), list(validation or [])
+        z, stages, history = _search_and_refine(
+            problem, optimizer, refine, pop_size, max_iter, seed, lam, options,
+            refine_options, start, seed_population, progress, callback)
+        from hhra_phys.multi import records_result
+
+        return records_result(problem, z, stages, history, val_parts, whole_val,
+                              _settings(problem, optimizer, refine, pop_size, max_iter, lam,
+                                        split, time.perf_counter() - t_start),
+                              seed, datasheet, intervals, t_start)
     if validation is None:
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
@@ -198,7 +230,30 @@ def fit(
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                           bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                           start=start)
-    model = problem.model
+    z, stages, history = _search_and_refine(
+        problem, optimizer, refine, pop_size, max_iter, seed, lam, options, refine_options,
+        start, seed_population, progress, callback)
+    return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
+                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
+                   intervals)
+
+
+def _search_and_refine(
+    problem: Any,
+    optimizer: str,
+    refine: str | Sequence[str] | None,
+    pop_size: int,
+    max_iter: int,
+    seed: int | None,
+    lam: float,
+    options: Mapping[str, Any] | None,
+    refine_options: Mapping[str, Any] | None,
+    start: Mapping[str, float] | None,
+    seed_population: bool | None,
+    progress: bool,
+    callback: Callable[[Any], bool | None] | None,
+) -> tuple[np.ndarray, list[Stage], list[float]]:
+    """Global search then refiners on a problem (one record or stacked); (z, stages, history)."""
     stages: list[Stage] = []
     history: list[float] = []
     z_start = problem.to_z(problem.start_values())
@@ -232,9 +287,7 @@ def fit(
                               **{k: v for k, v in ropts.items() if k in keys})
         stages.append(st)
         z = st.z
-    return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
-                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
-                   intervals)
+    return z, stages, history
 
 
 def _int_or_none(x: Any) -> int | None:
@@ -244,31 +297,15 @@ def _int_or_none(x: Any) -> int | None:
         return None
 
 
-def _result(
-    problem: Problem,
-    z: np.ndarray,
-    stages: list[Stage],
-    history: list[float],
-    val: Dataset | None,
-    data: Dataset,
-    optimizer: str,
-    refine: Any,
-    pop_size: int,
-    max_iter: int,
-    seed: int | None,
-    lam: float,
-    split: float,
-    datasheet: Any | None,
-    seconds: float,
-    intervals: str = "linear",
-) -> FitResult:
-    model = problem.model
-    values_free = problem.from_z(z)
-    P = problem.full(values_free)
-    values = model.params.as_dict(P)
-    units = {p.name: p.unit for p in model.params}
-    units.update({p.name: p.unit for p in problem.free_params})
+def _intervals(
+    problem: Any, z: np.ndarray, intervals: str
+) -> tuple[dict[str, tuple[float, float]], dict[str, float], np.ndarray, list[str],
+           dict[str, Any]]:
+    """95 % intervals, standard deviations, correlation, warnings and interval info at ``z``.
 
+    Works for a one-record :class:`Problem` and a stacked
+    :class:`~hhra_phys.multi.MultiProblem` alike (intervals from all records).
+    """
     # Uncertainty from the exact residual Jacobian at the optimum.
     r, J = CompiledLeastSquares(problem)(z)
     cov, corr, warnings = uncertainty(J, r, problem.free_names)
@@ -327,6 +364,34 @@ def _result(
                 f"{name} is poorly determined by these data: its 95 % interval spans "
                 f"{decades:.3g} decades"
             )
+    return ci95, std, corr, warnings, interval_info
+
+
+def _result(
+    problem: Problem,
+    z: np.ndarray,
+    stages: list[Stage],
+    history: list[float],
+    val: Dataset | None,
+    data: Dataset,
+    optimizer: str,
+    refine: Any,
+    pop_size: int,
+    max_iter: int,
+    seed: int | None,
+    lam: float,
+    split: float,
+    datasheet: Any | None,
+    seconds: float,
+    intervals: str = "linear",
+) -> FitResult:
+    model = problem.model
+    values_free = problem.from_z(z)
+    P = problem.full(values_free)
+    values = model.params.as_dict(P)
+    units = {p.name: p.unit for p in model.params}
+    units.update({p.name: p.unit for p in problem.free_params})
+    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
     y_est = problem.simulate_values(values_free)
@@ -346,25 +411,9 @@ def _result(
     physical, why = model.physical_view(values, datasheet, data.metadata)
     if why:
         warnings.append(why)
-    settings = {
-        "optimizer": optimizer,
-        "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
-        "pop_size": pop_size,
-        "max_iter": max_iter,
-        "cost": problem.cost,
-        "lam": lam,
-        "split": split,
-        "initial_state": problem.initial_state,
-        "free": problem.free_names,
-        "fixed": problem.fixed,
-        "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
-        "fs": problem.sim.fs,
-        "substeps": problem.sim.substeps,
-        "method": problem.sim.method,
-        "data": {"name": data.name, "source": data.source, "n": len(data),
-                 "n_est": len(problem.data), "n_val": len(val) if val is not None else 0},
-        "seconds": seconds,
-    }
+    settings = _settings(problem, optimizer, refine, pop_size, max_iter, lam, split, seconds)
+    settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
+                        "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
     return FitResult(
         model_spec=model.to_json(),
         values=values,
@@ -385,6 +434,28 @@ def _result(
         intervals=interval_info,
         problem=problem,
     )
+
+
+def _settings(problem: Any, optimizer: str, refine: Any, pop_size: int, max_iter: int,
+              lam: float, split: float, seconds: float) -> dict[str, Any]:
+    """What reproduces a fit (without the data description)."""
+    return {
+        "optimizer": optimizer,
+        "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
+        "pop_size": pop_size,
+        "max_iter": max_iter,
+        "cost": problem.cost,
+        "lam": lam,
+        "split": split,
+        "initial_state": problem.initial_state,
+        "free": problem.free_names,
+        "fixed": problem.fixed,
+        "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
+        "fs": problem.sim.fs,
+        "substeps": problem.sim.substeps,
+        "method": problem.sim.method,
+        "seconds": seconds,
+    }
 
 
 def _score(ds: Dataset, y_sim: np.ndarray) -> dict[str, float]:

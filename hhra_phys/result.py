@@ -179,6 +179,7 @@ class FitResult:
     created: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
     intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
     problem: Any = field(default=None, repr=False, compare=False)
+    records: list[dict[str, Any]] = field(default_factory=list)
 
     # -- reuse ------------------------------------------------------------------------
     @property
@@ -288,13 +289,25 @@ class FitResult:
                 "free": name in self.free,
             }
         for name in self.free:
-            if name not in out:  # initial-state parameters
+            if name not in out:  # initial-state and per-record parameters
                 out[name] = {"value": self.x0_param(name), "unit": self.units.get(name, ""),
                              "ci95": list(self.ci95[name]), "free": True}
         return out
 
     def x0_param(self, name: str) -> float:
-        """Value of a fitted initial-state parameter ``x0_<state>``."""
+        """Value of a fitted initial-state parameter ``x0_<state>``.
+
+        Also of a per-record parameter of a multi-record fit,
+        ``x0_<state>_rec<k>`` or ``<name>_rec<k>`` (record ``k`` from 1).
+        """
+        from hhra_phys.multi import split_record_name
+
+        base, k = split_record_name(name)
+        if k is not None and k <= len(self.records):
+            rec = self.records[k - 1]
+            if base.startswith("x0_") and base[3:] in rec.get("x0", {}):
+                return float(rec["x0"][base[3:]])
+            return float(rec["values"][base])
         return float(self.x0[name[3:]])
 
     # -- reporting ----------------------------------------------------------------------------
@@ -341,6 +354,7 @@ class FitResult:
             "model": self.model_spec,
             "created": self.created,
             "intervals": self.intervals,
+            **({"records": self.records} if self.records else {}),
         }
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
@@ -383,6 +397,7 @@ class FitResult:
             physical=d.get("physical"),
             created=d.get("created", ""),
             intervals=d.get("intervals", {"method": "linear"}),
+            records=list(d.get("records", [])),
         )
 
 

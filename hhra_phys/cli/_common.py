@@ -12,12 +12,14 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
 
 
-def add_data_arguments(p: argparse.ArgumentParser) -> None:
-    """``DATA`` plus the column options of the loaders."""
+def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
+    """``DATA`` (or ``DATA ...`` with ``several``) plus the column options of the loaders."""
     p.add_argument(
-        "data", nargs="?", default=None, metavar="DATA",
+        "data", nargs="*" if several else "?", default=None, metavar="DATA",
         help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
-             "record in ../shared/data, or nothing for the built-in simulated rig",
+             "record in ../shared/data, or nothing for the built-in simulated rig"
+             + ("; several records are fitted jointly (shared parameters, an initial state "
+                "per record)" if several else ""),
     )
     p.add_argument("--time-col", default=None, help="time column / variable (CSV default 't')")
     p.add_argument("--input-col", default=None, help="input column / variable (CSV default 'u')")
@@ -63,6 +65,19 @@ def load_data(args: argparse.Namespace) -> Dataset:
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
     return load(args.data, **kw)
+
+
+def load_records(args: argparse.Namespace, names: list[str] | None = None) -> list[Dataset]:
+    """Every record named (``args.data`` as a list, or ``names``), with the same column options.
+
+    No name gives the one record :func:`load_data` gives for none (the simulated rig).
+    """
+    items = names if names is not None else args.data
+    if isinstance(items, str) or items is None:
+        items = [items]
+    if not items:
+        items = [None]
+    return [load_data(argparse.Namespace(**{**vars(args), "data": item})) for item in items]
 
 
 def parse_fixed(items: list[str] | None) -> dict[str, float]:

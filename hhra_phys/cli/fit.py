@@ -10,7 +10,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
-    load_data,
+    load_records,
     model_for,
     parse_fixed,
     parse_names,
@@ -30,7 +30,7 @@ def register(subparsers: Any) -> None:
             "95 %% confidence intervals and free-run scores on estimation and validation data."
         ),
     )
-    add_data_arguments(p)
+    add_data_arguments(p, several=True)
     add_model_arguments(p)
     p.add_argument("--optimizer", choices=OPTIMIZERS, default="hgwo", help="global search")
     p.add_argument("--refine", default="ipopt",
@@ -40,7 +40,11 @@ def register(subparsers: Any) -> None:
                         "holds, for the HHRA g_spring and g_load)")
     p.add_argument("--fix", action="extend", nargs="+", default=None, metavar="NAME=VALUE",
                    help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable)")
-    p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
+    p.add_argument("--split", type=float, default=0.5,
+                   help="estimation fraction of every record (default 0.5)")
+    p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
+                   help="whole records for validation (same column options); then every DATA "
+                        "record is used for estimation")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
     p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
@@ -66,31 +70,51 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check_outputs([args.json], args.overwrite, figures=[args.plot])
-        data = load_data(args)
+        records = load_records(args)
+        validation = load_records(args, args.validate) if args.validate else None
+        data = records[0]
         model, auto_bounds = model_for(args, data, args.valve)
         free = parse_names(args.free)
         fixed = parse_fixed(args.fix)
         chosen = set(free) if free is not None else set(default_free(model, fixed))
         bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
+        for other in records[1:] + (validation or []):  # the widest automatic box of all
+            for k, (lo, hi) in model_for(args, other, args.valve)[1].items():
+                if k in bounds:
+                    bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
         refine = [r for r in args.refine.split("+")] if args.refine else None
-        print(f"fitting {data.name or data.source or 'record'} ({len(data)} samples) with "
-              f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}",
-              file=sys.stderr)
-        res = fit(data, model, optimizer=args.optimizer, refine=refine,
-                  free=free, fixed=fixed, bounds=bounds, split=args.split,
+        what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
+                if len(records) > 1 else
+                f"{data.name or data.source or 'record'} ({len(data)} samples)")
+        print(f"fitting {what} with {args.optimizer} (pop {args.pop}, {args.iters} it.) + "
+              f"{args.refine}", file=sys.stderr)
+        if len(records) == 1 and (validation is None or len(validation) == 1):
+            target, val_arg = data, (validation[0] if validation else None)
+        else:  # several records, or one record with several validation records
+            target, val_arg = records, validation
+        several = isinstance(target, list)
+        res = fit(target, model, optimizer=args.optimizer, refine=refine, free=free,
+                  fixed=fixed, bounds=bounds, split=args.split, validation=val_arg,
                   seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
                   lam=args.lam, progress=not args.quiet, intervals=args.intervals)
     except (HHRAError, FileExistsError) as exc:
         print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
         return 2
     print(res.summary())
+    for rec in res.records:
+        parts = [f"{label} RMSE {rec[key]['rmse']:.4g}"
+                 for key, label in (("est", "estimation"), ("val", "validation")) if rec[key]]
+        print(f"record {rec['name']}: {', '.join(parts)}")
     for st in res.stages:
         print(f"stage {st['name']:<16} cost {st['cost_before']:.6g} -> {st['cost']:.6g}, "
               f"{st['nfev']} evaluations, {st['seconds']:.2f} s")
     if args.json:
         print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
     if args.plot:
-        print(f"wrote {plot_result(res, data, args.plot, args.split, args.overwrite)}")
+        plotted = (plot_records(res, records, validation, args.plot, args.split, args.overwrite)
+                   if several or validation else
+                   plot_result(res, data, args.plot, args.split, args.overwrite))
+        print(f"wrote {plotted}")
     return 0
 
 
@@ -102,4 +126,21 @@ def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -
     parts = [("estimation", est, res.predict(est))]
     if val is not None:
         parts.append(("validation", val, res.predict(val)))
+    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)
+
+
+def plot_records(res: Any, records: list[Any], validation: list[Any] | None, path: str,
+                 split: float, overwrite: bool) -> Any:
+    """Figure of a fit of several records: each record's parts, then the validation records."""
+    from hhra_phys.plots import plot_fit
+
+    parts = []
+    for ds in records:
+        pieces = ([("", ds)] if validation or split >= 1 else
+                  list(zip(("estimation", "validation"), ds.split(split), strict=True)))
+        for label, piece in pieces:
+            name = f"{ds.name or ds.source or 'record'} {label}".strip()
+            parts.append((name, piece, res.predict(piece)))
+    for ds in validation or []:
+        parts.append((f"{ds.name or ds.source or 'record'} validation", ds, res.predict(ds)))
     return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)

@@ -229,7 +229,9 @@ class PressureOutput(Part):
     ``p_s``; for rescaled raw data, whatever scale the data has), signed: a
     negative gain means the sensor's positive direction is the other chamber's
     (so the model needs no assumption on the sign convention of the data).
-    ``p_offset`` is the sensor's zero. Both are linear-scale parameters.
+    ``p_offset`` is the sensor's zero. Both are linear-scale parameters. The zero
+    drifts between runs, so a fit of several records estimates ``p_offset`` once
+    per record (``per_record``, :mod:`hhra_phys.multi`).
 
     With only a pressure measured, the angle's scale is not observable: scaling
     ``theta`` by ``b`` and dividing ``g_compress`` by ``b`` (and multiplying
@@ -242,6 +244,7 @@ class PressureOutput(Part):
     offset_limit: float = 1e3
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "pressure_output"
+    per_record: ClassVar[tuple[str, ...]] = ("p_offset",)
 
     @property
     def parameters(self) -> Sequence[Parameter]:
