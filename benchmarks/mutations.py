@@ -442,8 +442,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "model-orifice-sign-of-p",
         "orifice law takes the sign of the pressure instead of the valve current",
-        "smooth_sign(cmd, self.sign_eps) * p",
-        "smooth_sign(p, self.sign_eps) * p",
+        "drop = 1 - smooth_sign(cmd, sign_eps) * p",
+        "drop = 1 - smooth_sign(p, sign_eps) * p",
         MODEL_TESTS,
     ),
     _m(
@@ -471,8 +471,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "effect-friction-sign",
         "Coulomb friction pushes along the motion",
-        'ctx.add_rate("omega", -level * smooth_sign(w, width))',
-        'ctx.add_rate("omega", level * smooth_sign(w, width))',
+        "rate = -level * smooth_sign(w, self._width(level, ctx.p))",
+        "rate = level * smooth_sign(w, self._width(level, ctx.p))",
         EFFECT_TESTS,
     ),
     _m(
