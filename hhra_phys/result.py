@@ -180,6 +180,13 @@ class FitResult:
     intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
     problem: Any = field(default=None, repr=False, compare=False)
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The live problem holds compiled code (ctypes) and cannot travel to another
+        # process; the result rebuilds its model from ``model_spec`` there.
+        state = dict(self.__dict__)
+        state["problem"] = None
+        return state
+
     # -- reuse ------------------------------------------------------------------------
     @property
     def model(self) -> Model:

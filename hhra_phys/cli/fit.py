@@ -15,8 +15,9 @@ from hhra_phys.cli._common import (
     parse_fixed,
     parse_names,
 )
+from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
-from hhra_phys.fit import OPTIMIZERS, fit
+from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
 
 
 def register(subparsers: Any) -> None:
@@ -42,6 +43,10 @@ def register(subparsers: Any) -> None:
                    help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable)")
     p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    p.add_argument("--starts", type=int, default=1, metavar="K",
+                   help="multi-start: K fits with seeds SEED..SEED+K-1, the lowest estimation "
+                        "error kept (default 1)")
+    add_cluster_arguments(p, "the starts")
     p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
@@ -73,13 +78,20 @@ def run(args: argparse.Namespace) -> int:
         chosen = set(free) if free is not None else set(default_free(model, fixed))
         bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
         refine = [r for r in args.refine.split("+")] if args.refine else None
+        if args.starts < 1:
+            raise HHRAError(f"--starts must be >= 1, got {args.starts}")
         print(f"fitting {data.name or data.source or 'record'} ({len(data)} samples) with "
-              f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}",
-              file=sys.stderr)
-        res = fit(data, model, optimizer=args.optimizer, refine=refine,
-                  free=free, fixed=fixed, bounds=bounds, split=args.split,
-                  seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
-                  lam=args.lam, progress=not args.quiet, intervals=args.intervals)
+              f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}"
+              + (f", {args.starts} starts" if args.starts > 1 else ""), file=sys.stderr)
+        with executor(args.workers, args.dask) as ex:
+            results = fit_many(
+                [data], seeds=range(args.seed, args.seed + args.starts), executor=ex,
+                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
+                bounds=bounds, split=args.split, pop_size=args.pop, max_iter=args.iters,
+                cost=args.cost, lam=args.lam,
+                progress=not args.quiet and args.starts == 1 and ex is None,
+                intervals=args.intervals)
+        res = best_of(results)
     except (HHRAError, FileExistsError) as exc:
         print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
         return 2
