@@ -87,7 +87,8 @@ def test_loop_finds_the_hidden_effect(name):
     after = res.final.metrics["val"]["rmse"]
     assert after <= before / 5 or after <= 1.5 * NOISE, (before, after)
     step = next(s for s in res.steps if s.accepted)
-    assert step.evidence["score"] > 0 and step.val["rmse"] == pytest.approx(after)
+    # The accepted candidate is polished after its (capped) refit: same or better.
+    assert step.evidence["score"] > 0 and after <= step.val["rmse"] * 1.001
 
 
 def test_two_hidden_effects_are_both_found():
