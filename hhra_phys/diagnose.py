@@ -336,12 +336,17 @@ def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarr
 
 
 def _sensitivities(problem: Problem, values: np.ndarray, y0: np.ndarray) -> np.ndarray:
-    """Finite-difference output sensitivities to the free parameters, (N, n_free)."""
-    z = problem.to_z(values)
-    h = 1e-4
-    Z = z[None, :] + h * np.eye(z.size)
-    Y = problem.simulate_values(problem.from_z(Z))
-    J = (Y - y0[None, :]).T / h
+    """Output sensitivities to the free parameters in fitting coordinates, (N, n_free).
+
+    The exact Jacobian of the discretised model (the refiners' compiled forward
+    sensitivities, :class:`~hhra_phys.refine.CompiledLeastSquares`): the fit has
+    already built it, so no population simulator is compiled for the analysis.
+    ``y0`` (the fitted output) is not needed and kept for the signature.
+    """
+    from hhra_phys.refine import CompiledLeastSquares
+
+    _, J = CompiledLeastSquares(problem)(problem.to_z(values))
+    J = np.array(J, dtype=float)
     J[~np.isfinite(J)] = 0.0
     return J
 

@@ -15,8 +15,9 @@ from hhra_phys.cli._common import (
     parse_fixed,
     parse_names,
 )
+from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
-from hhra_phys.fit import OPTIMIZERS, fit
+from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
 
 
 def register(subparsers: Any) -> None:
@@ -46,6 +47,10 @@ def register(subparsers: Any) -> None:
                    help="whole records for validation (same column options); then every DATA "
                         "record is used for estimation")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    p.add_argument("--starts", type=int, default=1, metavar="K",
+                   help="multi-start: K fits with seeds SEED..SEED+K-1, the lowest estimation "
+                        "error kept (default 1)")
+    add_cluster_arguments(p, "the starts")
     p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
@@ -83,20 +88,28 @@ def run(args: argparse.Namespace) -> int:
                 if k in bounds:
                     bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
         refine = [r for r in args.refine.split("+")] if args.refine else None
+        if args.starts < 1:
+            raise HHRAError(f"--starts must be >= 1, got {args.starts}")
         what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
                 if len(records) > 1 else
                 f"{data.name or data.source or 'record'} ({len(data)} samples)")
         print(f"fitting {what} with {args.optimizer} (pop {args.pop}, {args.iters} it.) + "
-              f"{args.refine}", file=sys.stderr)
+              f"{args.refine}" + (f", {args.starts} starts" if args.starts > 1 else ""),
+              file=sys.stderr)
         if len(records) == 1 and (validation is None or len(validation) == 1):
             target, val_arg = data, (validation[0] if validation else None)
         else:  # several records, or one record with several validation records
             target, val_arg = records, validation
         several = isinstance(target, list)
-        res = fit(target, model, optimizer=args.optimizer, refine=refine, free=free,
-                  fixed=fixed, bounds=bounds, split=args.split, validation=val_arg,
-                  seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
-                  lam=args.lam, progress=not args.quiet, intervals=args.intervals)
+        with executor(args.workers, args.dask) as ex:
+            results = fit_many(
+                [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
+                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
+                bounds=bounds, split=args.split, validation=val_arg, pop_size=args.pop,
+                max_iter=args.iters, cost=args.cost, lam=args.lam,
+                progress=not args.quiet and args.starts == 1 and ex is None,
+                intervals=args.intervals)
+        res = best_of(results)
     except (HHRAError, FileExistsError) as exc:
         print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
         return 2

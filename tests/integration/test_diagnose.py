@@ -70,7 +70,10 @@ def test_output_delay_finds_a_fractional_lag():
 def test_clean_record_adds_nothing():
     res = _run(_record({}), max_effects=2)
     assert res.chosen == []
-    assert res.steps and not any(s.accepted for s in res.steps)
+    assert not any(s.accepted for s in res.steps)
+    # The selection residual of the clean fit is at the noise level: the loop stops
+    # there instead of refitting candidates (or refits them and accepts none).
+    assert res.steps or "noise level" in res.settings["stop"]
 
 
 @pytest.mark.slow
@@ -86,7 +89,8 @@ def test_loop_finds_the_hidden_effect(name):
     after = res.final.metrics["val"]["rmse"]
     assert after <= before / 5 or after <= 1.5 * NOISE, (before, after)
     step = next(s for s in res.steps if s.accepted)
-    assert step.evidence["score"] > 0 and step.val["rmse"] == pytest.approx(after)
+    # The accepted candidate is polished after its (capped) refit: same or better.
+    assert step.evidence["score"] > 0 and after <= step.val["rmse"] * 1.001
 
 
 @pytest.mark.slow
