@@ -181,13 +181,6 @@ class FitResult:
     problem: Any = field(default=None, repr=False, compare=False)
     records: list[dict[str, Any]] = field(default_factory=list)
 
-    def __getstate__(self) -> dict[str, Any]:
-        # The live problem holds compiled code (ctypes) and cannot travel to another
-        # process; the result rebuilds its model from ``model_spec`` there.
-        state = dict(self.__dict__)
-        state["problem"] = None
-        return state
-
     # -- reuse ------------------------------------------------------------------------
     @property
     def model(self) -> Model:
