@@ -45,7 +45,8 @@ METRICS_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py"
 MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
                "tests/integration/test_reference_rig.py")
 EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
-LOOP_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_diagnose.py")
+LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model.py",
+              "tests/integration/test_diagnose.py")
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
 
@@ -510,6 +511,20 @@ MUTATIONS: tuple[Mutation, ...] = (
         "a candidate is accepted when it makes validation worse by less than the margin",
         "gain_ok = vr <= (1 - margin) * rmse_cur",
         "gain_ok = vr <= (1 + margin) * rmse_cur",
+        LOOP_TESTS,
+    ),
+    _m(
+        "loop-criterion-ignored",
+        "the information criterion no longer has to agree",
+        "crit_ok = step.criterion < crit_cur",
+        "crit_ok = True",
+        LOOP_TESTS,
+    ),
+    _m(
+        "loop-no-noise-allowance",
+        "gains within what noise allows are accepted",
+        "beyond_ok = rmse_cur ** 2 - vr ** 2 > allowance",
+        "beyond_ok = True",
         LOOP_TESTS,
     ),
     _m(
