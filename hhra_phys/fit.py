@@ -29,12 +29,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
+from hhra_phys.interrupt import interruptible
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
@@ -44,7 +46,9 @@ from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_n
 from hhra_phys.result import FitResult, uncertainty
 
 __all__ = [
+    "MAX_WIDEN_DECADES",
     "OPTIMIZERS",
+    "at_edges",
     "default_model",
     "fit",
     "fit_many",
@@ -110,6 +114,8 @@ def fit(
     problem: Problem | None = None,
     seed_population: bool | None = None,
     intervals: str = "linear",
+    default_bounds: Mapping[str, tuple[float, float]] | None = None,
+    widen_bounds: bool = True,
 ) -> FitResult:
     """Fit a physical model to a record.
 
@@ -168,12 +174,31 @@ def fit(
         95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
         profile-likelihood intervals (:mod:`hhra_phys.likelihood`; a few seconds more,
         better founded along curved, weakly determined directions).
+    default_bounds : dict, optional
+        ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
+        boxes of a record in sample units); unlike ``bounds`` they may be widened.
+    widen_bounds : bool
+        When a log-scaled free group ends at the edge of its default box (the model's,
+        or ``default_bounds``), widen that side by a decade (at most
+        :data:`MAX_WIDEN_DECADES`) and refit; the result's warnings and
+        ``settings["widened"]`` say so. Groups with explicit ``bounds`` and fits of a
+        given ``problem`` are never widened.
 
     Returns
     -------
     FitResult
+        ``status`` is ``"diverged"`` (with a warning) when the fitted model's
+        simulation does not stay finite; intervals that cannot be computed are
+        ``(nan, nan)`` and listed in ``intervals["undetermined"]``.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        On Ctrl-C anywhere in the search or the refiners (also inside IPOPT and NLopt
+        callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
     t_start = time.perf_counter()
+    widen_bounds = widen_bounds and problem is None
     if intervals not in ("linear", "profile"):
         raise ParameterError(f"intervals must be 'linear' or 'profile', got {intervals!r}")
     if data is None:
@@ -188,52 +213,172 @@ def fit(
         est, val = data.split(split) if split < 1 else (data, None)
     else:
         est, val = data, validation
+    # The user's explicit bounds are kept as given; default boxes may be widened.
+    fixed_box = set(bounds or {})
     if problem is None:
         if model is None:
             model, auto_bounds = default_model(data)
             chosen = set(free) if free is not None else set(default_free(model, fixed))
-            auto_bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
-            bounds = {**auto_bounds, **(bounds or {})}
+            default_bounds = {**auto_bounds, **(default_bounds or {})}
+            default_bounds = {k: v for k, v in default_bounds.items() if k in chosen}
+        bounds = {**(default_bounds or {}), **(bounds or {})}
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                           bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                           start=start)
     model = problem.model
-    stages: list[Stage] = []
-    history: list[float] = []
-    z_start = problem.to_z(problem.start_values())
-    z = z_start
-    if optimizer != "none":
-        t0 = time.perf_counter()
-        opts = dict(options or {})
-        if optimizer == "hgwo":
-            opts.setdefault("lam", lam)
-        bz = problem.bounds_z()
-        warm = bool(start) if seed_population is None else seed_population
-        x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
-        res = minimize(problem, bz, method=optimizer, pop_size=pop_size, max_iter=max_iter,
-                       seed=seed, vectorized=True, options=opts, x0=x0, progress=progress,
-                       callback=callback)
-        first = float(res.history.best[0]) if len(res.history.best) else float("nan")
-        history = [float(v) for v in res.history.best]
-        z = np.asarray(res.x, dtype=float)
-        stages.append(Stage(optimizer, z, first, float(res.fun), int(res.nfev),
-                            time.perf_counter() - t0,
-                            {"nit": int(res.nit), "noi": _int_or_none(res.noi),
-                             "cost": problem.cost, "options": opts}))
-    ropts = dict(refine_options or {})
-    for name in _refiner_names(refine):
-        if name == "ipopt":
-            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
-            st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
-        else:
-            keys = ("max_eval", "xtol_rel", "ftol_rel")
-            st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
-                              **{k: v for k, v in ropts.items() if k in keys})
-        stages.append(st)
-        z = st.z
-    return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
-                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
-                   intervals)
+    opts = dict(options or {})
+    if optimizer == "hgwo":
+        opts.setdefault("lam", lam)
+    search = _Search(optimizer, refine, pop_size, max_iter, seed, opts,
+                     dict(refine_options or {}), progress, callback)
+    warm = bool(start) if seed_population is None else seed_population
+    with interruptible():
+        z, stages, history = search.run(problem, problem.to_z(problem.start_values()), warm)
+        widened: list[dict[str, Any]] = []
+        if widen_bounds:
+            problem, z, widened = _widen(problem, z, search, stages, history, fixed_box)
+    result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
+                     max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
+                     intervals)
+    if widened:
+        result.settings["widened"] = widened
+        for w in widened:
+            result.warnings.append(
+                f"{w['name']} ended at the {w['side']} edge of its default box "
+                f"[{w['from'][0]:.4g}, {w['from'][1]:.4g}]; that side was widened by a decade "
+                f"to [{w['to'][0]:.4g}, {w['to'][1]:.4g}] and the fit repeated"
+            )
+    return result
+
+
+#: Decades a default box side may be widened in all, one per refit. Three decades
+#: beyond the factor-10 default box (a factor 10^4 from nominal) is the most a group of a
+#: working actuator can plausibly differ from the rig's; further out a group at its edge is
+#: a model or unit error, which the edge warning reports.
+MAX_WIDEN_DECADES = 3
+#: Distance to a box edge (fraction of the box in fitting coordinates) that counts as "at it".
+EDGE_TOL = 1e-4
+
+
+@dataclass
+class _Search:
+    """The global search and the refiners of a fit, run again after a box is widened."""
+
+    optimizer: str
+    refine: Any
+    pop_size: int
+    max_iter: int
+    seed: int | None
+    options: dict[str, Any]
+    refine_options: dict[str, Any]
+    progress: bool
+    callback: Callable[[Any], bool | None] | None
+
+    def run(
+        self, problem: Problem, z_start: np.ndarray, warm: bool, label: str = ""
+    ) -> tuple[np.ndarray, list[Stage], list[float]]:
+        """Global search (started with ``z_start`` in the population if ``warm``), refiners."""
+        stages: list[Stage] = []
+        history: list[float] = []
+        z = z_start
+        if self.optimizer != "none":
+            t0 = time.perf_counter()
+            bz = problem.bounds_z()
+            x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
+            res = minimize(problem, bz, method=self.optimizer, pop_size=self.pop_size,
+                           max_iter=self.max_iter, seed=self.seed, vectorized=True,
+                           options=self.options, x0=x0, progress=self.progress,
+                           callback=self.callback)
+            first = float(res.history.best[0]) if len(res.history.best) else float("nan")
+            history = [float(v) for v in res.history.best]
+            z = np.asarray(res.x, dtype=float)
+            stages.append(Stage(self.optimizer + label, z, first, float(res.fun),
+                                int(res.nfev), time.perf_counter() - t0,
+                                {"nit": int(res.nit), "noi": _int_or_none(res.noi),
+                                 "cost": problem.cost, "options": self.options}))
+        ropts = self.refine_options
+        for name in _refiner_names(self.refine):
+            if name == "ipopt":
+                keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+                st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
+            else:
+                keys = ("max_eval", "xtol_rel", "ftol_rel")
+                st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
+                                  **{k: v for k, v in ropts.items() if k in keys})
+            st.name += label
+            stages.append(st)
+            z = st.z
+        return z, stages, history
+
+
+def at_edges(problem: Problem, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
+    """Free parameters (index, ``"lower"``/``"upper"``) whose coordinate ends at its box edge.
+
+    Parameters
+    ----------
+    problem : Problem
+    z : ndarray, shape (n_free,)
+        Fitting coordinates.
+    tol : float
+        Distance to an edge, as a fraction of the box width, that counts as at it.
+    """
+    bz = problem.bounds_z()
+    span = bz[:, 1] - bz[:, 0]
+    out = []
+    for i in range(problem.n_free):
+        lo, hi = z[i] - bz[i, 0], bz[i, 1] - z[i]
+        if min(lo, hi) <= tol * span[i]:
+            out.append((i, "lower" if lo <= hi else "upper"))
+    return out
+
+
+def _widen(
+    problem: Problem,
+    z: np.ndarray,
+    search: _Search,
+    stages: list[Stage],
+    history: list[float],
+    fixed_box: set[str],
+) -> tuple[Problem, np.ndarray, list[dict[str, Any]]]:
+    """Widen default boxes whose edge a log-scaled free group ends at, and refit.
+
+    One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side; the
+    user's explicit bounds (``fixed_box``), initial-state and linear (signed) parameters
+    are never widened. Each refit starts its global search with the previous optimum in
+    the population, so it cannot end worse. ``stages`` and ``history`` are extended.
+    """
+    original = {p.name: (p.lower, p.upper) for p in problem.free_params}
+    widened: list[dict[str, Any]] = []
+    for round_ in range(1, MAX_WIDEN_DECADES + 1):
+        if not np.isfinite(problem(z[None, :])[0]):
+            break  # a diverged fit is not at an edge for a reason a wider box would fix
+        box = {p.name: [p.lower, p.upper] for p in problem.free_params
+               if not p.name.startswith("x0_")}
+        changes = []
+        for i, side in at_edges(problem, z):
+            par = problem.free_params[i]
+            if par.scale != "log" or par.name in fixed_box or par.name not in box:
+                continue
+            k = 0 if side == "lower" else 1
+            if abs(np.log10(box[par.name][k] / original[par.name][k])) >= MAX_WIDEN_DECADES - 0.5:
+                continue
+            before = tuple(box[par.name])
+            box[par.name][k] = box[par.name][k] / 10 if k == 0 else box[par.name][k] * 10
+            changes.append({"name": par.name, "side": side, "round": round_,
+                            "from": list(before), "to": list(box[par.name])})
+        if not changes:
+            break
+        values = problem.from_z(z)
+        problem = Problem(problem.model, problem.data, cost=problem.cost,  # type: ignore[arg-type]
+                          free=list(box), fixed=problem.fixed,
+                          bounds={n: tuple(b) for n, b in box.items()},
+                          initial_state=problem.initial_state,  # type: ignore[arg-type]
+                          simulator=problem.sim)
+        z, more, hist = search.run(problem, problem.to_z(values), True, f" (widened {round_})")
+        stages.extend(more)
+        history.extend(hist)
+        widened.extend(changes)
+    return problem, z, widened
 
 
 def _int_or_none(x: Any) -> int | None:
@@ -274,12 +419,25 @@ def _result(
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     ci95: dict[str, tuple[float, float]] = {}
     std: dict[str, float] = {}
+    undetermined: list[str] = []
     for i, name in enumerate(problem.free_names):
-        lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
-        ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
+        if not np.isfinite(sd[i]):
+            ci95[name] = (float("nan"), float("nan"))
+            undetermined.append(name)
+        else:
+            lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
+            ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
+    y_est = problem.simulate_values(values_free)
+    diverged = not (np.all(np.isfinite(y_est)) and np.all(np.isfinite(r)))
+    if diverged:
+        warnings.insert(0, "DIVERGED: the simulation with these parameters does not stay "
+                        "finite on the estimation record, so the fit failed; check the units "
+                        "of the input and output and the values given with --fix / fixed")
     interval_info: dict[str, Any] = {"method": "linear"}
-    if intervals == "profile":
+    if intervals == "profile" and diverged:
+        warnings.append("profile intervals skipped: the fit diverged")
+    elif intervals == "profile":
         t0 = time.perf_counter()
         profiles = profile_intervals(problem, z)
         interval_info = {
@@ -310,17 +468,18 @@ def _result(
                         f"{name}: the profile stays below the 95 % threshold up to the {side} "
                         "end of the search box, so the interval is open there"
                     )
+    if undetermined:
+        interval_info["undetermined"] = undetermined
 
-    bz = problem.bounds_z()
-    span = bz[:, 1] - bz[:, 0]
+    edges = dict(at_edges(problem, z))
     for i, name in enumerate(problem.free_names):
-        if min(z[i] - bz[i, 0], bz[i, 1] - z[i]) <= 1e-6 * span[i]:
-            side = "lower" if z[i] - bz[i, 0] <= bz[i, 1] - z[i] else "upper"
+        if i in edges:
+            side = edges[i]
             warnings.append(
                 f"{name} ended at its {side} bound: the data push it out of the box, so its value "
                 "and interval are not meaningful (widen the bound or fix it)"
             )
-        elif problem.free_params[i].scale == "log" and sd[i] > 0.5:
+        elif problem.free_params[i].scale == "log" and np.isfinite(sd[i]) and sd[i] > 0.5:
             decades = 2 * 1.96 * sd[i]
             warnings.append(
                 f"{name} is poorly determined by these data: its 95 % interval spans "
@@ -328,7 +487,6 @@ def _result(
             )
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
-    y_est = problem.simulate_values(values_free)
     metrics = {"est": _score(problem.data, y_est), "val": {}}
     if val is not None:
         y_val = problem.simulate_values(values_free, data=val)
@@ -382,10 +540,13 @@ def _result(
         physical=physical,
         intervals=interval_info,
         problem=problem,
+        status="diverged" if diverged else "ok",
     )
 
 
 def _score(ds: Dataset, y_sim: np.ndarray) -> dict[str, float]:
+    if not np.all(np.isfinite(y_sim)):  # a diverged simulation has no score
+        return {k: float("nan") for k in ("mse", "rmse", "vaf", "itae", "fit", "max_abs")}
     return {k: float(v) for k, v in score(ds.y, y_sim, ds.t).items()}
 
 

@@ -59,6 +59,9 @@ UNROLL_BUDGET = 80
 
 #: Status codes of :attr:`Simulator.last_status`.
 STATUS_OK = 0
+#: Most RK4 substeps per sample ``substeps="auto"`` may choose; more is refused
+#: (:class:`SimulationError`) as a sign of a time axis in the wrong unit.
+MAX_AUTO_SUBSTEPS = 64
 STATUS_UNSTABLE = 1  # spectral radius times substep above rho_max: not simulated reliably
 STATUS_DIVERGED = 2  # non-finite or exploding output
 
@@ -215,6 +218,15 @@ class Simulator:
         jac = np.array(self._fns["jac"](x, u, self.model.nominal()))
         rho = float(np.max(np.abs(np.linalg.eigvals(jac)))) if jac.size else 0.0
         n = max(2, math.ceil(rho * self.dt / 0.25))
+        if n > MAX_AUTO_SUBSTEPS:
+            # Refused before anything is compiled: such a model generates megabytes of C
+            # and the cause is nearly always a time axis in the wrong unit.
+            raise SimulationError(
+                f"the sample period {self.dt:.4g} s needs {n} RK4 substeps per sample (the "
+                f"model's fastest eigenvalue is {rho:.3g} 1/s; at most {MAX_AUTO_SUBSTEPS} "
+                f"are allowed): is the time column in ms? Pass --time-unit ms (CLI) or "
+                f"divide t by 1000; a record in sample units needs Model.time_scaled"
+            )
         if n > 16:
             # Usually a unit mismatch: nominal values per second on data in samples.
             warnings.warn(

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.cli._common import report_error
 from hhra_phys.data import check_save_path, save_csv
 from hhra_phys.errors import HHRAError
 from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
@@ -53,8 +54,9 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(files["json"], overwrite=args.overwrite)
         check_output_path(files["plot"], overwrite=args.overwrite, suffixes=FIGURE_SUFFIXES)
     except (HHRAError, OSError) as exc:
-        print(f"hhra-phys demo: error: {exc} (or choose another --out)", file=sys.stderr)
-        return 2
+        code = report_error("demo", exc)
+        print("hhra-phys demo: (or choose another --out)", file=sys.stderr)
+        return code
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
     n_steps = 5
     try:
@@ -72,10 +74,10 @@ def run(args: argparse.Namespace) -> int:
         est, val = data.split(0.5)
         plot_fit(files["plot"], [("estimation", est, res.predict(est)),
                                  ("validation", val, res.predict(val))],
-                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite)
-    except (HHRAError, FileExistsError) as exc:
-        print(f"hhra-phys demo: error: {exc}", file=sys.stderr)
-        return 2
+                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
+                 stages=res.stages)
+    except (HHRAError, OSError) as exc:
+        return report_error("demo", exc)
 
     truth = data.metadata["true_params"]
     print("\nParameter groups: truth, fit and 95 % confidence interval")
