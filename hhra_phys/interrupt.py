@@ -8,7 +8,8 @@ an unfinished result as if it were final.
 
 :func:`interruptible` records every SIGINT in a flag (and raises ``KeyboardInterrupt`` as
 usual); when the block ends, or when :func:`check` is called in between, a recorded
-interrupt is raised again, whatever a solver did with the first one.
+interrupt is raised again, whatever a solver did with the first one (swallowed it, or
+turned it into an error of its own).
 """
 
 from __future__ import annotations
@@ -62,6 +63,12 @@ def interruptible() -> Iterator[None]:
     try:
         yield
         check()
+    except BaseException:
+        # A solver may also turn the interrupt into an error of its own (NLopt raises
+        # its runtime_error): after a Ctrl-C, whatever comes out is the interrupt.
+        if _state["hit"]:
+            raise KeyboardInterrupt from None
+        raise
     finally:
         _state["depth"] -= 1
         if outer:

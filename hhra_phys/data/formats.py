@@ -366,6 +366,8 @@ def _column_index(
     if not isinstance(spec, str):
         raise ParameterError(f"column for {_role(role)} must be a name or an index, got {spec!r}")
     hits = [i for i, h in enumerate(header) if h == spec]
+    if not hits:  # "y" names a column "y [rad]": the unit in brackets is the column's unit
+        hits = [i for i, h in enumerate(header) if _UNIT.sub("", h).strip() == spec]
     if not hits:
         raise MissingColumnError(
             f"{path}: no column {spec!r} (for {_role(role)}); available columns: "
