@@ -201,7 +201,10 @@ class ParameterSet:
         """
         notes: list[str] = []
         for name, value in values.items():
-            par = self[self.index(name)]
+            try:
+                par = self[self.index(name)]
+            except ParameterError as exc:
+                raise ParameterError(f"{what} {name}={value}: {exc}") from None
             v = float(value)
             if not math.isfinite(v):
                 raise ParameterError(f"{what} {name}={value}: the value must be finite")

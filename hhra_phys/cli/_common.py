@@ -215,6 +215,8 @@ def parse_fixed(items: list[str] | None) -> dict[str, float]:
         if "=" not in item:
             raise ParameterError(f"--fix expects NAME=VALUE, got {item!r}")
         name, value = item.split("=", 1)
+        if not name.strip():
+            raise ParameterError(f"--fix expects NAME=VALUE, got {item!r} (no name)")
         try:
             out[name.strip()] = float(value)
         except ValueError:
