@@ -56,6 +56,7 @@ __all__ = [
     "regressor_table",
     "analyse",
     "diagnose_fit",
+    "plot_loop_residuals",
     "plot_residuals",
     "DETECTABLE",
     "ENTRY_ALIASES",
@@ -652,3 +653,52 @@ def plot_residuals(
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
+
+
+def plot_loop_residuals(
+    res: Any,
+    data: Dataset,
+    before_path: str | None,
+    after_path: str | None,
+    overwrite: bool = False,
+    label: str = "",
+) -> list[str | None]:
+    """The before/after residual figures of a diagnosis loop (:func:`plot_residuals`).
+
+    Both show the estimation and the validation part; "after" draws "before" in grey on
+    the same axes, and says so on the figure when no effect was accepted.
+
+    Parameters
+    ----------
+    res : LoopResult
+        Result of :func:`hhra_phys.loop.augment` (its ``base``/``final`` fits,
+        ``diagnoses``, ``final_diagnosis``, ``chosen`` and ``settings["split"]``).
+    data : Dataset
+        The whole record the loop ran on.
+    before_path, after_path : str or None
+        Figure files (None: not drawn).
+    overwrite : bool
+        Replace existing files.
+    label : str
+        Prefix of the titles (e.g. the record's name).
+
+    Returns
+    -------
+    list of (str or None)
+        The two paths written (None where not drawn).
+    """
+    val = data.split(float(res.settings["split"]))[1]
+    r_val = {"before": (val.t, val.y - res.base.predict(val)),
+             "after": (val.t, val.y - res.final.predict(val))}
+    first = res.diagnoses[0] if res.diagnoses else None
+    prefix = f"{label}: " if label else ""
+    out: list[str | None] = [None, None]
+    if before_path and first is not None:
+        out[0] = plot_residuals(first, before_path, f"{prefix}before: base model", overwrite,
+                                validation={"after": r_val["before"]}, unit=data.output_unit)
+    if after_path and res.final_diagnosis is not None:
+        title = (f"{prefix}after: base model + {', '.join(res.chosen)}" if res.chosen
+                 else f"{prefix}after: no effect accepted (the base model)")
+        out[1] = plot_residuals(res.final_diagnosis, after_path, title, overwrite, before=first,
+                                accepted=res.chosen, validation=r_val, unit=data.output_unit)
+    return out

@@ -42,7 +42,13 @@ from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.optim import minimize
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
-from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
+from hhra_phys.refine import (
+    CompiledLeastSquares,
+    Stage,
+    least_squares_cost,
+    refine_ipopt,
+    refine_nlopt,
+)
 from hhra_phys.result import FitResult, uncertainty
 
 __all__ = [
@@ -180,7 +186,8 @@ def fit(
     widen_bounds : bool
         When a log-scaled free group ends at the edge of its default box (the model's,
         or ``default_bounds``), widen that side by a decade (at most
-        :data:`MAX_WIDEN_DECADES`) and refit; the result's warnings and
+        :data:`MAX_WIDEN_DECADES`, fewer when a refit does not lower the cost) and
+        refit; the result's warnings and
         ``settings["widened"]`` say so. Groups with explicit ``bounds`` and fits of a
         given ``problem`` are never widened.
 
@@ -242,13 +249,29 @@ def fit(
                      intervals)
     if widened:
         result.settings["widened"] = widened
-        for w in widened:
-            result.warnings.append(
-                f"{w['name']} ended at the {w['side']} edge of its default box "
-                f"[{w['from'][0]:.4g}, {w['from'][1]:.4g}]; that side was widened by a decade "
-                f"to [{w['to'][0]:.4g}, {w['to'][1]:.4g}] and the fit repeated"
-            )
+        result.warnings.extend(_widening_notes(widened))
     return result
+
+
+def _widening_notes(widened: list[dict[str, Any]]) -> list[str]:
+    """One sentence per widened box side, from the rounds of :func:`_widen`."""
+    sides: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for w in widened:
+        sides.setdefault((w["name"], w["side"]), []).append(w)
+    notes = []
+    for (name, side), rounds in sides.items():
+        first, last = rounds[0], rounds[-1]
+        n = len(rounds)
+        text = (f"{name} ended at the {side} edge of its default box [{first['from'][0]:.4g}, "
+                f"{first['from'][1]:.4g}]; that side was widened by {n} decade"
+                f"{'s' if n > 1 else ''} to [{last['to'][0]:.4g}, {last['to'][1]:.4g}] and the "
+                "fit repeated")
+        if last.get("gain", 1.0) < WIDEN_MIN_GAIN:
+            text += (f", which lowered the sum of squares by only {100 * last['gain']:.2g} %: "
+                     f"the data do not determine {name} beyond the old edge (it is negligible "
+                     "or unobservable there), so widening stopped")
+        notes.append(text)
+    return notes
 
 
 #: Decades a default box side may be widened in all, one per refit. Three decades
@@ -258,6 +281,10 @@ def fit(
 MAX_WIDEN_DECADES = 3
 #: Distance to a box edge (fraction of the box in fitting coordinates) that counts as "at it".
 EDGE_TOL = 1e-4
+#: Relative fall of the least-squares cost below which a widened box did not help: the
+#: group sits at its edge because the data do not see it there (a leakage of zero), not
+#: because the truth lies beyond, and further decades would only cost refits.
+WIDEN_MIN_GAIN = 1e-3
 
 
 @dataclass
@@ -342,15 +369,17 @@ def _widen(
 ) -> tuple[Problem, np.ndarray, list[dict[str, Any]]]:
     """Widen default boxes whose edge a log-scaled free group ends at, and refit.
 
-    One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side; the
-    user's explicit bounds (``fixed_box``), initial-state and linear (signed) parameters
-    are never widened. Each refit starts its global search with the previous optimum in
+    One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side, and no
+    further once a round lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
+    (relative); the user's explicit bounds (``fixed_box``), initial-state and linear (signed)
+    parameters are never widened. Each refit starts its global search with the previous optimum in
     the population, so it cannot end worse. ``stages`` and ``history`` are extended.
     """
     original = {p.name: (p.lower, p.upper) for p in problem.free_params}
     widened: list[dict[str, Any]] = []
+    cost = least_squares_cost(problem, z)
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
-        if not np.isfinite(problem(z[None, :])[0]):
+        if not np.isfinite(cost):
             break  # a diverged fit is not at an edge for a reason a wider box would fix
         box = {p.name: [p.lower, p.upper] for p in problem.free_params
                if not p.name.startswith("x0_")}
@@ -377,7 +406,14 @@ def _widen(
         z, more, hist = search.run(problem, problem.to_z(values), True, f" (widened {round_})")
         stages.extend(more)
         history.extend(hist)
+        new_cost = least_squares_cost(problem, z)
+        gain = (cost - new_cost) / cost if cost > 0 else 0.0
+        for c in changes:
+            c["gain"] = float(gain)
         widened.extend(changes)
+        cost = new_cost
+        if gain < WIDEN_MIN_GAIN:
+            break
     return problem, z, widened
 
 

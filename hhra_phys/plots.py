@@ -16,6 +16,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib import ticker  # noqa: E402
 
 from hhra_phys.data import Dataset  # noqa: E402
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path  # noqa: E402
@@ -179,9 +180,21 @@ def _convergence(
             ax2.annotate("", xy=(x, c1), xytext=(x, c0),
                          arrowprops={"arrowstyle": "->", "color": f"C{k + 1}"})
         ax2.set_ylabel(f"refiners: 0.5 sum r^2  [{y_unit}^2]", fontsize=8)
+        _plain_log_ticks(ax2)
         ax2.legend(fontsize=6, loc="upper right")
     if h.size:
         ax.legend(fontsize=7, loc="lower left")
+        _plain_log_ticks(ax)
+
+
+def _plain_log_ticks(ax: Any) -> None:
+    """Log-axis ticks as plain numbers ("118", not "1.18 x 10^2") on short ranges."""
+    fmt = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
+    lo, hi = ax.get_ylim()
+    ax.yaxis.set_major_formatter(fmt)
+    # Minor ticks are labelled only within one decade, where there are no major ones.
+    ax.yaxis.set_minor_formatter(fmt if hi < 10 * lo else ticker.NullFormatter())
+    ax.tick_params(axis="y", which="both", labelsize=7)
 
 
 def plot_outputs(

@@ -84,7 +84,8 @@ def uncertainty(
         scale = np.where(dead, 1.0, scale)
     normed = info / np.outer(scale, scale)
     eigval, eigvec = np.linalg.eigh(normed)
-    cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
+    with np.errstate(over="ignore"):  # an exactly singular matrix: condition inf
+        cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
     if cond > IDENTIFIABILITY_COND or dead.any():
         if cond > IDENTIFIABILITY_COND and not dead.all():
             weak = np.abs(eigvec[:, 0])

@@ -105,24 +105,9 @@ def run(args: argparse.Namespace) -> int:
             atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
             print(f"wrote {args.json}")
         if args.report:
-            from hhra_phys.diagnose import plot_residuals
+            from hhra_phys.diagnose import plot_loop_residuals
 
-            val = data.split(split)[1]
-            r_val = {"before": (val.t, val.y - res.base.predict(val)),
-                     "after": (val.t, val.y - res.final.predict(val))}
-            first = res.diagnoses[0] if res.diagnoses else None
-            unit = data.output_unit
-            paths = [
-                plot_residuals(first, figs[0], "before: base model", args.overwrite,
-                               validation={"after": r_val["before"]}, unit=unit)
-                if first else None,
-                plot_residuals(res.final_diagnosis, figs[1],
-                               ("after: base model + " + ", ".join(res.chosen)) if res.chosen
-                               else "after: no effect accepted (the base model)",
-                               args.overwrite, before=first, accepted=res.chosen,
-                               validation=r_val, unit=unit)
-                if res.final_diagnosis else None,
-            ]
+            paths = plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite)
             atomic_write_text(args.report, markdown_report(res, paths, args.report))
             print(f"wrote {args.report}")
     except (HHRAError, OSError) as exc:
