@@ -132,7 +132,10 @@ def fit(
     model : Model, optional
         Model to fit (default: :func:`default_model`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
-        sample units for records without a sample time).
+        sample units for records without a sample time). With the default model the
+        record is first converted to its units (mA, deg) where it declares others, and
+        implausible ranges are warned about
+        (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
     optimizer : {"hgwo", "gwo", "pso", "de", "none"}
         Global search (``"none"``: start the refiners from the nominal values or
         ``start``).
@@ -214,6 +217,16 @@ def fit(
         data = simulate_rig(seed=0)
     if optimizer not in OPTIMIZERS:
         raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
+    record_notes: list[str] = []
+    if model is None and problem is None:
+        # The default HHRA knows its units: convert the record, warn about odd ranges.
+        from hhra_phys.models.hhra.defaults import prepare_record
+
+        data, notes, warns = prepare_record(data)
+        record_notes = notes + warns
+        if validation is not None:
+            validation, notes, warns = prepare_record(validation)
+            record_notes += notes + warns
     if validation is None:
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
@@ -250,6 +263,7 @@ def fit(
     if widened:
         result.settings["widened"] = widened
         result.warnings.extend(_widening_notes(widened))
+    result.warnings.extend(record_notes)
     return result
 
 

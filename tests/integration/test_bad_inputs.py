@@ -223,3 +223,16 @@ def test_the_readme_python_block_runs(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "(8, 5000)" in proc.stdout and (tmp_path / "fit.json").exists()
     assert math.isfinite(json.loads((tmp_path / "fit.json").read_text())["val"]["rmse"])
+
+
+def test_python_fit_converts_and_warns_with_the_default_model() -> None:
+    from hhra_phys.fit import fit
+
+    ds = simulate_rig(seed=0, duration=2.0)
+    rad = type(ds)(t=ds.t, u=ds.u, y=np.deg2rad(ds.y), output_unit="rad", source="r.csv")
+    res = fit(rad, optimizer="none", refine="none")
+    assert any("converted from rad to deg" in w for w in res.warnings)
+    assert res.metrics["est"]["rmse"] < 1.0  # fitted in degrees, as the model expects
+    unlabelled = type(ds)(t=ds.t, u=ds.u, y=np.deg2rad(ds.y), source="r.csv")
+    res = fit(unlabelled, optimizer="none", refine="none")
+    assert any("radians" in w for w in res.warnings)
