@@ -45,7 +45,8 @@ METRICS_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py"
 MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
                "tests/integration/test_reference_rig.py")
 EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
-LOOP_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_diagnose.py")
+LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model.py",
+              "tests/integration/test_diagnose.py")
 RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
                 "tests/integration/test_bad_inputs.py")
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
@@ -444,8 +445,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "model-orifice-sign-of-p",
         "orifice law takes the sign of the pressure instead of the valve current",
-        "smooth_sign(cmd, self.sign_eps) * p",
-        "smooth_sign(p, self.sign_eps) * p",
+        "drop = 1 - smooth_sign(cmd, sign_eps) * p",
+        "drop = 1 - smooth_sign(p, sign_eps) * p",
         MODEL_TESTS,
     ),
     _m(
@@ -473,8 +474,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "effect-friction-sign",
         "Coulomb friction pushes along the motion",
-        'ctx.add_rate("omega", -level * smooth_sign(w, width))',
-        'ctx.add_rate("omega", level * smooth_sign(w, width))',
+        "rate = -level * smooth_sign(w, self._width(level, ctx.p))",
+        "rate = level * smooth_sign(w, self._width(level, ctx.p))",
         EFFECT_TESTS,
     ),
     _m(
@@ -512,6 +513,20 @@ MUTATIONS: tuple[Mutation, ...] = (
         "a candidate is accepted when it makes validation worse by less than the margin",
         "gain_ok = vr <= (1 - margin) * rmse_cur",
         "gain_ok = vr <= (1 + margin) * rmse_cur",
+        LOOP_TESTS,
+    ),
+    _m(
+        "loop-criterion-ignored",
+        "the information criterion no longer has to agree",
+        "crit_ok = step.criterion < crit_cur",
+        "crit_ok = True",
+        LOOP_TESTS,
+    ),
+    _m(
+        "loop-no-noise-allowance",
+        "gains within what noise allows are accepted",
+        "beyond_ok = rmse_cur ** 2 - vr ** 2 > allowance",
+        "beyond_ok = True",
         LOOP_TESTS,
     ),
     _m(
@@ -643,7 +658,10 @@ def baseline(tests: tuple[str, ...], timeout: float) -> str | None:
         # an installed copy shadowing the temporary one would make every mutation survive
         if not probe.stdout.strip().startswith(str(copy)):
             return f"{PACKAGE} is not imported from the copy: {probe.stdout.strip()}"
-        proc = _pytest(copy, tests, timeout)
+        try:
+            proc = _pytest(copy, tests, timeout)
+        except subprocess.TimeoutExpired:
+            return f"the unmutated tests took longer than {timeout:g} s (raise --timeout)"
         if proc.returncode != 0:
             return f"unmutated tests fail: {_last_line(proc.stdout)}"
     return None

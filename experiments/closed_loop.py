@@ -61,6 +61,9 @@ def run_case(effects: dict[str, dict[str, float]], seed: int, duration: float,
     return {
         "hidden": list(effects), "truth": effects, "seed": seed, "chosen": res.chosen,
         "base_val": res.base.metrics["val"]["rmse"], "final_val": res.final.metrics["val"]["rmse"],
+        "base_test": res.test_scores.get("base", {}).get("rmse"),
+        "final_test": res.test_scores.get("final", {}).get("rmse"),
+        "stop": res.settings.get("stop"),
         "base_est": res.base.metrics["est"]["rmse"], "final_est": res.final.metrics["est"]["rmse"],
         "params": {k: res.final.values.get(k) for p in effects.values() for k in p},
         "in_ci": in_ci,
@@ -99,7 +102,9 @@ def main() -> None:
             row = run_case(eff, seed, args.duration, loop_kw)
             rows.append(row)
             print(f"{'+'.join(row['hidden']) or 'clean':35s} seed {seed}: chosen "
-                  f"{row['chosen']} val {row['base_val']:.4g} -> {row['final_val']:.4g} "
+                  f"{row['chosen']} selection {row['base_val']:.4g} -> {row['final_val']:.4g}, "
+                  f"test {row['base_test'] or float('nan'):.4g} -> "
+                  f"{row['final_test'] or float('nan'):.4g} "
                   f"[{row['seconds']:.0f} s]", flush=True)
     with open(args.out, "w") as fh:
         json.dump({"noise": NOISE, "duration": args.duration, "loop": loop_kw, "rows": rows},
@@ -109,8 +114,9 @@ def main() -> None:
 
 def print_tables(rows: list[dict]) -> None:
     print("\n| hidden effect | size | runs | detected | other effect added | "
-          "val RMSE before (median) | after (median) | truth in 95 % CI |")
-    print("|---|---|---|---|---|---|---|---|")
+          "selection RMSE before (median) | after (median) | test RMSE before (median) | "
+          "after (median) | truth in 95 % CI | seconds (median) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
         key = ("+".join(r["hidden"]) or "(clean)",
@@ -124,7 +130,10 @@ def print_tables(rows: list[dict]) -> None:
         print(f"| {name} | {size or '-'} | {len(rs)} | {det if hidden else '-'} | {fp} | "
               f"{np.median([r['base_val'] for r in rs]):.3g} | "
               f"{np.median([r['final_val'] for r in rs]):.3g} | "
-              f"{f'{sum(ci)}/{len(ci)}' if ci else '-'} |")
+              f"{np.median([r['base_test'] or np.nan for r in rs]):.3g} | "
+              f"{np.median([r['final_test'] or np.nan for r in rs]):.3g} | "
+              f"{f'{sum(ci)}/{len(ci)}' if ci else '-'} | "
+              f"{np.median([r['seconds'] for r in rs]):.0f} |")
 
 
 if __name__ == "__main__":

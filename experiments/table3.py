@@ -59,7 +59,7 @@ from hhra_phys import compare as C
 from hhra_phys.data import Dataset, load_public_actuator
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.metrics import mse
-from hhra_phys.model import HHRAModel
+from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.models.hhra.rig import DEFAULT_NOISE_DEG, perturbed_physical, simulate_rig
 
 #: Rows of the paper's table plus plain H-GWO, in this order.

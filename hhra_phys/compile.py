@@ -53,7 +53,8 @@ CFLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared", "-pthread", "-ffp-contract
 SIMD_CFLAGS: tuple[str, ...] = ("-x", "c++", "-fno-math-errno")
 
 _CASADI_INT = ctypes.c_longlong  # the generated code's default ``casadi_int``
-_lock = threading.Lock()
+_lock = threading.Lock()  # guards _locks
+_locks: dict[str, threading.Lock] = {}  # one per cache entry: different entries compile at once
 _failed: set[str] = set()  # digests of sources that did not compile
 
 
@@ -230,6 +231,8 @@ def compile_function(
     if digest in _failed:
         return None
     with _lock:
+        entry_lock = _locks.setdefault(digest, threading.Lock())
+    with entry_lock:
         if not target.exists():
             with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
                 src = Path(tmp, f"{name}.c")

@@ -337,12 +337,17 @@ def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarr
 
 
 def _sensitivities(problem: Problem, values: np.ndarray, y0: np.ndarray) -> np.ndarray:
-    """Finite-difference output sensitivities to the free parameters, (N, n_free)."""
-    z = problem.to_z(values)
-    h = 1e-4
-    Z = z[None, :] + h * np.eye(z.size)
-    Y = problem.simulate_values(problem.from_z(Z))
-    J = (Y - y0[None, :]).T / h
+    """Output sensitivities to the free parameters in fitting coordinates, (N, n_free).
+
+    The exact Jacobian of the discretised model (the refiners' compiled forward
+    sensitivities, :class:`~hhra_phys.refine.CompiledLeastSquares`): the fit has
+    already built it, so no population simulator is compiled for the analysis.
+    ``y0`` (the fitted output) is not needed and kept for the signature.
+    """
+    from hhra_phys.refine import CompiledLeastSquares
+
+    _, J = CompiledLeastSquares(problem)(problem.to_z(values))
+    J = np.array(J, dtype=float)
     J[~np.isfinite(J)] = 0.0
     return J
 
@@ -526,6 +531,7 @@ def plot_residuals(
     accepted: Sequence[str] | None = None,
     validation: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
     unit: str = "",
+    marks: Sequence[tuple[float, str]] = (),
 ) -> str:
     """Residual figure of a diagnosis, optionally against the one before; returns the path.
 
@@ -556,6 +562,9 @@ def plot_residuals(
         (time in the record's unit, residual in output units).
     unit : str
         Output unit, for the residual and spectrum axes.
+    marks : sequence of (float, str)
+        Further part boundaries on the residual panel: (time, name of the part that
+        starts there), e.g. the loop's test part.
 
     Raises
     ------
@@ -597,6 +606,10 @@ def plot_residuals(
                   va="top", fontsize=8)
         ax_t.text(split_t, 1.0, "< estimation ", transform=ax_t.get_xaxis_transform(),
                   va="top", ha="right", fontsize=8)
+        for t_mark, name in marks:
+            ax_t.axvline(t_mark, color="k", lw=0.8, ls=":")
+            ax_t.text(t_mark, 1.0, f" {name} >", transform=ax_t.get_xaxis_transform(),
+                      va="top", fontsize=8)
         for key, (tv, rv) in validation.items():
             if key == "before" and before is None:
                 continue
@@ -665,8 +678,9 @@ def plot_loop_residuals(
 ) -> list[str | None]:
     """The before/after residual figures of a diagnosis loop (:func:`plot_residuals`).
 
-    Both show the estimation and the validation part; "after" draws "before" in grey on
-    the same axes, and says so on the figure when no effect was accepted.
+    Both show the estimation part and everything after it (the selection part and, when
+    the loop held one out, the test part, marked); "after" draws "before" in grey on the
+    same axes, and says so on the figure when no effect was accepted.
 
     Parameters
     ----------
@@ -687,18 +701,26 @@ def plot_loop_residuals(
     list of (str or None)
         The two paths written (None where not drawn).
     """
-    val = data.split(float(res.settings["split"]))[1]
+    from hhra_phys.loop import split_record
+
+    split, test = float(res.settings["split"]), float(res.settings.get("test") or 0.0)
+    _, _, held = split_record(data, split, test)
+    # Everything after the estimation part: selection, then (if any) the test part.
+    val = data.split(split)[1]
     r_val = {"before": (val.t, val.y - res.base.predict(val)),
              "after": (val.t, val.y - res.final.predict(val))}
+    marks = [(float(held.t[0]), "test")] if held is not None else []
     first = res.diagnoses[0] if res.diagnoses else None
     prefix = f"{label}: " if label else ""
     out: list[str | None] = [None, None]
     if before_path and first is not None:
         out[0] = plot_residuals(first, before_path, f"{prefix}before: base model", overwrite,
-                                validation={"after": r_val["before"]}, unit=data.output_unit)
+                                validation={"after": r_val["before"]}, unit=data.output_unit,
+                                marks=marks)
     if after_path and res.final_diagnosis is not None:
         title = (f"{prefix}after: base model + {', '.join(res.chosen)}" if res.chosen
                  else f"{prefix}after: no effect accepted (the base model)")
         out[1] = plot_residuals(res.final_diagnosis, after_path, title, overwrite, before=first,
-                                accepted=res.chosen, validation=r_val, unit=data.output_unit)
+                                accepted=res.chosen, validation=r_val, unit=data.output_unit,
+                                marks=marks)
     return out

@@ -61,7 +61,7 @@ from hhra_phys.parts import (
 )
 
 __all__ = ["EFFECTS", "LIBRARY", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL",
-           "output_offsets", "output_slope"]
+           "FRICTION_WIDTH", "output_offsets", "output_slope"]
 
 RAD2DEG = 180.0 / math.pi
 
@@ -76,36 +76,62 @@ def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
 # --- motion stage -----------------------------------------------------------------
 
 
+#: Default switching width of the friction's smooth sign [rad/s]: seal friction
+#: reverses within a few thousandths of a rad/s (MEASURED_NOTES 9). The stiffness it
+#: adds at rest, ``level/width``, is what the simulator's ROS2 integrator is for.
+FRICTION_WIDTH = 0.005
+
+
 @register_effect
 @dataclass(frozen=True)
 class CoulombFriction(Effect):
-    """Coulomb friction torque, optionally with a Stribeck term.
+    """Friction torque: Coulomb, optionally Stribeck and viscous parts.
 
-    ``domega/dt -= level * sgn(omega)``, ``level = g_coulomb +
-    g_stribeck*exp(-(omega/v_stribeck)^2)``, with the smooth sign
-    ``omega/sqrt(omega^2 + width^2)``. Accelerations in rad/s^2
-    (friction torque over inertia).
+    ``domega/dt -= level * sgn(omega) + g_viscous*omega`` with ``level = g_coulomb +
+    g_stribeck*exp(-(omega/v_stribeck)^2)`` and the smooth sign
+    ``omega/sqrt(omega^2 + width^2)``, whose slope at rest is ``1/width``.
+    Accelerations in rad/s^2 (friction torque over inertia).
+
+    The switching width is physics, not numerics: ``width`` [rad/s] (default
+    :data:`FRICTION_WIDTH`, 0.005 rad/s), or the fitted parameter ``v_switch``
+    with ``fit_width=True``. A sharp friction makes the model stiff
+    (``level/width`` per second at rest): :class:`~hhra_phys.simulate.Simulator`
+    then integrates it with the L-stable ROS2 method. Within the width the
+    smooth sign lets the shaft creep at ``width*f/sqrt(1 - f^2)`` under a push of
+    ``f`` times the friction level, where real friction sticks.
 
     Parameters
     ----------
     stribeck : bool
         Add the Stribeck term (parameters ``g_stribeck`` [rad/s^2] and
         ``v_stribeck`` [rad/s]).
-    eps : float
-        Width of the smooth sign [rad/s] for small friction. The width used is
-        ``eps + level*dt/2`` so that the stiffness the friction adds at rest,
-        ``level/width``, stays below ``2/dt`` whatever the level: the fixed-step
-        integrator (at least 2 substeps per sample) then resolves it.
+    viscous : bool
+        Add a viscous term (parameter ``g_viscous`` [1/s]). Off by default: on a
+        model with viscous damping of its own (the HHRA's ``g_damping``) the two
+        cannot be told apart.
+    width : float
+        Switching width [rad/s] of the smooth sign (when not fitted).
+    fit_width : bool
+        Fit the switching width as parameter ``v_switch`` [rad/s] (log scale,
+        0.0005 to 0.5 rad/s, nominal ``width``).
+    eps : float, optional
+        Earlier versions' smoothing, kept so that saved models and scripts that
+        set it behave as before: the width is then ``eps + level*dt/2``, tied to
+        the sample period so that RK4 with 2 substeps stays stable (about ten
+        times softer than seal friction). ``None`` (default): ``width``.
     dt : float
-        Sample period [s].
+        Sample period [s] (read by ``eps`` only).
     accel_scale : float
         Typical acceleration [rad/s^2] (the model's ``g_torque``); sets the bounds.
     """
 
     stribeck: bool = False
-    eps: float = 0.05
+    eps: float | None = None
     dt: float = 0.004
     accel_scale: float = RIG_ACCEL
+    viscous: bool = False
+    width: float = FRICTION_WIDTH
+    fit_width: bool = False
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "coulomb_friction"
     reads: ClassVar[tuple[str, ...]] = ("omega",)
@@ -116,6 +142,16 @@ class CoulombFriction(Effect):
         "each direction reversal and is largest at small inputs"
     )
     regressors: ClassVar[tuple[str, ...]] = ("sign_velocity", "reversals", "small_input")
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.width, (int, float)) and math.isfinite(self.width)
+                and self.width > 0):
+            raise ParameterError(f"coulomb_friction width must be > 0 rad/s, got {self.width!r}")
+        if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
+            raise ParameterError(f"coulomb_friction eps must be >= 0 rad/s, got {self.eps!r}")
+        if self.eps is not None and self.fit_width:
+            raise ParameterError("coulomb_friction: fit_width and the legacy eps exclude "
+                                 "each other")
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -129,15 +165,31 @@ class CoulombFriction(Effect):
                 Parameter("v_stribeck", "rad/s", 0.1, 1e-3, 2.0, "log",
                           "Stribeck velocity"),
             ]
+        if self.viscous:
+            out.append(Parameter("g_viscous", "1/s", 0.5, 0.0, 50.0, "linear",
+                                 "viscous friction torque over inertia per rad/s"))
+        if self.fit_width:
+            out.append(Parameter("v_switch", "rad/s", self.width, 5e-4, 0.5, "log",
+                                 "switching width of the Coulomb friction"))
         return tuple(out)
+
+    def _width(self, level: Any, p: Mapping[str, Any] | None = None) -> Any:
+        """Width of the smooth sign [rad/s] for friction ``level``."""
+        if self.eps is not None:
+            return self.eps + 0.5 * self.dt * level
+        if self.fit_width and p is not None:
+            return p["v_switch"]
+        return self.width
 
     def apply(self, ctx: Context) -> None:
         w = ctx.x["omega"]
         level = ctx.p["g_coulomb"]
         if self.stribeck:
             level = level + ctx.p["g_stribeck"] * ca.exp(-(w / ctx.p["v_stribeck"]) ** 2)
-        width = self.eps + 0.5 * self.dt * level
-        ctx.add_rate("omega", -level * smooth_sign(w, width))
+        rate = -level * smooth_sign(w, self._width(level, ctx.p))
+        if self.viscous:
+            rate = rate - ctx.p["g_viscous"] * w
+        ctx.add_rate("omega", rate)
 
     def probe(self) -> dict[str, float]:
         return {p.name: p.nominal for p in self.parameters}
@@ -146,7 +198,7 @@ class CoulombFriction(Effect):
         if sig.omega is None:
             raise ModelError("coulomb_friction needs the simulated velocity")
         g = self.probe()["g_coulomb"]
-        return -g * _smooth_np(sig.omega, self.eps + 0.5 * self.dt * g)[:, None]
+        return -g * _smooth_np(sig.omega, self._width(g))[:, None]
 
 
 @register_effect
@@ -376,7 +428,10 @@ class ValveDynamics(Effect):
     def first_order(self, sig: Signals) -> np.ndarray:
         tau = self.probe()["tau_spool"]
         a = math.exp(-sig.dt / tau)
-        lagged = sps.lfilter([1 - a], [1, -a], sig.u, zi=[a * sig.u[0]])[0]
+        # The spool at sample k has seen the held inputs up to k-1 (zero-order hold),
+        # starting at rest on u[0].
+        b, den = [0.0, 1 - a], [1.0, -a]
+        lagged = sps.lfilter(b, den, sig.u, zi=sps.lfilter_zi(b, den) * sig.u[0])[0]
         return (lagged - sig.u)[:, None]
 
 

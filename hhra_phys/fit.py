@@ -7,12 +7,12 @@
     print(res.summary()); res.save("fit.json")
 
 The pipeline: split the record into estimation and validation parts; build a
-:class:`~hhra_phys.problem.Problem` (free groups, bounds, log coordinates,
-initial angle fitted); run a global optimiser of :mod:`hhra_phys.optim` over the
-whole population at once through the compiled simulator; refine locally with
-IPOPT or NLopt on the least-squares cost with exact CasADi derivatives; compute
-Gauss-Newton confidence intervals; score estimation and validation data by
-free-run simulation.
+:class:`~hhra_phys.problem.Problem` (free parameters, bounds, log coordinates,
+the initial values of the model's fitted states); run a global optimiser of
+:mod:`hhra_phys.optim` over the whole population at once through the compiled
+simulator; refine locally with IPOPT or NLopt on the least-squares cost with
+exact CasADi derivatives; compute Gauss-Newton confidence intervals; score
+estimation and validation data by free-run simulation.
 
 H-GWO's ``lam``. The paper's mutation ``lam*X_alpha + F*(X_r1 - X_r2)`` with
 ``lam = 0.25`` pulls every mutant toward the coordinate origin (PAPER_NOTES
@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -53,8 +53,8 @@ from hhra_phys.result import FitResult, uncertainty
 
 __all__ = [
     "MAX_WIDEN_DECADES",
-    "OPTIMIZERS",
     "at_edges",
+    "OPTIMIZERS",
     "default_model",
     "fit",
     "fit_many",
@@ -95,7 +95,7 @@ def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
 
 
 def fit(
-    data: Dataset | None = None,
+    data: Dataset | Sequence[Dataset] | None = None,
     model: Model | None = None,
     *,
     optimizer: str = "hgwo",
@@ -104,7 +104,7 @@ def fit(
     fixed: Mapping[str, float] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     split: float = 0.5,
-    validation: Dataset | None = None,
+    validation: Dataset | Sequence[Dataset] | None = None,
     cost: str = "itae",
     initial_state: str = "fit",
     pop_size: int = 100,
@@ -120,21 +120,27 @@ def fit(
     problem: Problem | None = None,
     seed_population: bool | None = None,
     intervals: str = "linear",
+    per_record: Sequence[str] | None = None,
     default_bounds: Mapping[str, tuple[float, float]] | None = None,
     widen_bounds: bool = True,
 ) -> FitResult:
-    """Fit a physical model to a record.
+    """Fit a physical model to a record, or to several records at once.
 
     Parameters
     ----------
-    data : Dataset, optional
-        The whole record (default: the built-in simulated rig, seed 0).
+    data : Dataset or sequence of Dataset, optional
+        The whole record (default: the built-in simulated rig, seed 0), or a list
+        of records fitted jointly (:mod:`hhra_phys.multi`): shared parameters,
+        per-record initial states (``x0_<state>_rec<k>``) and per-record
+        parameters, each record split by ``split`` unless ``validation`` is
+        given; metrics per record in :attr:`FitResult.records`, pooled in
+        :attr:`FitResult.metrics`.
     model : Model, optional
         Model to fit (default: :func:`default_model`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
-        sample units for records without a sample time). With the default model the
-        record is first converted to its units (mA, deg) where it declares others, and
-        implausible ranges are warned about
+        sample units for records without a sample time). With the default model a
+        single record is first converted to its units (mA, deg) where it declares
+        others, and implausible ranges are warned about
         (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
     optimizer : {"hgwo", "gwo", "pso", "de", "none"}
         Global search (``"none"``: start the refiners from the nominal values or
@@ -144,12 +150,15 @@ def fit(
         ``"nlopt:ALGORITHM"`` (e.g. ``"nlopt:LN_BOBYQA"``), a list of them run in
         turn, or ``"none"``.
     free, fixed, bounds, cost, initial_state
-        See :class:`~hhra_phys.problem.Problem` (default free set: all groups but
-        ``g_spring`` and ``g_load``; the initial angle is fitted).
+        See :class:`~hhra_phys.problem.Problem` (default free set: every parameter
+        but the model's ``held`` ones, for the HHRA ``g_spring`` and ``g_load``; the
+        initial values of the model's fitted states, the HHRA's angle, are fitted).
     split : float
         Fraction of the record used for estimation; the rest is validation.
-    validation : Dataset, optional
-        Separate validation record (then ``data`` is all estimation).
+    validation : Dataset or sequence of Dataset, optional
+        Separate validation record(s) (then ``data`` is all estimation); with
+        several records, whole validation records have their initial state
+        estimated and the first record's per-record parameters.
     pop_size, max_iter : int
         Global search population and iterations (paper: 100 and 200).
     seed : int or None
@@ -183,6 +192,9 @@ def fit(
         95 % intervals from the Gauss-Newton covariance at the optimum (fast), or
         profile-likelihood intervals (:mod:`hhra_phys.likelihood`; a few seconds more,
         better founded along curved, weakly determined directions).
+    per_record : sequence of str, optional
+        With several records: free model parameters estimated once per record
+        (default: those the model's parts declare, such as a sensor offset).
     default_bounds : dict, optional
         ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
         boxes of a record in sample units); unlike ``bounds`` they may be widened.
@@ -190,9 +202,9 @@ def fit(
         When a log-scaled free group ends at the edge of its default box (the model's,
         or ``default_bounds``), widen that side by a decade (at most
         :data:`MAX_WIDEN_DECADES`, fewer when a refit does not lower the cost) and
-        refit; the result's warnings and
-        ``settings["widened"]`` say so. Groups with explicit ``bounds`` and fits of a
-        given ``problem`` are never widened.
+        refit; the result's warnings and ``settings["widened"]`` say so. Groups with
+        explicit ``bounds``, fits of a given ``problem`` and fits of several records are
+        never widened.
 
     Returns
     -------
@@ -208,7 +220,6 @@ def fit(
         callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
     t_start = time.perf_counter()
-    widen_bounds = widen_bounds and problem is None
     if intervals not in ("linear", "profile"):
         raise ParameterError(f"intervals must be 'linear' or 'profile', got {intervals!r}")
     if data is None:
@@ -217,6 +228,31 @@ def fit(
         data = simulate_rig(seed=0)
     if optimizer not in OPTIMIZERS:
         raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
+    if isinstance(data, (list, tuple)):
+        from hhra_phys.multi import fit_records
+
+        if not 0 < split <= 1:
+            raise ParameterError(f"split must be in (0, 1], got {split}")
+        if problem is None:
+            # Boxes are not widened for several records: default boxes act as bounds.
+            bounds = {**(default_bounds or {}), **(bounds or {})} or None
+            problem, val_parts, whole_val = fit_records(
+                data, model, validation, split,
+                {"cost": cost, "free": free, "fixed": fixed, "bounds": bounds,
+                 "initial_state": initial_state, "start": start}, per_record)
+        else:
+            val_parts, whole_val = [None] * len(problem.records), list(validation or [])
+        with interruptible():
+            z, stages, history = _search_and_refine(
+                problem, optimizer, refine, pop_size, max_iter, seed, lam, options,
+                refine_options, start, seed_population, progress, callback)
+        from hhra_phys.multi import records_result
+
+        return records_result(problem, z, stages, history, val_parts, whole_val,
+                              _settings(problem, optimizer, refine, pop_size, max_iter, lam,
+                                        split, time.perf_counter() - t_start),
+                              seed, datasheet, intervals, t_start)
+    widen_bounds = widen_bounds and problem is None
     record_notes: list[str] = []
     if model is None and problem is None:
         # The default HHRA knows its units: convert the record, warn about odd ranges.
@@ -238,23 +274,20 @@ def fit(
     if problem is None:
         if model is None:
             model, auto_bounds = default_model(data)
-            chosen = set(free) if free is not None else set(default_free(model, fixed))
             default_bounds = {**auto_bounds, **(default_bounds or {})}
-            default_bounds = {k: v for k, v in default_bounds.items() if k in chosen}
-        bounds = {**(default_bounds or {}), **(bounds or {})}
+        chosen = set(free) if free is not None else set(default_free(model, fixed))
+        default_bounds = {k: v for k, v in (default_bounds or {}).items() if k in chosen}
+        bounds = {**default_bounds, **(bounds or {})}
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                           bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                           start=start)
-    model = problem.model
-    opts = dict(options or {})
-    if optimizer == "hgwo":
-        opts.setdefault("lam", lam)
-    search = _Search(optimizer, refine, pop_size, max_iter, seed, opts,
-                     dict(refine_options or {}), progress, callback)
-    warm = bool(start) if seed_population is None else seed_population
+    search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
+                     pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
+                     options=options, refine_options=refine_options, start=start,
+                     seed_population=seed_population, progress=progress, callback=callback)
+    widened: list[dict[str, Any]] = []
     with interruptible():
-        z, stages, history = search.run(problem, problem.to_z(problem.start_values()), warm)
-        widened: list[dict[str, Any]] = []
+        z, stages, history = search(problem)
         if widen_bounds:
             problem, z, widened = _widen(problem, z, search, stages, history, fixed_box)
     result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
@@ -301,58 +334,7 @@ EDGE_TOL = 1e-4
 WIDEN_MIN_GAIN = 1e-3
 
 
-@dataclass
-class _Search:
-    """The global search and the refiners of a fit, run again after a box is widened."""
-
-    optimizer: str
-    refine: Any
-    pop_size: int
-    max_iter: int
-    seed: int | None
-    options: dict[str, Any]
-    refine_options: dict[str, Any]
-    progress: bool
-    callback: Callable[[Any], bool | None] | None
-
-    def run(
-        self, problem: Problem, z_start: np.ndarray, warm: bool, label: str = ""
-    ) -> tuple[np.ndarray, list[Stage], list[float]]:
-        """Global search (started with ``z_start`` in the population if ``warm``), refiners."""
-        stages: list[Stage] = []
-        history: list[float] = []
-        z = z_start
-        if self.optimizer != "none":
-            t0 = time.perf_counter()
-            bz = problem.bounds_z()
-            x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
-            res = minimize(problem, bz, method=self.optimizer, pop_size=self.pop_size,
-                           max_iter=self.max_iter, seed=self.seed, vectorized=True,
-                           options=self.options, x0=x0, progress=self.progress,
-                           callback=self.callback)
-            first = float(res.history.best[0]) if len(res.history.best) else float("nan")
-            history = [float(v) for v in res.history.best]
-            z = np.asarray(res.x, dtype=float)
-            stages.append(Stage(self.optimizer + label, z, first, float(res.fun),
-                                int(res.nfev), time.perf_counter() - t0,
-                                {"nit": int(res.nit), "noi": _int_or_none(res.noi),
-                                 "cost": problem.cost, "options": self.options}))
-        ropts = self.refine_options
-        for name in _refiner_names(self.refine):
-            if name == "ipopt":
-                keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
-                st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
-            else:
-                keys = ("max_eval", "xtol_rel", "ftol_rel")
-                st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
-                                  **{k: v for k, v in ropts.items() if k in keys})
-            st.name += label
-            stages.append(st)
-            z = st.z
-        return z, stages, history
-
-
-def at_edges(problem: Problem, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
+def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
     """Free parameters (index, ``"lower"``/``"upper"``) whose coordinate ends at its box edge.
 
     Parameters
@@ -376,7 +358,7 @@ def at_edges(problem: Problem, z: np.ndarray, tol: float = EDGE_TOL) -> list[tup
 def _widen(
     problem: Problem,
     z: np.ndarray,
-    search: _Search,
+    search: Callable[..., tuple[np.ndarray, list[Stage], list[float]]],
     stages: list[Stage],
     history: list[float],
     fixed_box: set[str],
@@ -386,8 +368,9 @@ def _widen(
     One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side, and no
     further once a round lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
     (relative); the user's explicit bounds (``fixed_box``), initial-state and linear (signed)
-    parameters are never widened. Each refit starts its global search with the previous optimum in
-    the population, so it cannot end worse. ``stages`` and ``history`` are extended.
+    parameters are never widened. Each refit (``search``, :func:`_search_and_refine`)
+    starts its global search with the previous optimum in the population, so it cannot end
+    worse. ``stages`` and ``history`` are extended.
     """
     original = {p.name: (p.lower, p.upper) for p in problem.free_params}
     widened: list[dict[str, Any]] = []
@@ -417,7 +400,8 @@ def _widen(
                           bounds={n: tuple(b) for n, b in box.items()},
                           initial_state=problem.initial_state,  # type: ignore[arg-type]
                           simulator=problem.sim)
-        z, more, hist = search.run(problem, problem.to_z(values), True, f" (widened {round_})")
+        z, more, hist = search(problem, z_start=problem.to_z(values),
+                               label=f" (widened {round_})")
         stages.extend(more)
         history.extend(hist)
         new_cost = least_squares_cost(problem, z)
@@ -431,6 +415,68 @@ def _widen(
     return problem, z, widened
 
 
+def _search_and_refine(
+    problem: Any,
+    optimizer: str,
+    refine: str | Sequence[str] | None,
+    pop_size: int,
+    max_iter: int,
+    seed: int | None,
+    lam: float,
+    options: Mapping[str, Any] | None,
+    refine_options: Mapping[str, Any] | None,
+    start: Mapping[str, float] | None,
+    seed_population: bool | None,
+    progress: bool,
+    callback: Callable[[Any], bool | None] | None,
+    z_start: np.ndarray | None = None,
+    label: str = "",
+) -> tuple[np.ndarray, list[Stage], list[float]]:
+    """Global search then refiners on a problem (one record or stacked); (z, stages, history).
+
+    ``z_start`` (a refit after widening a box) starts there, with it in the first
+    population; ``label`` is appended to the stage names.
+    """
+    stages: list[Stage] = []
+    history: list[float] = []
+    warm = bool(start) if seed_population is None else seed_population
+    if z_start is None:
+        z_start = problem.to_z(problem.start_values())
+    else:
+        warm = True
+    z = z_start
+    if optimizer != "none":
+        t0 = time.perf_counter()
+        opts = dict(options or {})
+        if optimizer == "hgwo":
+            opts.setdefault("lam", lam)
+        bz = problem.bounds_z()
+        x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
+        res = minimize(problem, bz, method=optimizer, pop_size=pop_size, max_iter=max_iter,
+                       seed=seed, vectorized=True, options=opts, x0=x0, progress=progress,
+                       callback=callback)
+        first = float(res.history.best[0]) if len(res.history.best) else float("nan")
+        history = [float(v) for v in res.history.best]
+        z = np.asarray(res.x, dtype=float)
+        stages.append(Stage(optimizer + label, z, first, float(res.fun), int(res.nfev),
+                            time.perf_counter() - t0,
+                            {"nit": int(res.nit), "noi": _int_or_none(res.noi),
+                             "cost": problem.cost, "options": opts}))
+    ropts = dict(refine_options or {})
+    for name in _refiner_names(refine):
+        if name == "ipopt":
+            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+            st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
+        else:
+            keys = ("max_eval", "xtol_rel", "ftol_rel")
+            st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
+                              **{k: v for k, v in ropts.items() if k in keys})
+        st.name += label
+        stages.append(st)
+        z = st.z
+    return z, stages, history
+
+
 def _int_or_none(x: Any) -> int | None:
     try:
         return None if x is None else int(x)
@@ -438,31 +484,15 @@ def _int_or_none(x: Any) -> int | None:
         return None
 
 
-def _result(
-    problem: Problem,
-    z: np.ndarray,
-    stages: list[Stage],
-    history: list[float],
-    val: Dataset | None,
-    data: Dataset,
-    optimizer: str,
-    refine: Any,
-    pop_size: int,
-    max_iter: int,
-    seed: int | None,
-    lam: float,
-    split: float,
-    datasheet: Any | None,
-    seconds: float,
-    intervals: str = "linear",
-) -> FitResult:
-    model = problem.model
-    values_free = problem.from_z(z)
-    P = problem.full(values_free)
-    values = model.params.as_dict(P)
-    units = {p.name: p.unit for p in model.params}
-    units.update({p.name: p.unit for p in problem.free_params})
+def _intervals(
+    problem: Any, z: np.ndarray, intervals: str
+) -> tuple[dict[str, tuple[float, float]], dict[str, float], np.ndarray, list[str],
+           dict[str, Any]]:
+    """95 % intervals, standard deviations, correlation, warnings and interval info at ``z``.
 
+    Works for a one-record :class:`Problem` and a stacked
+    :class:`~hhra_phys.multi.MultiProblem` alike (intervals from all records).
+    """
     # Uncertainty from the exact residual Jacobian at the optimum.
     r, J = CompiledLeastSquares(problem)(z)
     cov, corr, warnings = uncertainty(J, r, problem.free_names)
@@ -478,12 +508,7 @@ def _result(
             lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
             ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
-    y_est = problem.simulate_values(values_free)
-    diverged = not (np.all(np.isfinite(y_est)) and np.all(np.isfinite(r)))
-    if diverged:
-        warnings.insert(0, "DIVERGED: the simulation with these parameters does not stay "
-                        "finite on the estimation record, so the fit failed; check the units "
-                        "of the input and output and the values given with --fix / fixed")
+    diverged = not (np.all(np.isfinite(r)) and np.all(np.isfinite(J)))
     interval_info: dict[str, Any] = {"method": "linear"}
     if intervals == "profile" and diverged:
         warnings.append("profile intervals skipped: the fit diverged")
@@ -535,8 +560,42 @@ def _result(
                 f"{name} is poorly determined by these data: its 95 % interval spans "
                 f"{decades:.3g} decades"
             )
+    return ci95, std, corr, warnings, interval_info
+
+
+def _result(
+    problem: Problem,
+    z: np.ndarray,
+    stages: list[Stage],
+    history: list[float],
+    val: Dataset | None,
+    data: Dataset,
+    optimizer: str,
+    refine: Any,
+    pop_size: int,
+    max_iter: int,
+    seed: int | None,
+    lam: float,
+    split: float,
+    datasheet: Any | None,
+    seconds: float,
+    intervals: str = "linear",
+) -> FitResult:
+    model = problem.model
+    values_free = problem.from_z(z)
+    P = problem.full(values_free)
+    values = model.params.as_dict(P)
+    units = {p.name: p.unit for p in model.params}
+    units.update({p.name: p.unit for p in problem.free_params})
+    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
+    y_est = problem.simulate_values(values_free)
+    diverged = not np.all(np.isfinite(y_est))
+    if diverged:
+        warnings.insert(0, "DIVERGED: the simulation with these parameters does not stay "
+                        "finite on the estimation record, so the fit failed; check the units "
+                        "of the input and output and the values given with --fix / fixed")
     metrics = {"est": _score(problem.data, y_est), "val": {}}
     if val is not None:
         y_val = problem.simulate_values(values_free, data=val)
@@ -553,24 +612,9 @@ def _result(
     physical, why = model.physical_view(values, datasheet, data.metadata)
     if why:
         warnings.append(why)
-    settings = {
-        "optimizer": optimizer,
-        "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
-        "pop_size": pop_size,
-        "max_iter": max_iter,
-        "cost": problem.cost,
-        "lam": lam,
-        "split": split,
-        "initial_state": problem.initial_state,
-        "free": problem.free_names,
-        "fixed": problem.fixed,
-        "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
-        "fs": problem.sim.fs,
-        "substeps": problem.sim.substeps,
-        "data": {"name": data.name, "source": data.source, "n": len(data),
-                 "n_est": len(problem.data), "n_val": len(val) if val is not None else 0},
-        "seconds": seconds,
-    }
+    settings = _settings(problem, optimizer, refine, pop_size, max_iter, lam, split, seconds)
+    settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
+                        "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
     return FitResult(
         model_spec=model.to_json(),
         values=values,
@@ -592,6 +636,28 @@ def _result(
         problem=problem,
         status="diverged" if diverged else "ok",
     )
+
+
+def _settings(problem: Any, optimizer: str, refine: Any, pop_size: int, max_iter: int,
+              lam: float, split: float, seconds: float) -> dict[str, Any]:
+    """What reproduces a fit (without the data description)."""
+    return {
+        "optimizer": optimizer,
+        "refine": refine if isinstance(refine, (str, type(None))) else list(refine),
+        "pop_size": pop_size,
+        "max_iter": max_iter,
+        "cost": problem.cost,
+        "lam": lam,
+        "split": split,
+        "initial_state": problem.initial_state,
+        "free": problem.free_names,
+        "fixed": problem.fixed,
+        "bounds": {p.name: [p.lower, p.upper] for p in problem.free_params},
+        "fs": problem.sim.fs,
+        "substeps": problem.sim.substeps,
+        "method": problem.sim.method,
+        "seconds": seconds,
+    }
 
 
 def _score(ds: Dataset, y_sim: np.ndarray) -> dict[str, float]:

@@ -368,7 +368,8 @@ class Problem:
         """The problem's simulator, or one at ``data``'s sample rate if it differs."""
         if abs(data.fs - self.sim.fs) <= 1e-9 * data.fs:
             return self.sim
-        return Simulator(self.model, fs=data.fs, substeps=self.sim.substeps)
+        return Simulator(self.model, fs=data.fs, substeps=self.sim.substeps,
+                         method=self.sim.method)
 
     # -- evaluation ------------------------------------------------------------------------
     def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:

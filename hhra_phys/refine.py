@@ -93,15 +93,28 @@ class CompiledLeastSquares:
     (native code, milliseconds per evaluation) and the chain rule through the
     coordinate map and the initial-state rule. The last point is cached because
     IPOPT asks for cost, gradient and Hessian at the same point.
+
+    A problem made of several records (:class:`~hhra_phys.multi.MultiProblem`)
+    lists them with ``blocks()``: pairs of a one-record :class:`Problem` and the
+    indices of its free coordinates in the stacked ones. The residuals are then
+    stacked record after record and each record's Jacobian fills its rows at
+    those columns (zero elsewhere: one record's initial state does not move
+    another's output).
     """
 
     def __init__(self, problem: Problem) -> None:
         from hhra_phys.sensitivity import TrajectorySensitivity
 
         self.problem = problem
-        self.sens = TrajectorySensitivity.of(problem.sim)
+        blocks = getattr(problem, "blocks", None)
+        self.blocks: list[tuple[Problem, np.ndarray]] = (
+            list(blocks()) if blocks is not None
+            else [(problem, np.arange(problem.n_free))]
+        )
+        self.sens = TrajectorySensitivity.of(self.blocks[0][0].sim)
+        self._sens = [TrajectorySensitivity.of(pr.sim) for pr, _ in self.blocks]
         self.n_free = problem.n_free
-        self.n_obs = problem.y.size
+        self.n_obs = int(sum(pr.y.size for pr, _ in self.blocks))
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray] | None = None
         self.n_eval = 0
@@ -111,33 +124,46 @@ class CompiledLeastSquares:
         key = z.tobytes()
         if key == self._key and self._value is not None:
             return self._value
-        pr = self.problem
-        v = pr.from_z(z)
-        p = pr.full(v)
-        x0 = pr.initial_states(v)[0]
-        y, dy = self.sens(pr.u, p, x0)
-        nx = pr.model.nx
-        # d(x0, p)/dz: analytic for p, central differences for the (cheap) x0 rule.
-        dv = np.where(pr._log, np.log(10.0) * v, pr._scale)
-        dp = np.zeros((pr.model.n_params, self.n_free))
-        for k, j in enumerate(pr._model_free):
-            dp[j, k] = dv[k]
-        dx0 = np.zeros((nx, self.n_free))
-        for k in range(self.n_free):
-            step = 1e-7 * max(1.0, abs(z[k]))
-            zp, zm = z.copy(), z.copy()
-            zp[k] += step
-            zm[k] -= step
-            dx0[:, k] = (pr.initial_states(pr.from_z(zp))[0]
-                         - pr.initial_states(pr.from_z(zm))[0]) / (2 * step)
-        J = dy[:, :nx] @ dx0 + dy[:, nx:] @ dp
-        r = y - pr.y
+        r = np.empty(self.n_obs)
+        J = np.zeros((self.n_obs, self.n_free))
+        row = 0
+        for (pr, idx), sens in zip(self.blocks, self._sens, strict=True):
+            rb, Jb = _block_least_squares(pr, sens, z[idx])
+            r[row:row + rb.size] = rb
+            J[row:row + rb.size, idx] = Jb
+            row += rb.size
         if not (np.isfinite(r).all() and np.isfinite(J).all()):
             r = np.full_like(r, 1e150)  # IPOPT treats huge values as a failed step
             J = np.zeros_like(J)
         self.n_eval += 1
         self._key, self._value = key, (r, J)
         return r, J
+
+
+def _block_least_squares(
+    pr: Problem, sens: Any, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residual (N,) and Jacobian (N, n_free) of one one-record problem at coordinates ``z``."""
+    n_free = pr.n_free
+    v = pr.from_z(z)
+    p = pr.full(v)
+    x0 = pr.initial_states(v)[0]
+    y, dy = sens(pr.u, p, x0)
+    nx = pr.model.nx
+    # d(x0, p)/dz: analytic for p, central differences for the (cheap) x0 rule.
+    dv = np.where(pr._log, np.log(10.0) * v, pr._scale)
+    dp = np.zeros((pr.model.n_params, n_free))
+    for k, j in enumerate(pr._model_free):
+        dp[j, k] = dv[k]
+    dx0 = np.zeros((nx, n_free))
+    for k in range(n_free):
+        step = 1e-7 * max(1.0, abs(z[k]))
+        zp, zm = z.copy(), z.copy()
+        zp[k] += step
+        zm[k] -= step
+        dx0[:, k] = (pr.initial_states(pr.from_z(zp))[0]
+                     - pr.initial_states(pr.from_z(zm))[0]) / (2 * step)
+    return y - pr.y, dy[:, :nx] @ dx0 + dy[:, nx:] @ dp
 
 
 class _ResidualCallback(ca.Callback):
@@ -286,6 +312,9 @@ def refine_ipopt(
     bz = problem.bounds_z()
     z0 = np.clip(z0, bz[:, 0], bz[:, 1])
     if shooting == "multiple":
+        if hasattr(problem, "blocks"):
+            raise ParameterError("multiple shooting fits one record; use shooting='single' "
+                                 "for several records")
         return _ipopt_multiple_shooting(problem, z0, hessian, segments, max_iter, tol, verbose, t0)
     use_compiled = derivatives == "compiled" and hessian != "exact"
     callback = None

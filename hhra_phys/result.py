@@ -204,6 +204,7 @@ class FitResult:
     intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
     problem: Any = field(default=None, repr=False, compare=False)
     status: str = "ok"
+    records: list[dict[str, Any]] = field(default_factory=list)
 
     # -- reuse ------------------------------------------------------------------------
     @property
@@ -217,6 +218,16 @@ class FitResult:
             self.__dict__["_model"] = cached
         return cached
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The live problem holds compiled code (ctypes handles) that cannot cross a
+        # process boundary: a pickled result (fit_many on an executor) carries its
+        # specification and rebuilds the model on the other side.
+        state = dict(self.__dict__)
+        state["problem"] = None
+        state.pop("_model", None)
+        state.pop("_sims", None)
+        return state
+
     def simulator(self, fs: float | None = None) -> Simulator:
         """A simulator of the fitted model at ``fs`` [Hz] (the fit's own when it matches)."""
         fs = float(fs or self.settings["fs"])
@@ -225,8 +236,12 @@ class FitResult:
             return pr.sim
         sims = self.__dict__.setdefault("_sims", {})
         if fs not in sims:
+            # The fit's method and substeps (a result saved before methods existed
+            # used RK4 or the automatic choice); a single parameter vector is still
+            # refined if the stability check fails for it (Simulator.for_parameters).
             sims[fs] = Simulator(self.model, fs=fs,
-                                 substeps=self.settings.get("substeps", "auto"))
+                                 substeps=self.settings.get("substeps", "auto"),
+                                 method=self.settings.get("method", "auto"))
         return sims[fs]
 
     def parameter_vector(self) -> np.ndarray:
@@ -299,13 +314,25 @@ class FitResult:
                 "free": name in self.free,
             }
         for name in self.free:
-            if name not in out:  # initial-state parameters
+            if name not in out:  # initial-state and per-record parameters
                 out[name] = {"value": self.x0_param(name), "unit": self.units.get(name, ""),
                              "ci95": list(self.ci95[name]), "free": True}
         return out
 
     def x0_param(self, name: str) -> float:
-        """Value of a fitted initial-state parameter ``x0_<state>``."""
+        """Value of a fitted initial-state parameter ``x0_<state>``.
+
+        Also of a per-record parameter of a multi-record fit,
+        ``x0_<state>_rec<k>`` or ``<name>_rec<k>`` (record ``k`` from 1).
+        """
+        from hhra_phys.multi import split_record_name
+
+        base, k = split_record_name(name)
+        if k is not None and k <= len(self.records):
+            rec = self.records[k - 1]
+            if base.startswith("x0_") and base[3:] in rec.get("x0", {}):
+                return float(rec["x0"][base[3:]])
+            return float(rec["values"][base])
         return float(self.x0[name[3:]])
 
     # -- reporting ----------------------------------------------------------------------------
@@ -358,6 +385,7 @@ class FitResult:
             "model": self.model_spec,
             "created": self.created,
             "intervals": self.intervals,
+            **({"records": self.records} if self.records else {}),
         }
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
@@ -402,6 +430,7 @@ class FitResult:
             created=d.get("created", ""),
             intervals=d.get("intervals", {"method": "linear"}),
             status=d.get("status", "ok"),
+            records=list(d.get("records", [])),
         )
 
 

@@ -2,7 +2,7 @@
 
 The local refiners need the residual ``r(z)`` and its Jacobian ``J = dr/dz`` many
 times. Differentiating the symbolic ``mapaccum`` graph runs in CasADi's virtual
-machine (seconds per IPOPT run on a 5000-sample record); here the RK4 step is
+machine (seconds per IPOPT run on a 5000-sample record); here the integration step is
 augmented with its forward sensitivity equations instead,
 
     x_{k+1} = F(x_k, u_k, p)
@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
-from hhra_phys.integrate import rk4
+from hhra_phys.integrate import advance
 from hhra_phys.simulate import Simulator
 
 __all__ = [
@@ -57,7 +57,10 @@ class TrajectorySensitivity:
         u = ca.SX.sym("u", nu)
         f, h = sim._fns["f"], sim._fns["h"]
         hh = sim.h
-        xk = rk4(f, x, u, p, hh, sim.substeps)
+        # The simulator's own method and substeps: the exact Jacobian of the same
+        # discretisation (for ROS2 CasADi differentiates through the step's
+        # Jacobian and its LU as well).
+        xk = advance(sim.method, f, sim._fns["jac"], x, u, p, hh, sim.substeps)
         y = h(x, u, p)
         dp = ca.horzcat(ca.SX.zeros(self.np_, self.nx), ca.SX.eye(self.np_))
         S_next = ca.mtimes(ca.jacobian(xk, x), S) + ca.mtimes(ca.jacobian(xk, p), dp)

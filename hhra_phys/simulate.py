@@ -2,9 +2,35 @@
 
 :class:`Simulator` turns a :class:`~hhra_phys.model.Model` into a compiled
 simulator of the sampled system: the input is held constant over each sample
-(zero-order hold), the state is advanced with classical Runge-Kutta 4 using
-``substeps`` steps per sample, and the output is read at the sample instants
-(``y[k] = h(x(t_k))``, so ``y[0]`` is the output of the initial state).
+(zero-order hold), the state is advanced with ``substeps`` steps per sample of
+a fixed-step method of :mod:`hhra_phys.integrate` (classical Runge-Kutta 4, or
+the linearly implicit Rosenbrock method ROS4 for stiff models), and the output
+is read at the sample instants (``y[k] = h(x(t_k))``, so ``y[0]`` is the output
+of the initial state).
+
+Method and substeps (``method="auto"``, ``substeps="auto"``). The state
+Jacobian of the nominal model is evaluated at rest; RK4 keeps the integration
+error of the rig far below its noise while ``|lambda| * h <= 0.25``
+(``docs/performance.md``), so it gets ``ceil(rho*dt/0.25)`` substeps (at least
+2). A model for which that would be more than :data:`RK4_MAX_SUBSTEPS` is
+*stiff* (a friction switching within a few thousandths of a rad/s adds a real
+eigenvalue of ``-level/width``, tens of thousands per second): it is integrated
+with ROS4, a fourth-order Rosenbrock method that is A-stable and damps a stiff
+real mode by a factor of 3 per step whatever its speed, so only the remaining
+modes (oscillatory, or slower than the sample) set the substeps.
+:attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
+chosen and why.
+
+Single parameter vectors follow their parameters. A simulation of one
+parameter vector (``simulate(u, p)`` with ``p`` of shape ``(n_params,)``, and
+so every fitted model's prediction) re-applies the rule above to the given
+parameters when the simulator was built with ``substeps="auto"`` (never
+coarser than the simulator's own choice), and, whatever the settings, refines
+the substeps (or switches to ROS4) when the stability check below fails for
+them, with a ``RuntimeWarning``. :attr:`Simulator.last_method` and
+:attr:`Simulator.last_substeps` say what the last call used. Populations
+(optimiser candidates) are never refined: unstable rows are NaN (infinite cost)
+so that every candidate of a search is scored by the same discretisation.
 
 Construction (CasADi):
 
@@ -23,12 +49,12 @@ Construction (CasADi):
 Without a C compiler the same CasADi functions run in CasADi's virtual machine.
 
 Stability. Explicit RK4 is stable only while ``|lambda| * h`` stays below about
-2.8 for every eigenvalue ``lambda`` of the state Jacobian. The hydraulic natural
-frequency grows with ``sqrt(g_torque*g_compress)``, and the orifice becomes stiff
+2.8 for every eigenvalue ``lambda`` of the state Jacobian (ROS4 at any step). The
+hydraulic natural frequency grows with ``sqrt(g_torque*g_compress)``, and the orifice becomes stiff
 near the supply pressure, so a candidate from a wide search box can leave the
 stable region. Before simulating, every candidate's Jacobian is evaluated at rest
 and at high load pressure with the largest input of the record; a candidate
-whose spectral radius times the substep exceeds ``rho_max`` is *flagged*: its
+whose spectral radius times the substep exceeds ``rho_max`` (RK4 only) is *flagged*: its
 row of the output is NaN and :attr:`Simulator.last_status` says why. Rows whose
 simulation overflows or diverges are flagged too. Nothing raises inside a
 population evaluation.
@@ -45,7 +71,7 @@ import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
 from hhra_phys.errors import ParameterError, SimulationError
-from hhra_phys.integrate import rk4
+from hhra_phys.integrate import METHODS, advance
 from hhra_phys.model import Model
 from hhra_phys.vectorize import SimdTarget, simd_target, supports
 
@@ -57,11 +83,29 @@ __all__ = [
 #: (substeps x block x lanes); the block and then the lanes shrink to respect it.
 UNROLL_BUDGET = 80
 
-#: Status codes of :attr:`Simulator.last_status`.
-STATUS_OK = 0
-#: Most RK4 substeps per sample ``substeps="auto"`` may choose; more is refused
+#: Most RK4 substeps per sample the automatic choice uses; a model needing more is
+#: stiff and integrated with ROS4 instead.
+RK4_MAX_SUBSTEPS = 8
+
+#: Accuracy rule: largest ``|lambda| * h`` of the modes a method must resolve
+#: (RK4: every mode; ROS4: every mode but the stiff real ones, see
+#: :meth:`Simulator.plan`). Measured in ``docs/performance.md``.
+RK4_ACCURACY = 0.25
+ROS4_ACCURACY = 0.25
+
+#: Fewest ROS4 substeps per sample for a model with a stiff mode.
+ROS4_MIN_STIFF = 8
+
+#: A real eigenvalue (``|Im| < 0.1 |lambda|``) with ``|lambda| * dt`` above this
+#: relaxes within a sample: ROS4 (A-stable, damping it) need not resolve it.
+STIFF_REAL = 2.0
+
+#: Most substeps per sample ``substeps="auto"`` may choose; more is refused
 #: (:class:`SimulationError`) as a sign of a time axis in the wrong unit.
 MAX_AUTO_SUBSTEPS = 64
+
+#: Status codes of :attr:`Simulator.last_status`.
+STATUS_OK = 0
 STATUS_UNSTABLE = 1  # spectral radius times substep above rho_max: not simulated reliably
 STATUS_DIVERGED = 2  # non-finite or exploding output
 
@@ -76,7 +120,7 @@ class _Compiled:
 
 
 class Simulator:
-    """Compiled RK4 simulator of a model for a fixed sample rate.
+    """Compiled fixed-step simulator of a model for a fixed sample rate.
 
     Parameters
     ----------
@@ -85,10 +129,16 @@ class Simulator:
     fs : float
         Sample rate [Hz] of the input and output.
     substeps : int or "auto"
-        RK4 steps per sample. ``"auto"`` chooses the smallest number (at least 2)
-        for which the spectral radius of the nominal model at rest times the
-        substep is at most 0.25, which kept the integration error of the
-        simulated rig below 1e-4 deg against CVODES (``docs/performance.md``).
+        Integration steps per sample. ``"auto"`` chooses them for the method
+        (module docstring): for RK4 the smallest number (at least 2) for which
+        the spectral radius of the nominal model at rest times the substep is at
+        most 0.25, which kept the integration error of the simulated rig below
+        1e-4 deg against CVODES (``docs/performance.md``). A number is used as
+        given, except that with ``method="auto"`` on a stiff model it is a floor
+        under the ROS4 rule (at least :data:`ROS4_MIN_STIFF`).
+    method : {"auto", "rk4", "ros2", "ros4"}
+        Integration method (:mod:`hhra_phys.integrate`). ``"auto"``: RK4 unless
+        the nominal model is stiff (module docstring), then ROS4.
     threads : int
         Threads used for a population (CasADi thread map).
     block : int
@@ -114,12 +164,24 @@ class Simulator:
         ``"casadi"`` uses CasADi's virtual machine, ``"auto"`` compiles when a
         compiler is available.
     rho_max : float
-        Candidates whose spectral radius times the substep exceeds this are
-        flagged (RK4's stability limit is about 2.8 on the real and imaginary
-        axes; the default leaves a margin because the check samples the
-        state space).
+        With RK4, candidates whose spectral radius times the substep exceeds
+        this are flagged (RK4's stability limit is about 2.8 on the real and
+        imaginary axes; the default leaves a margin because the check samples
+        the state space). ROS4 is stable at any step: nothing is flagged.
     diverge_limit : float
         An output magnitude beyond this flags the row as diverged.
+
+    Attributes
+    ----------
+    method : str
+        The integration method used (``"rk4"``, ``"ros4"``, or ``"ros2"`` if asked for).
+    method_reason : str
+        Why it was chosen (stiffness figures of the nominal model).
+    substeps : int
+        Steps per sample.
+    last_method, last_substeps : str, int
+        What the last :meth:`simulate` call used (a single parameter vector may
+        have been refined for its parameters, module docstring).
 
     Examples
     --------
@@ -143,6 +205,7 @@ class Simulator:
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
         simd: int | str | None = "auto",
+        method: str = "auto",
     ) -> None:
         if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
             raise ParameterError(f"fs must be a positive sample rate in Hz, got {fs!r}")
@@ -159,15 +222,51 @@ class Simulator:
         self.rho_max = float(rho_max)
         self.diverge_limit = float(diverge_limit)
         self.simd = self._simd_target(simd)
+        self._simd_arg = simd
+        self._threads_arg, self._lanes_arg, self._block_arg = int(threads), int(lanes), int(block)
+        self._chunk_arg = int(chunk)
         self._fns = model.functions(self.dt)
+        if method not in ("auto", *METHODS):
+            raise ParameterError(
+                f"method must be 'auto' or one of {', '.join(METHODS)}, got {method!r}")
+        if substeps != "auto" and (
+                not isinstance(substeps, (int, np.integer)) or isinstance(substeps, bool)
+                or substeps < 1):
+            raise ParameterError(
+                f"substeps must be a positive integer or 'auto', got {substeps!r}"
+            )
+        #: Whether the substeps were chosen by the rule (single vectors then follow
+        #: their parameters) rather than given.
+        self.substeps_auto = substeps == "auto"
+        chosen, n_auto, why = self.plan(model.nominal(), method=None if method == "auto"
+                                        else method)
+        self.method = chosen
+        self.method_reason = why if method == "auto" else f"{method} requested; {why}"
         if substeps == "auto":
-            self.substeps = self._auto_substeps()
+            self.substeps = n_auto
+        elif method == "auto" and chosen != "rk4":
+            # A given count is meant for RK4 on a model that is not stiff; for a
+            # stiff one it is a floor under the rule's (ROS4_MIN_STIFF).
+            self.substeps = max(int(substeps), n_auto)
         else:
-            if not isinstance(substeps, (int, np.integer)) or substeps < 1:
-                raise ParameterError(
-                    f"substeps must be a positive integer or 'auto', got {substeps!r}"
-                )
             self.substeps = int(substeps)
+        if self.substeps_auto and n_auto > MAX_AUTO_SUBSTEPS:
+            # Refused before anything is compiled: such a model generates megabytes of C
+            # and the cause is nearly always a time axis in the wrong unit.
+            raise SimulationError(
+                f"the sample period {self.dt:.4g} s needs {n_auto} {chosen.upper()} substeps "
+                f"per sample ({why}; at most {MAX_AUTO_SUBSTEPS} are allowed): is the time "
+                "column in ms? Pass --time-unit ms (CLI) or divide t by 1000; a record in "
+                "sample units needs Model.time_scaled"
+            )
+        if self.substeps_auto and n_auto > 2 * RK4_MAX_SUBSTEPS:
+            # Usually a unit mismatch: nominal values per second on data in samples.
+            warnings.warn(
+                f"the model's modes that must be resolved need {n_auto} {chosen.upper()} "
+                f"substeps per {self.dt:.3g} s sample ({why}); check that the model's time "
+                "units match the data's (Model.time_scaled for records in sample units)",
+                RuntimeWarning, stacklevel=2,
+            )
         self.h = self.dt / self.substeps
         self.lanes = int(lanes)
         # Keep the unrolled step small: a stiff model needing many substeps would
@@ -194,6 +293,9 @@ class Simulator:
         self.last_status: np.ndarray = np.zeros(0, dtype=int)
         #: Spectral radius times substep per row of the last call.
         self.last_rho: np.ndarray = np.zeros(0)
+        self.last_method: str = self.method
+        self.last_substeps: int = self.substeps
+        self._derived: dict[tuple[str, int], Simulator] = {}
 
     # -- construction -------------------------------------------------------------
     def _simd_target(self, simd: int | str | None) -> SimdTarget | None:
@@ -212,30 +314,128 @@ class Simulator:
             return SimdTarget(int(simd), detected.compiler, detected.flags)
         raise ParameterError(f"simd must be 'auto', a positive integer or None, got {simd!r}")
 
-    def _auto_substeps(self) -> int:
-        x = self.model.x0()
-        u = np.zeros(self.model.n_lags + 1)
-        jac = np.array(self._fns["jac"](x, u, self.model.nominal()))
-        rho = float(np.max(np.abs(np.linalg.eigvals(jac)))) if jac.size else 0.0
-        n = max(2, math.ceil(rho * self.dt / 0.25))
-        if n > MAX_AUTO_SUBSTEPS:
-            # Refused before anything is compiled: such a model generates megabytes of C
-            # and the cause is nearly always a time axis in the wrong unit.
-            raise SimulationError(
-                f"the sample period {self.dt:.4g} s needs {n} RK4 substeps per sample (the "
-                f"model's fastest eigenvalue is {rho:.3g} 1/s; at most {MAX_AUTO_SUBSTEPS} "
-                f"are allowed): is the time column in ms? Pass --time-unit ms (CLI) or "
-                f"divide t by 1000; a record in sample units needs Model.time_scaled"
-            )
-        if n > 16:
-            # Usually a unit mismatch: nominal values per second on data in samples.
+    def _eigenvalues(self, p: np.ndarray, umax: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """Eigenvalues of the state Jacobian (1/s): at rest, and at every check point.
+
+        ``umax=None``: at rest only (both arrays the same).
+        """
+        fn = self._fns["jac"]
+        nl = self.model.n_lags + 1
+        if umax is None:
+            xs, us = self.model.x0()[None, :], np.zeros(1)
+        else:
+            xs, us = self._check_points(float(umax))
+        out = []
+        for x, u in zip(xs, us, strict=True):
+            jac = np.array(fn(x, np.full(nl, u), p), dtype=float)
+            out.append(np.linalg.eigvals(jac) if jac.size and np.isfinite(jac).all()
+                       else np.array([np.inf]))
+        return out[0], np.concatenate(out)
+
+    def plan(self, p: np.ndarray, umax: float | None = None,
+             method: str | None = None) -> tuple[str, int, str]:
+        """Method and substeps this simulator's rule gives for parameters ``p``.
+
+        Parameters
+        ----------
+        p : array, shape (n_params,)
+            One parameter vector.
+        umax : float, optional
+            Largest input magnitude of the record (input units): RK4's substeps
+            then also keep every check point of :meth:`stability_index` below
+            ``rho_max/2``. ``None``: the rest state only.
+        method : {"rk4", "ros2", "ros4"}, optional
+            Force the method (default: RK4 unless it would need more than
+            :data:`RK4_MAX_SUBSTEPS`).
+
+        Returns
+        -------
+        method : str
+        substeps : int
+        reason : str
+            The figures behind the choice.
+        """
+        p = np.asarray(p, dtype=float)
+        rest, points = self._eigenvalues(p, umax)
+        dt = self.dt
+        rho_rest = float(np.max(np.abs(rest)))
+        rho_pts = float(np.max(np.abs(points)))
+        n_rk4 = max(2, math.ceil(rho_rest * dt / RK4_ACCURACY))
+        if umax is not None:
+            n_rk4 = max(n_rk4, math.ceil(rho_pts * dt / (0.5 * self.rho_max)))
+        # ROS4 need not resolve stiff real modes (they relax within a sample); the
+        # others, oscillatory or slow, set its substeps (at rest, like RK4's rule).
+        mod = np.abs(rest)
+        stiff = (np.abs(rest.imag) < 0.1 * mod) & (mod * dt > STIFF_REAL)
+        rho_ns = float(np.max(mod[~stiff])) if (~stiff).any() else 0.0
+        # A stiff mode is damped by R(-inf) = 1/3 per ROS4 step, and each friction
+        # reversal is resolved to first order only: at least 8 steps per sample
+        # (docs/performance.md: 2.7e-2 deg with 2, 2e-3 to 1e-2 with 4, 3e-4 with 8).
+        n_ros = max(ROS4_MIN_STIFF if stiff.any() else 2,
+                    math.ceil(rho_ns * dt / ROS4_ACCURACY))
+        if not math.isfinite(rho_rest) or not math.isfinite(rho_pts):
+            return (method or "rk4", 2, "non-finite state Jacobian")
+        figures = (f"spectral radius at rest {rho_rest:.4g} 1/s, over the check points "
+                   f"{rho_pts:.4g} 1/s, of the non-stiff modes {rho_ns:.4g} 1/s")
+        if method is None:
+            # ROS4 pays off only when stiff real modes are what RK4 would resolve.
+            method = "rk4" if n_rk4 <= RK4_MAX_SUBSTEPS or n_ros >= n_rk4 else "ros4"
+            if method == "rk4":
+                why = (f"not stiff (RK4 needs {n_rk4} substeps"
+                       + (")" if n_rk4 <= RK4_MAX_SUBSTEPS else
+                          ", its fastest modes are not real: ROS4 would need as many)")
+                       + f": {figures}")
+            else:
+                why = (f"stiff (RK4 would need {n_rk4} substeps, more than "
+                       f"{RK4_MAX_SUBSTEPS}): {figures}")
+        else:
+            why = figures
+        return method, (n_rk4 if method == "rk4" else n_ros), why
+
+    def for_parameters(self, p: np.ndarray, umax: float = 1.0) -> Simulator:
+        """The simulator a single parameter vector ``p`` is simulated with.
+
+        ``self`` when its method and substeps suit ``p``, else a simulator with the
+        same settings and the method and substeps of :meth:`plan` for ``p`` (built
+        once and kept). With ``substeps="auto"`` the rule is re-applied to ``p``
+        (never coarser than ``self``); otherwise ``self`` is kept unless the
+        stability check fails for ``p``, which gives a ``RuntimeWarning``.
+
+        Parameters
+        ----------
+        p : array, shape (n_params,)
+            Parameters.
+        umax : float
+            Largest input magnitude of the record (input units).
+        """
+        p = self.model.params.check_population(p)[0]
+        unstable = bool(self._stability_status(p[None, :], np.array([umax]))[1][0]
+                        == STATUS_UNSTABLE)
+        if not (unstable or self.substeps_auto):
+            return self
+        if self.method != "rk4":
+            method, n, why = self.plan(p, umax, method=self.method)
+        else:
+            method, n, why = self.plan(p, umax)
+        if method == self.method:
+            n = max(n, self.substeps)
+            if n == self.substeps:
+                return self
+        key = (method, n)
+        if key not in self._derived:
+            self._derived[key] = Simulator(
+                self.model, self.fs, substeps=n, method=method, threads=self._threads_arg,
+                block=self._block_arg, lanes=self._lanes_arg, chunk=self._chunk_arg,
+                backend=self.backend, rho_max=self.rho_max, diverge_limit=self.diverge_limit,
+                simd=self._simd_arg)
+        if unstable:
             warnings.warn(
-                f"the model's fastest eigenvalue ({rho:.3g} 1/s) needs {n} RK4 substeps per "
-                f"{self.dt:.3g} s sample; check that the model's time units match the data's "
-                "(Model.time_scaled for records in sample units)",
+                f"these parameters are unstable for {self.method.upper()} with {self.substeps} "
+                f"substeps per sample (spectral radius x substep above rho_max "
+                f"{self.rho_max:g}): simulated with {method.upper()} and {n} substeps ({why})",
                 RuntimeWarning, stacklevel=3,
             )
-        return n
+        return self._derived[key]
 
     def _build_step(self, states: bool, lanes: int = 1) -> ca.Function:
         """SX function advancing ``block`` samples of ``lanes`` members.
@@ -250,7 +450,7 @@ class Simulator:
         x = ca.SX.sym("x", m.nx, lanes)
         p = ca.SX.sym("p", m.n_params, lanes)
         U = ca.SX.sym("U", nu * self.block)
-        f, h = self._fns["f"], self._fns["h"]
+        f, h, jac = self._fns["f"], self._fns["h"], self._fns["jac"]
         hh = self.h
         x_next, y_cols, x_cols = [], [], []
         for lane in range(lanes):
@@ -260,7 +460,7 @@ class Simulator:
                 uk = U[k * nu:(k + 1) * nu]
                 ys.append(h(xk, uk, pk))
                 xs.append(xk)
-                xk = rk4(f, xk, uk, pk, hh, self.substeps)
+                xk = advance(self.method, f, jac, xk, uk, pk, hh, self.substeps)
             x_next.append(xk)
             y_cols.append(ca.vertcat(*ys))
             x_cols.append(ca.horzcat(*xs))
@@ -270,7 +470,7 @@ class Simulator:
         outs = [ca.horzcat(*x_next), ca.horzcat(*y_cols).T]
         if states:
             outs.append(ca.horzcat(*x_cols))
-        # CSE merges what the RK4 stages recompute from the same held input
+        # CSE merges what the stages recompute from the same held input
         # (e.g. the valve's smoothed sign): about 13 % fewer instructions.
         return ca.Function("step", [x, p, U], outs, {"cse": True})
 
@@ -575,9 +775,10 @@ class Simulator:
         return u, P, X0, single
 
     def _stability_status(self, P: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(rho, status): candidates beyond ``rho_max`` are flagged before simulating."""
+        """(rho, status): RK4 candidates beyond ``rho_max`` are flagged before simulating."""
         rho = self.stability_index(P, float(np.max(np.abs(u))))
-        return rho, np.where(rho > self.rho_max, STATUS_UNSTABLE, STATUS_OK)
+        limit = self.rho_max if self.method == "rk4" else math.inf
+        return rho, np.where(rho > limit, STATUS_UNSTABLE, STATUS_OK)
 
     def _pack(self, X: np.ndarray, P: np.ndarray, entry: _Compiled) -> tuple[np.ndarray, ...]:
         """Initial states (rows, n_pop) and parameters (n_pop, n_params) in the entry's layout.
@@ -635,6 +836,14 @@ class Simulator:
             State trajectories, only when ``states=True``.
         """
         u, P, X0, single = self._prepare(u, P, x0)
+        if single:
+            sim = self.for_parameters(P[0], float(np.max(np.abs(u))))
+            if sim is not self:
+                out = sim.simulate(u, P[0], x0=X0[:, 0], states=states)
+                self.last_status, self.last_rho = sim.last_status, sim.last_rho
+                self.last_method, self.last_substeps = sim.method, sim.substeps
+                return out
+        self.last_method, self.last_substeps = self.method, self.substeps
         n, n_pop = u.size, P.shape[0]
         rho, status = self._stability_status(P, u)
         entry = self._entry(n_pop, "x" if states else "y")

@@ -40,7 +40,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -438,6 +438,7 @@ def run_study(
     settings: StudySettings,
     progress: Callable[[str], None] | None = None,
     jobs: int = 1,
+    executor: Executor | None = None,
 ) -> dict[str, Any]:
     """Run every table of ``settings`` and return the JSON-ready report.
 
@@ -449,6 +450,9 @@ def run_study(
         Called with a line of text after each function.
     jobs : int
         Worker processes (one function per task); 1 runs everything in this process.
+    executor : concurrent.futures.Executor, optional
+        Run the functions there instead (one job each; e.g. a Dask cluster's executor);
+        overrides ``jobs``. Every run is seeded, so the report is the same.
 
     Returns
     -------
@@ -463,7 +467,14 @@ def run_study(
     start = time.perf_counter()
     per_function: dict[str, dict[str, dict[str, dict[str, Cell]]]] = {}
     timing: dict[str, Any] = {"per_function": {}}
-    if jobs == 1:
+    if executor is not None:
+        futures = {key: executor.submit(run_function, settings, key)
+                   for key in settings.functions}
+        for key, fut in futures.items():
+            per_function[key] = fut.result()
+            if progress is not None:
+                progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
+    elif jobs == 1:
         for key in settings.functions:
             t0 = time.perf_counter()
             per_function[key] = run_function(settings, key)
@@ -478,7 +489,7 @@ def run_study(
                 if progress is not None:
                     progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
     timing["total"] = time.perf_counter() - start
-    timing["jobs"] = jobs
+    timing["jobs"] = jobs if executor is None else type(executor).__name__
 
     report: dict[str, Any] = {
         "settings": {
@@ -631,6 +642,7 @@ def run_and_write(
     overwrite: bool = False,
     jobs: int = 1,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
 ) -> tuple[dict[str, Any], str]:
     """Run the study and write its outputs; returns the report and its markdown text.
 
@@ -652,11 +664,12 @@ def run_and_write(
         },
         overwrite,
     )
-    report = run_study(settings, progress=progress, jobs=jobs)
+    report = run_study(settings, progress=progress, jobs=jobs, executor=executor)
     text = format_report(report) + (
         f"\n{settings.runs} runs per cell, population {settings.pop_size}, "
         f"{settings.max_iter} iterations, seed {settings.seed}; "
-        f"total {report['timing']['total']:.1f} s with {jobs} job(s)\n"
+        f"total {report['timing']['total']:.1f} s with "
+        f"{jobs if executor is None else type(executor).__name__} job(s)\n"
     )
     if markdown_path:
         atomic_write_text(markdown_path, text)

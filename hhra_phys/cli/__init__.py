@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 # Sub-command modules, in the order they are listed by ``--help``.
-_COMMANDS = ("demo", "simulate", "fit", "compare", "diagnose", "benchmark")
+_COMMANDS = ("demo", "simulate", "fit", "compare", "diagnose", "design", "benchmark")
 
 
 def build_parser() -> argparse.ArgumentParser:

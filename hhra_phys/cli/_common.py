@@ -85,12 +85,15 @@ def add_record_arguments(
                    help="unit of the file's time column (default s; ms divides it by 1000)")
 
 
-def add_data_arguments(p: argparse.ArgumentParser) -> None:
-    """``DATA`` plus the record vocabulary (:func:`add_record_arguments`) and ``--rig-seed``."""
+def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
+    """``DATA`` (or ``DATA ...`` with ``several``) plus the record vocabulary
+    (:func:`add_record_arguments`) and ``--rig-seed``."""
     p.add_argument(
-        "data", nargs="?", default=None, metavar="DATA",
+        "data", nargs="*" if several else "?", default=None, metavar="DATA",
         help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
-             "record in ../shared/data, or nothing (or 'rig') for the built-in simulated rig",
+             "record in ../shared/data, or nothing (or 'rig') for the built-in simulated rig"
+             + ("; several records are fitted jointly (shared parameters, an initial state "
+                "per record)" if several else ""),
     )
     add_record_arguments(p)
     p.add_argument("--rig-seed", type=int, default=None,
@@ -206,6 +209,19 @@ def report_error(command: str, exc: BaseException) -> int:
     text = str(exc).replace(OVERWRITE_HINT, "pass --overwrite")  # the CLI's words
     print(f"hhra-phys {command}: error: {text}", file=sys.stderr)
     return exit_code(exc)
+
+
+def load_records(args: argparse.Namespace, names: list[str] | None = None) -> list[Dataset]:
+    """Every record named (``args.data`` as a list, or ``names``), with the same column options.
+
+    No name gives the one record :func:`load_data` gives for none (the simulated rig).
+    """
+    items = names if names is not None else args.data
+    if isinstance(items, str) or items is None:
+        items = [items]
+    if not items:
+        items = [None]
+    return [load_data(argparse.Namespace(**{**vars(args), "data": item})) for item in items]
 
 
 def parse_fixed(items: list[str] | None) -> dict[str, float]:

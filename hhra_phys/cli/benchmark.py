@@ -8,6 +8,7 @@ from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
 from hhra_phys.cli._common import report_error
+from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
 
@@ -51,6 +52,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-scipy", action="store_true", help="leave out SciPy's DE reference")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    add_cluster_arguments(p, "the benchmark functions (one job each)")
     p.add_argument("--json", metavar="FILE", help="write the report as JSON")
     p.add_argument(
         "--plot",
@@ -77,15 +79,17 @@ def run(args: argparse.Namespace) -> int:
             tables=args.tables,
             scipy_reference=not args.no_scipy,
         )
-        _, text = run_and_write(
-            settings,
-            json_path=args.json,
-            plot_path=args.plot,
-            markdown_path=args.markdown,
-            overwrite=args.overwrite,
-            jobs=args.jobs,
-            progress=progress,
-        )
+        with executor(args.workers, args.dask) as ex:
+            _, text = run_and_write(
+                settings,
+                json_path=args.json,
+                plot_path=args.plot,
+                markdown_path=args.markdown,
+                overwrite=args.overwrite,
+                jobs=args.jobs,
+                progress=progress,
+                executor=ex,
+            )
     except (HHRAError, OSError) as exc:
         return report_error("benchmark", exc)
     print(text)

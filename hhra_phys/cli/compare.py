@@ -9,6 +9,7 @@ from typing import Any
 
 from hhra_phys.cli._common import (
     FILE_OPTIONS,
+    add_model_arguments,
     add_record_arguments,
     is_builtin,
     population,
@@ -104,6 +105,7 @@ def register(subparsers: Any) -> None:
         metavar="MODULE",
         help="import MODULE first (it registers more methods); repeatable",
     )
+    add_model_arguments(p)
     p.add_argument("--json", metavar="OUT", help="write the JSON report")
     p.add_argument(
         "--plot",
@@ -160,6 +162,15 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
     return paths
 
 
+def _physical_model(args: argparse.Namespace, dataset: Any) -> dict[str, Any]:
+    """The physical rows' model from ``--model`` (default: the HHRA for the record)."""
+    if not args.model:
+        return {}
+    from hhra_phys.extensions import model_from_spec
+
+    return {"extra": {"physical": {"model": model_from_spec(args.model, dataset)}}}
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the comparison described by ``args``; returns the exit code (2 on bad input)."""
     from hhra_phys import compare as C
@@ -190,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
             nk=args.nk,
             zeta_s=args.zeta,
             bounds=tuple(args.box),
+            **_physical_model(args, dataset),
         )
         report = comp.to_dict()
         table = C.markdown_table(report)

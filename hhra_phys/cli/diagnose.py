@@ -22,6 +22,7 @@ from hhra_phys.cli._common import (
     record_for_model,
     report_error,
 )
+from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, jsonable
 
@@ -34,8 +35,11 @@ def register(subparsers: Any) -> None:
         description=(
             "Fit the physical model, analyse the residual, add effects of the library "
             "(friction, dead zone, delay, ...) one at a time, refit, and keep an effect only if "
-            "the validation error falls clearly and BIC agrees. Writes a JSON summary and a "
-            "Markdown report with residual plots before and after."
+            "the error on the selection part falls clearly, beyond what noise and structural "
+            "mismatch allow, and BIC agrees; stop when the selection residual is at the noise "
+            "level. The record splits into estimation (--split), selection and test (--test) "
+            "parts; the test part chooses nothing and reports the error before and after. "
+            "Writes a JSON summary and a Markdown report with residual plots before and after."
         ),
     )
     add_data_arguments(p)
@@ -53,13 +57,20 @@ def register(subparsers: Any) -> None:
                         "library's and those of --effects-from)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
     p.add_argument("--split", type=fraction, default=None,
-                   help="estimation fraction (default 0.5)")
-    p.add_argument("--pop", type=population, default=30,
-                   help="base fit population (default 30)")
-    p.add_argument("--iters", type=positive_int, default=40,
-                   help="base fit iterations (default 40)")
+                   help="estimation fraction of the record (default 0.5)")
+    p.add_argument("--test", type=float, default=0.25,
+                   help="fraction held out at the end as the test part, which chooses nothing "
+                        "(default 0.25; 0: the old two-way split, selection = validation)")
+    p.add_argument("--pop", type=population, default=100,
+                   help="base fit population (default 100, as hhra-phys fit)")
+    p.add_argument("--iters", type=positive_int, default=200,
+                   help="base fit iterations (default 200, as hhra-phys fit)")
     p.add_argument("--margin", type=float, default=0.1,
-                   help="required relative fall of the validation RMSE (default 0.1)")
+                   help="required relative fall of the selection RMSE (default 0.1)")
+    p.add_argument("--noise-tol", type=float, default=None,
+                   help="structural-mismatch allowance over the noise level (default "
+                        "hhra_phys.loop.NOISE_TOL, measured; see docs/diagnosis.md)")
+    add_cluster_arguments(p, "the candidate refits")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 
@@ -77,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_outputs([args.json, args.report], args.overwrite, figures=figs)
         if args.split is not None and args.split >= 1:
-            raise ParameterError("--split: the diagnosis needs validation data; give a "
+            raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
         added = import_effects(args.effects_from)
         if added:
@@ -88,17 +99,21 @@ def run(args: argparse.Namespace) -> int:
         split = args.split if args.split is not None else 0.5
         print(f"diagnosing {data.name or data.source or 'record'} ({len(data)} samples, "
               f"split {split})", file=sys.stderr)
-        res = augment(
-            data, model, split=split, candidates=parse_names(args.effects),
-            max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
-            max_iter=args.iters, seed=args.seed, margin=args.margin, bounds=bounds,
-            progress=lambda s: print(s, file=sys.stderr, flush=True),
-        )
+        with executor(args.workers, args.dask) as ex:
+            res = augment(
+                data, model, split=split, test=args.test, candidates=parse_names(args.effects),
+                max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
+                max_iter=args.iters, seed=args.seed, margin=args.margin,
+                noise_tol=args.noise_tol, bounds=bounds, executor=ex,
+                progress=lambda s: print(s, file=sys.stderr, flush=True),
+            )
         res.warnings.extend(data_warnings)
         out = res.to_json()
         print(f"chosen: {', '.join(res.chosen) or 'none'}")
-        for part in ("est", "val"):
+        for part in ("est", "val", "test"):
             b, f = out["base"].get(part, {}), out["final"].get(part, {})
+            if not f:
+                continue
             print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
                   f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
         if args.json:
@@ -126,15 +141,20 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
     out = res.to_json()
     ds = res.settings["data"]
     lines = [f"# Residual diagnosis of {ds['name'] or 'the record'}", "",
-             f"{ds['n']} samples, estimation fraction {res.settings['split']}, seed "
-             f"{res.settings['seed']}; accept an effect when the validation RMSE falls by "
-             f"{100 * res.settings['margin']:.0f} % or more and "
-             f"{res.settings['criterion'].upper()} on estimation agrees.", "",
+             f"{ds['n']} samples: estimation {ds.get('n_est')}, selection {ds.get('n_sel')}, "
+             f"test {ds.get('n_test')} (the test part chooses nothing; 'val' is the selection "
+             f"part), seed {res.settings['seed']}; accept an effect when the selection RMSE "
+             f"falls by {100 * res.settings['margin']:.0f} % or more, by more than the noise "
+             f"allowance (noise_tol {res.settings.get('noise_tol')}), and "
+             f"{res.settings['criterion'].upper()} on estimation agrees. Stopped: "
+             f"{res.settings.get('stop')}.", "",
              f"**Chosen effects:** {', '.join(res.chosen) or 'none'}", "",
              "## Error before and after", "",
              "| part | model | RMSE | VAF [%] | MSE | ITAE |", "|---|---|---|---|---|---|"]
-    for part in ("est", "val"):
+    for part in ("est", "val", "test"):
         for label, key in (("base", "base"), ("final", "final")):
+            if part not in out[key]:
+                continue
             m = out[key].get(part, {})
             lines.append(f"| {part} | {label} | {_fmt(m.get('rmse'))} | {_fmt(m.get('vaf'))} | "
                          f"{_fmt(m.get('mse'))} | {_fmt(m.get('itae'))} |")

@@ -11,7 +11,7 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     check_outputs,
     fraction,
-    load_data,
+    load_records,
     model_for,
     parse_fixed,
     parse_names,
@@ -20,8 +20,9 @@ from hhra_phys.cli._common import (
     record_for_model,
     report_error,
 )
+from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
-from hhra_phys.fit import OPTIMIZERS, fit
+from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
 
 
 def register(subparsers: Any) -> None:
@@ -39,7 +40,7 @@ def register(subparsers: Any) -> None:
             "still written), 2 usage error, 130 interrupted (nothing written)."
         ),
     )
-    add_data_arguments(p)
+    add_data_arguments(p, several=True)
     add_model_arguments(p)
     p.add_argument("--optimizer", choices=OPTIMIZERS, default="hgwo", help="global search")
     p.add_argument("--refine", default="ipopt",
@@ -55,8 +56,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-widen", action="store_true",
                    help="do not widen a default box whose edge a group ends at")
     p.add_argument("--split", type=fraction, default=0.5,
-                   help="estimation fraction in (0, 1] (default 0.5)")
+                   help="estimation fraction of every record (default 0.5)")
+    p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
+                   help="whole records for validation (same column options); then every DATA "
+                        "record is used for estimation")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    p.add_argument("--starts", type=positive_int, default=1, metavar="K",
+                   help="multi-start: K fits with seeds SEED..SEED+K-1, the lowest estimation "
+                        "error kept (default 1)")
+    add_cluster_arguments(p, "the starts")
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
@@ -84,24 +92,56 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([args.json], args.overwrite, figures=[args.plot])
         fixed = parse_fixed(args.fix)
         free = parse_names(args.free)
-        data = load_data(args)
-        data, data_warnings = record_for_model(args, data)
+        data_warnings: list[str] = []
+        records, validation = [], None
+        for ds in load_records(args):
+            ds, warns = record_for_model(args, ds)
+            records.append(ds)
+            data_warnings += warns
+        if args.validate:
+            validation = []
+            for ds in load_records(args, args.validate):
+                ds, warns = record_for_model(args, ds)
+                validation.append(ds)
+                data_warnings += warns
+        data = records[0]
         model, auto_bounds = model_for(args, data, args.valve)
         for note in model.params.check_values(fixed, allow_outside_box=args.allow_outside_box):
             print(f"note: {note}", file=sys.stderr)
         chosen = set(free) if free is not None else set(default_free(model, fixed))
         bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
+        for other in records[1:] + (validation or []):  # the widest automatic box of all
+            for k, (lo, hi) in model_for(args, other, args.valve)[1].items():
+                if k in bounds:
+                    bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
         refine = [r for r in args.refine.split("+")] if args.refine else None
-        print(f"fitting {data.name or data.source or 'record'} ({len(data)} samples) with "
-              f"{args.optimizer} (pop {args.pop}, {args.iters} it.) + {args.refine}",
+        what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
+                if len(records) > 1 else
+                f"{data.name or data.source or 'record'} ({len(data)} samples)")
+        print(f"fitting {what} with {args.optimizer} (pop {args.pop}, {args.iters} it.) + "
+              f"{args.refine}" + (f", {args.starts} starts" if args.starts > 1 else ""),
               file=sys.stderr)
-        res = fit(data, model, optimizer=args.optimizer, refine=refine,
-                  free=free, fixed=fixed, default_bounds=bounds, split=args.split,
-                  seed=args.seed, pop_size=args.pop, max_iter=args.iters, cost=args.cost,
-                  lam=args.lam, progress=not args.quiet, intervals=args.intervals,
-                  widen_bounds=not args.no_widen)
+        if len(records) == 1 and (validation is None or len(validation) == 1):
+            target, val_arg = data, (validation[0] if validation else None)
+        else:  # several records, or one record with several validation records
+            target, val_arg = records, validation
+        several = isinstance(target, list)
+        with executor(args.workers, args.dask) as ex:
+            results = fit_many(
+                [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
+                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
+                default_bounds=bounds, split=args.split, validation=val_arg,
+                pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
+                progress=not args.quiet and args.starts == 1 and ex is None,
+                intervals=args.intervals, widen_bounds=not args.no_widen)
+        res = best_of(results)
         res.warnings.extend(data_warnings)
         print(res.summary())
+        for rec in res.records:
+            parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
+                     for key, label in (("est", "estimation"), ("val", "validation"))
+                     if rec[key]]
+            print(f"record {rec['name']}: {', '.join(parts)}")
         for st in res.stages:
             print(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
                   f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
@@ -114,14 +154,18 @@ def run(args: argparse.Namespace) -> int:
                   + "check the units of the record and the --fix values", file=sys.stderr)
             return 1
         if args.plot:
-            print(f"wrote {plot_result(res, data, args.plot, args.split, args.overwrite)}")
+            plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                    args.overwrite)
+                       if several or validation else
+                       plot_result(res, data, args.plot, args.split, args.overwrite))
+            print(f"wrote {plotted}")
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
     return 0
 
 
-def _num(x: float | None) -> str:
-    return "-" if x is None else f"{x:.6g}"
+def _num(x: float | None, spec: str = ".6g") -> str:
+    return "-" if x is None else format(x, spec)
 
 
 def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -> Any:
@@ -134,3 +178,21 @@ def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -
         parts.append(("validation", val, res.predict(val)))
     return plot_fit(path, parts, res.history, title=f"hhra-phys fit of {data.name or 'record'}",
                     overwrite=overwrite, stages=res.stages)
+
+
+def plot_records(res: Any, records: list[Any], validation: list[Any] | None, path: str,
+                 split: float, overwrite: bool) -> Any:
+    """Figure of a fit of several records: each record's parts, then the validation records."""
+    from hhra_phys.plots import plot_fit
+
+    parts = []
+    for ds in records:
+        pieces = ([("", ds)] if validation or split >= 1 else
+                  list(zip(("estimation", "validation"), ds.split(split), strict=True)))
+        for label, piece in pieces:
+            name = f"{ds.name or ds.source or 'record'} {label}".strip()
+            parts.append((name, piece, res.predict(piece)))
+    for ds in validation or []:
+        parts.append((f"{ds.name or ds.source or 'record'} validation", ds, res.predict(ds)))
+    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite,
+                    stages=res.stages)

@@ -95,8 +95,9 @@ from hhra_phys.data import Dataset
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.excitation import irregular_steps, samples
 from hhra_phys.model import Model
+from hhra_phys.models.hydraulics import orifice_flow, perturb_fields
 from hhra_phys.parameters import Parameter
-from hhra_phys.parts import Context, Part, State, register_part, smooth_sign, smooth_signed_sqrt
+from hhra_phys.parts import Context, Part, State, register_part
 
 __all__ = [
     "CylinderPhysical",
@@ -365,9 +366,9 @@ class CylinderOrificeValve(Part):
         return (cylinder_parameter("c_valve"),)
 
     def apply(self, ctx: Context) -> None:
-        cmd = ctx.u  # the valve current, after any input-side effect
-        drop = 1 - smooth_sign(cmd, self.sign_eps) * ctx.x["p"]
-        ctx.signals["flow"] = ctx.p["c_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
+        # the valve current, after any input-side effect
+        ctx.signals["flow"] = orifice_flow(ctx.u, ctx.x["p"], ctx.p["c_valve"], self.sign_eps,
+                                           self.sqrt_delta)
 
 
 @dataclass(frozen=True)
@@ -666,15 +667,8 @@ def perturbed_physical(
     ``[min_factor, spread]``, each up or down at random (MEASURED_NOTES point 2:
     recovery tests with the truth at the box centre would flatter the fit).
     """
-    if not spread > min_factor >= 1:
-        raise ParameterError(f"need spread > min_factor >= 1, got {spread}, {min_factor}")
-    rng = np.random.default_rng(seed)  # a Generator passes through unchanged
-    phys = base or CylinderPhysical()
-    changes = {}
-    for name in ("m", "B_p", "beta_e", "k_x", "C_tp"):
-        mag = rng.uniform(math.log(min_factor), math.log(spread))
-        changes[name] = getattr(phys, name) * math.exp(mag if rng.random() < 0.5 else -mag)
-    return replace(phys, **changes)
+    return perturb_fields(base or CylinderPhysical(), ("m", "B_p", "beta_e", "k_x", "C_tp"),
+                          seed, spread, min_factor)
 
 
 def simulate_cylinder(

@@ -32,9 +32,10 @@ Effects (argument ``effects``: a mapping from the library name to its parameter
 values and optional settings; parameter values not given there are taken from
 ``params``)::
 
-    coulomb_friction  domega/dt -= level*sgn(omega),
+    coulomb_friction  domega/dt -= level*sgn(omega) [+ g_viscous*omega],
                       level = g_coulomb [+ g_stribeck*exp(-(omega/v_stribeck)^2)]
-                      (Stribeck term when g_stribeck is given); settings eps [rad/s], dt [s]
+                      (Stribeck term when g_stribeck is given); settings width [rad/s]
+                      (or the parameter v_switch), or the legacy eps [rad/s] with dt [s]
     valve_deadzone    c -> max(c - i_dead, 0) - max(-c - i_dead, 0); settings u_scale, eps
     valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, eps
     input_delay       c from u(t - delay*dt): (1-f)*u[n-k] + f*u[n-k-1], delay = k + f [samples]
@@ -48,7 +49,8 @@ Smoothing. With ``smooth=True`` (default) the documented smoothings of the
 package are used, so that a comparison with it can be tight:
 ``sgn(v) ~ v/sqrt(v^2 + eps^2)``; the orifice's signed root
 ``sign(z)*(sqrt(|z| + delta) - sqrt(delta))/(sqrt(1 + delta) - sqrt(delta))``;
-``max(v, 0) ~ (v + sqrt(v^2 + eps^2))/2``; friction width ``eps + level*dt/2``;
+``max(v, 0) ~ (v + sqrt(v^2 + eps^2))/2``; friction width ``width`` (0.005 rad/s
+unless given, or ``v_switch``; the legacy ``eps + level*dt/2`` when ``eps`` is given);
 backlash contact ``sigma((sgn(omega)*gap - play/2)/e + 3)`` with
 ``e = 0.1*play + 0.03`` deg. With ``smooth=False`` every switch is exact
 (``sign``, ``sqrt``, ``clip``, ``max``, an ideal play operator, and Coulomb
@@ -107,7 +109,7 @@ _INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dy
 
 #: Default smoothing settings of each effect (the package's documented defaults).
 _SETTINGS: dict[str, dict[str, float]] = {
-    "coulomb_friction": {"eps": 0.05},  # dt: the sample period unless given
+    "coulomb_friction": {"width": 0.005},  # eps (legacy width eps + level*dt/2), dt if given
     "valve_deadzone": {"u_scale": 1.0, "eps": 0.01},
     "valve_saturation": {"u_scale": 1.0, "eps": 0.01},
     "asymmetric_valve": {"u_scale": 1.0, "eps": 0.01},
@@ -130,6 +132,11 @@ _EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "backlash": ("play",),
     "sensor_offset": ("y_offset",),
     "asymmetric_valve": ("asym",),
+}
+
+#: Optional parameters of an effect (taken from ``params`` too when given there).
+_OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {
+    "coulomb_friction": ("g_stribeck", "v_stribeck", "g_viscous", "v_switch"),
 }
 
 #: Orifice smoothing of the package (``docs/model.md``, "Numerical choices").
@@ -215,7 +222,7 @@ def _spec(
         vals = dict(_SETTINGS[name])
         if name == "coulomb_friction":
             vals["dt"] = dt
-        for key in _EFFECT_PARAMS[name] + ("g_stribeck", "v_stribeck"):
+        for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
             if key in p:
                 vals[key] = p[key]
         vals.update({k: float(v) for k, v in given.items()})
@@ -297,9 +304,14 @@ def _rates(
         level = v["g_coulomb"]
         if "g_stribeck" in v:
             level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
+        acc -= v.get("g_viscous", 0.0) * w
         if s.smooth:
-            # Width tied to the sample period: the package's choice for its RK4.
-            width = v["eps"] + 0.5 * v["dt"] * level
+            # The package's documented width: a physical v_switch (fitted) or width
+            # [rad/s]; the legacy eps ties it to the sample period.
+            if "eps" in v:
+                width = v["eps"] + 0.5 * v["dt"] * level
+            else:
+                width = v.get("v_switch", v["width"])
             acc -= level * _sgn(w, width, True)
         elif mode == 0:
             acc = 0.0  # stuck: the simulation set omega = 0 exactly and holds it
@@ -780,4 +792,5 @@ def reference_record(
     )
 
 
-_ALL_EFFECT_PARAMS = {k for v in _EFFECT_PARAMS.values() for k in v} | {"g_stribeck", "v_stribeck"}
+_ALL_EFFECT_PARAMS = ({k for v in _EFFECT_PARAMS.values() for k in v}
+                      | {k for v in _OPTIONAL_PARAMS.values() for k in v})

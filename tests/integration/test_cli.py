@@ -59,6 +59,13 @@ def test_demo_quick_runs_end_to_end(tmp_path, capsys):
     assert main(["demo", "--quick", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "physical H-GWO+IPOPT" in text and "in CI" in text
-    for name in ("demo_fit.png", "demo_fit.json", "demo_rig.csv"):
+    from hhra_phys.cli.demo import hidden_effect
+
+    hidden, _ = hidden_effect(0)
+    assert f"hides {hidden}" in text and "error on the test part" in text
+    loop = json.loads((out / "demo_loop.json").read_text())
+    assert loop["test"]["rmse"] < loop["base"]["test"]["rmse"]
+    for name in ("demo_fit.png", "demo_fit.json", "demo_rig.csv", "demo_loop.png",
+                 "demo_loop.json", "demo_loop_rig.csv"):
         assert (out / name).exists()
     assert main(["demo", "--quick", "--out", str(out)]) == 2  # never overwrites

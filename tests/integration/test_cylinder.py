@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hhra_phys.fit import fit
-from hhra_phys.model import CurrentCommand, Model
+from hhra_phys.model import Model
 from hhra_phys.models.cylinder import (
     DEFAULT_FREE,
     MM_PER_M,
@@ -28,6 +28,7 @@ from hhra_phys.models.cylinder import (
     perturbed_physical,
     simulate_cylinder,
 )
+from hhra_phys.models.hhra import CurrentCommand
 from hhra_phys.reference.cylinder import cylinder_rhs
 from hhra_phys.simulate import Simulator
 

@@ -66,12 +66,17 @@ def test_output_delay_finds_a_fractional_lag():
     assert output_delay(y, yhat) == pytest.approx(3.5, abs=0.3)
 
 
+@pytest.mark.slow
 def test_clean_record_adds_nothing():
     res = _run(_record({}), max_effects=2)
     assert res.chosen == []
-    assert res.steps and not any(s.accepted for s in res.steps)
+    assert not any(s.accepted for s in res.steps)
+    # The selection residual of the clean fit is at the noise level: the loop stops
+    # there instead of refitting candidates (or refits them and accepts none).
+    assert res.steps or "noise level" in res.settings["stop"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(HIDDEN))
 def test_loop_finds_the_hidden_effect(name):
     truth = HIDDEN[name]
@@ -84,9 +89,11 @@ def test_loop_finds_the_hidden_effect(name):
     after = res.final.metrics["val"]["rmse"]
     assert after <= before / 5 or after <= 1.5 * NOISE, (before, after)
     step = next(s for s in res.steps if s.accepted)
-    assert step.evidence["score"] > 0 and step.val["rmse"] == pytest.approx(after)
+    # The accepted candidate is polished after its (capped) refit: same or better.
+    assert step.evidence["score"] > 0 and after <= step.val["rmse"] * 1.001
 
 
+@pytest.mark.slow
 def test_two_hidden_effects_are_both_found():
     truth = {"valve_deadzone": {"i_dead": 0.15}, "input_delay": {"delay": 3.4}}
     res = _run(_record(truth, seed=5), max_effects=3, top_k=2)
@@ -100,6 +107,7 @@ def test_two_hidden_effects_are_both_found():
     assert {"effect", "evidence", "params", "val", "accepted"} <= set(js["steps"][0])
 
 
+@pytest.mark.slow
 def test_cli_diagnose_writes_json_and_report_and_refuses_overwrite(tmp_path, capsys):
     from hhra_phys.cli import main
     from hhra_phys.data import save

@@ -87,11 +87,25 @@ def test_compiled_sensitivities_equal_casadi_jacobian(noisy):
     np.testing.assert_allclose(J, J_ad, rtol=1e-6, atol=1e-8 * np.abs(J_ad).max())
 
 
-@pytest.mark.parametrize("refiner", ["ipopt", "ipopt-ms", "LD_LBFGS", "LN_BOBYQA"])
-def test_refiners_improve_a_perturbed_start(noisy, refiner):
+@pytest.fixture(scope="module")
+def refine_case(noisy):
+    """Problem, a perturbed start, and the least-squares minimum reached from the truth."""
     est, _ = noisy.split(0.5)
     problem = Problem(HHRAModel(), est, initial_state="fit")
-    z0 = _perturbed(problem, noisy, np.array([1.15, 1.1, 0.8, 0.9, 1.3]))
+    z_truth = _perturbed(problem, noisy, np.ones(len(GROUPS)))
+    reference = refine_ipopt(problem, z_truth)
+    return problem, _perturbed(problem, noisy, np.array([1.15, 1.1, 0.8, 0.9, 1.3])), reference
+
+
+@pytest.mark.parametrize("refiner", ["ipopt", "ipopt-ms", "LD_LBFGS", "LN_BOBYQA"])
+def test_refiners_reach_the_minimum_from_a_perturbed_start(refine_case, refiner):
+    """Each refiner, from a start 10-30 % off, ends at the minimum found from the truth.
+
+    Measured (seed 4, 6 s): the start costs 38 times the minimum; IPOPT (single and
+    multiple shooting) and L-BFGS end at its cost to 2e-14 relative with every group
+    within 3e-8 of it; BOBYQA (derivative-free, 300 evaluations) within 0.9 % of its cost.
+    """
+    problem, z0, reference = refine_case
     before = least_squares_cost(problem, z0)
     if refiner == "ipopt":
         st = refine_ipopt(problem, z0)
@@ -100,7 +114,13 @@ def test_refiners_improve_a_perturbed_start(noisy, refiner):
     else:
         st = refine_nlopt(problem, z0, algorithm=refiner, max_eval=300)
     assert st.cost_before == pytest.approx(before)
-    assert st.cost < 0.2 * before
+    assert before > 10 * reference.cost  # the start is far from the minimum
+    if refiner == "LN_BOBYQA":
+        assert st.cost <= 1.02 * reference.cost
+    else:
+        assert st.cost == pytest.approx(reference.cost, rel=1e-6)
+        groups = problem.from_z(st.z)[: len(GROUPS)]
+        np.testing.assert_allclose(groups, problem.from_z(reference.z)[: len(GROUPS)], rtol=1e-4)
     assert st.nfev > 0 and st.seconds > 0
 
 
@@ -180,3 +200,21 @@ def test_fit_many_through_an_executor(clean):
                            refine="none")
     assert len(results) == 2
     assert results[0].seed == 0 and results[1].seed == 1
+    # Each is the single fit with that seed, to the last digit; the two seeds differ.
+    for res, seed in zip(results, (0, 1), strict=True):
+        single = fit(clean, seed=seed, pop_size=8, max_iter=3, refine="none")
+        assert res.values == single.values and res.history == single.history
+    assert results[0].values != results[1].values
+
+
+def test_result_crosses_a_process_boundary_and_predicts_the_same():
+    """A result holds its live problem (compiled code); pickled, it rebuilds the model."""
+    import pickle
+
+    data = simulate_rig(seed=4, duration=4.0)
+    res = fit(data, pop_size=10, max_iter=3, seed=0)
+    assert res.problem is not None
+    back = pickle.loads(pickle.dumps(res))
+    assert back.problem is None and back.values == res.values
+    other = simulate_rig(seed=5, duration=2.0)
+    np.testing.assert_array_equal(back.predict(other), res.predict(other))

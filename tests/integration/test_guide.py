@@ -68,6 +68,7 @@ def _env() -> dict[str, str]:
     return env
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("line", "lang", "mode", "code"), BLOCKS,
                          ids=[f"line{b[0]}-{b[1]}" for b in BLOCKS])
 def test_guide_block(line, lang, mode, code, workdir):

@@ -128,3 +128,11 @@ def test_cli_fits_and_diagnoses_the_users_model(tmp_path):
     assert "coulomb_friction" in out["skipped"]
     assert {"base", "final", "steps", "chosen"} <= set(out)
     assert math.isfinite(out["final"]["val"]["rmse"])
+    comp_json = tmp_path / "compare.json"
+    proc = subprocess.run([*env_cmd, "compare", str(csv), "--model", spec, "--methods",
+                           "ls,phys_ipopt", "--quiet", "--json", str(comp_json)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads(comp_json.read_text())["methods"]
+    # The physical row fits the user's model: far better than a linear ARX on this record.
+    assert rows["phys_ipopt"]["val"]["rmse"] < 0.5 * rows["ls"]["val"]["rmse"]

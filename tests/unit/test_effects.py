@@ -7,13 +7,13 @@ import pytest
 
 from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
 from hhra_phys.errors import ModelError
-from hhra_phys.model import (
+from hhra_phys.model import Model
+from hhra_phys.models.hhra import (
     AngleOutput,
     ChamberPressure,
     CurrentCommand,
     HHRAModel,
     LinearValve,
-    Model,
     RotaryMotion,
 )
 from hhra_phys.simulate import Simulator

@@ -11,7 +11,13 @@ import pytest
 
 from hhra_phys import HHRAModel, Model
 from hhra_phys.errors import ModelError, ParameterError
-from hhra_phys.model import AngleOutput, ChamberPressure, CurrentCommand, OrificeValve, RotaryMotion
+from hhra_phys.models.hhra import (
+    AngleOutput,
+    ChamberPressure,
+    CurrentCommand,
+    OrificeValve,
+    RotaryMotion,
+)
 from hhra_phys.physical import PhysicalParameters
 
 
@@ -157,3 +163,16 @@ def test_parameter_vector_helpers():
         model.params.as_dict(np.ones(3))
     with pytest.raises(ParameterError, match="n_pop, 7"):
         model.params.check_population(np.ones((2, 3)))
+
+
+def test_old_import_paths_still_work():
+    """The HHRA moved to hhra_phys.models.hhra; scripts importing it from the old places run."""
+    from hhra_phys import models
+    from hhra_phys.model import NOMINAL_GROUPS as old_groups
+    from hhra_phys.model import HHRAModel as OldHHRA
+    from hhra_phys.physical import PhysicalParameters as OldPhysical
+    from hhra_phys.rig import simulate_rig as old_rig
+
+    assert OldHHRA is models.hhra.HHRAModel and old_groups is models.hhra.NOMINAL_GROUPS
+    assert OldPhysical is models.hhra.PhysicalParameters
+    assert old_rig is models.hhra.rig.simulate_rig

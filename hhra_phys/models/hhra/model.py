@@ -31,14 +31,13 @@ import numpy as np
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.model import GROUP_SPAN, Model
 from hhra_phys.models.hhra.physical import PhysicalParameters
+from hhra_phys.models.hydraulics import orifice_flow
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import (
     Context,
     Part,
     State,
     register_part,
-    smooth_sign,
-    smooth_signed_sqrt,
 )
 
 __all__ = [
@@ -101,9 +100,8 @@ class OrificeValve(Part):
 
     def apply(self, ctx: Context) -> None:
         cmd = ctx.signal("command", self.name)
-        p = ctx.x["p"]
-        drop = 1 - smooth_sign(cmd, self.sign_eps) * p
-        ctx.signals["flow"] = ctx.p["g_valve"] * cmd * smooth_signed_sqrt(drop, self.sqrt_delta)
+        ctx.signals["flow"] = orifice_flow(cmd, ctx.x["p"], ctx.p["g_valve"], self.sign_eps,
+                                           self.sqrt_delta)
 
 
 @dataclass(frozen=True)
@@ -231,7 +229,9 @@ class PressureOutput(Part):
     ``p_s``; for rescaled raw data, whatever scale the data has), signed: a
     negative gain means the sensor's positive direction is the other chamber's
     (so the model needs no assumption on the sign convention of the data).
-    ``p_offset`` is the sensor's zero. Both are linear-scale parameters.
+    ``p_offset`` is the sensor's zero. Both are linear-scale parameters. The zero
+    drifts between runs, so a fit of several records estimates ``p_offset`` once
+    per record (``per_record``, :mod:`hhra_phys.multi`).
 
     With only a pressure measured, the angle's scale is not observable: scaling
     ``theta`` by ``b`` and dividing ``g_compress`` by ``b`` (and multiplying
@@ -244,6 +244,7 @@ class PressureOutput(Part):
     offset_limit: float = 1e3
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "pressure_output"
+    per_record: ClassVar[tuple[str, ...]] = ("p_offset",)
 
     @property
     def parameters(self) -> Sequence[Parameter]:

@@ -27,6 +27,7 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.excitation import irregular_steps, samples
 from hhra_phys.models.hhra.model import HHRAModel
 from hhra_phys.models.hhra.physical import PhysicalParameters
+from hhra_phys.models.hydraulics import perturb_fields
 from hhra_phys.parts import Part
 from hhra_phys.simulate import Simulator
 
@@ -135,17 +136,8 @@ def perturbed_physical(
     base : PhysicalParameters, optional
         Rig to perturb (default: the built-in one).
     """
-    if not spread > min_factor >= 1:
-        raise ParameterError(f"need spread > min_factor >= 1, got {spread}, {min_factor}")
-    rng = np.random.default_rng(seed)
-    phys = base or PhysicalParameters()
-    changes = {}
-    for name in ("J", "B_m", "beta_e", "k_x", "C_t"):
-        mag = rng.uniform(math.log(min_factor), math.log(spread))
-        changes[name] = getattr(phys, name) * math.exp(mag if rng.random() < 0.5 else -mag)
-    from dataclasses import replace
-
-    return replace(phys, **changes)
+    return perturb_fields(base or PhysicalParameters(), ("J", "B_m", "beta_e", "k_x", "C_t"),
+                          seed, spread, min_factor)
 
 
 def rig_model(

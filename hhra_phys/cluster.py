@@ -1,0 +1,90 @@
+"""Where independent jobs run: here, local processes, or a Dask cluster.
+
+Candidate refits of the diagnosis loop (:func:`hhra_phys.loop.augment`),
+multi-start fits (:func:`hhra_phys.fit.fit_many`) and the optimiser study
+(:func:`hhra_phys.study.run_study`) take any :class:`concurrent.futures.Executor`.
+The CLI builds one from ``--workers N`` (a local ``ProcessPoolExecutor``) or
+``--dask ADDRESS`` (the executor of a Dask ``distributed.Client`` connected to a
+running scheduler, e.g. ``tcp://10.0.0.5:8786``; install ``hhra-phys[dask]``).
+
+Every job carries its own seed, so the results do not depend on where, or in
+which order, the jobs ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
+from contextlib import contextmanager
+from typing import Any
+
+from hhra_phys.errors import ParameterError
+
+__all__ = [
+    "executor",
+    "add_cluster_arguments",
+    "dask_client",
+]
+
+
+def dask_client(address: str) -> Any:
+    """A ``distributed.Client`` connected to the Dask scheduler at ``address``.
+
+    Raises
+    ------
+    ParameterError
+        If Dask's distributed package is not installed (``pip install
+        "hhra-phys[dask]"``) or the scheduler cannot be reached.
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ParameterError(
+            "--dask needs Dask's distributed scheduler client: pip install \"hhra-phys[dask]\" "
+            "(or dask[distributed])") from None
+    try:
+        return Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ParameterError(f"--dask {address}: cannot reach the Dask scheduler: {exc}") from None
+
+
+@contextmanager
+def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Executor | None]:
+    """The executor asked for, shut down (or disconnected) on exit.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local worker processes (``>= 1``); ``None`` or ``0``: no executor (run here).
+    dask : str, optional
+        Address of a running Dask scheduler; excludes ``workers``.
+
+    Yields
+    ------
+    concurrent.futures.Executor or None
+    """
+    if workers is not None and (not isinstance(workers, int) or workers < 0):
+        raise ParameterError(f"--workers must be a non-negative integer, got {workers!r}")
+    if dask and workers:
+        raise ParameterError("give either --workers or --dask, not both")
+    if dask:
+        client = dask_client(dask)
+        try:
+            yield client.get_executor()
+        finally:
+            client.close()
+    elif workers:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            yield pool
+    else:
+        yield None
+
+
+def add_cluster_arguments(p: argparse.ArgumentParser, what: str) -> None:
+    """``--workers N`` and ``--dask ADDRESS`` for a sub-command; ``what`` names the jobs."""
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help=f"run {what} in N local worker processes (results as without)")
+    p.add_argument("--dask", default=None, metavar="ADDRESS",
+                   help=f"run {what} on a running Dask scheduler, e.g. tcp://host:8786 "
+                        "(needs pip install \"hhra-phys[dask]\")")

@@ -1,0 +1,448 @@
+"""Experiment design: the input that pins the free parameters down.
+
+A fit tells which parameter directions its record left weakly determined (on rig
+records with small pressure excursions, the pressure scale: ``g_valve`` and
+``g_compress`` up with ``g_torque`` down). The model can say which input would
+have determined them, because it has exact sensitivities: for an input ``u`` the
+Fisher information of the fitting coordinates ``z`` is
+
+    F(u) = J(u)^T J(u) / sigma^2,     J = d y_sim / d z     (N x n)
+
+with ``J`` from the compiled forward sensitivities
+(:class:`~hhra_phys.refine.CompiledLeastSquares` on a one-record
+:class:`~hhra_phys.problem.Problem` of the candidate input, so the coordinates
+are the fit's: log10 for positive groups, scaled for signed ones) and ``sigma``
+the fit's residual RMS. The record's initial angle is fitted too
+(``initial_state="fit"``), so it is a nuisance parameter: the criterion is on
+the covariance of the model parameters with it marginalised, ``C = [F^-1]_MM``:
+
+``"d"`` (default)
+    ``log det C`` (the volume of the confidence ellipsoid, D-optimal);
+``"a"``
+    ``trace C`` (the mean squared interval half-width, in decades for log groups);
+``"e"``
+    the largest eigenvalue of ``C`` (the worst direction).
+
+All are minimised. Robustness to the fit's own uncertainty: the criterion is
+averaged over the fitted values and ``draws`` parameter sets drawn from the
+fit's covariance (seeded, clipped to the fit's box; a draw whose simulation
+diverges for a candidate is skipped for it).
+
+Limits (all checked on the final design, :meth:`Design.check`): ``|u| <=
+max_input`` (default: the largest ``|u|`` of the fitted record), every hold
+(switching time) at least ``min_hold`` seconds (the last hold may be cut by the
+end of the record), the duration, and ``|y| <= output_limit`` when the model is
+simulated from rest at ``y = 0`` with the fitted values and with every draw (the
+HHRA turns within +-90 deg; the default limit of 80 deg keeps a margin).
+
+Search: candidates of the signal families of :mod:`hhra_phys.excitation`
+(the paper's multi-level irregular steps, APRBS, Schroeder multisines) with
+random parameters, and free piecewise-constant inputs on the ``min_hold`` grid;
+a candidate whose simulated output leaves the range is scaled down once to fit.
+The best piecewise-constant candidate is then improved by a seeded local search
+over the levels of its holds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hhra_phys.data import DataChecks, Dataset
+from hhra_phys.errors import ParameterError
+from hhra_phys.excitation import aprbs, irregular_steps, multisine
+from hhra_phys.problem import Problem
+from hhra_phys.refine import CompiledLeastSquares
+
+__all__ = [
+    "CRITERIA",
+    "FAMILIES",
+    "Design",
+    "InformationModel",
+    "criterion_value",
+    "design_input",
+    "shortest_hold",
+]
+
+#: Design criteria (module docstring).
+CRITERIA: tuple[str, ...] = ("d", "a", "e")
+#: Signal families searched.
+FAMILIES: tuple[str, ...] = ("steps", "aprbs", "multisine", "free")
+#: Default output limit [deg]: the HHRA turns within +-90 deg, with a margin.
+OUTPUT_LIMIT_DEG = 80.0
+#: Default shortest hold (switching time) of a designed input [s].
+MIN_HOLD_S = 0.1
+
+
+@dataclass
+class Design:
+    """A designed input and what it is predicted to give.
+
+    Attributes
+    ----------
+    u : ndarray, shape (N,)
+        The input, sampled at ``fs`` (input units, valve current [mA] for the HHRA).
+    fs : float
+        Sample rate [Hz].
+    criterion : str
+        ``"d"``, ``"a"`` or ``"e"``.
+    value : float
+        The robust criterion (mean over the fitted values and the draws).
+    family : str
+        Family of the design (``"free"`` after the local search).
+    widths : dict of str to float
+        Predicted relative 95 % interval width of each free model parameter at
+        the fitted values (``hi/lo`` spread divided by the value).
+    limits : dict
+        ``max_input``, ``min_hold`` [s], ``output_limit``, ``duration`` [s].
+    peak_output : float
+        Largest ``|y|`` over the fitted values and the draws, from rest at 0.
+    evaluations : int
+        Candidate inputs evaluated.
+    """
+
+    u: np.ndarray
+    fs: float
+    criterion: str
+    value: float
+    family: str
+    widths: dict[str, float]
+    limits: dict[str, float]
+    peak_output: float
+    evaluations: int = 0
+    history: list[float] = field(default_factory=list)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time axis [s], shape (N,)."""
+        return np.arange(self.u.size) / self.fs
+
+    def check(self) -> list[str]:
+        """Limits the input breaks (empty when it respects them all)."""
+        bad = []
+        lim = self.limits
+        if np.max(np.abs(self.u)) > lim["max_input"] * (1 + 1e-12):
+            bad.append(f"|u| reaches {np.max(np.abs(self.u)):.6g} > {lim['max_input']:.6g}")
+        if abs(self.u.size - round(lim["duration"] * self.fs)) > 0:
+            bad.append(f"{self.u.size} samples for {lim['duration']} s at {self.fs} Hz")
+        short = shortest_hold(self.u)
+        # A multisine has no holds: its band is kept below 1/(2*min_hold) instead.
+        if self.family != "multisine" and short < round(lim["min_hold"] * self.fs):
+            bad.append(f"a hold of {short} samples is shorter than {lim['min_hold']} s")
+        if self.peak_output > lim["output_limit"]:
+            bad.append(f"|y| reaches {self.peak_output:.4g} > {lim['output_limit']:.4g}")
+        return bad
+
+
+def shortest_hold(u: np.ndarray) -> int:
+    """Shortest number of samples the input holds a value, the last hold excluded.
+
+    (The record's end may cut the last hold; a constant input gives its length.)
+    """
+    u = np.asarray(u, dtype=float)
+    change = np.flatnonzero(np.diff(u) != 0) + 1
+    if change.size == 0:
+        return int(u.size)
+    edges = np.concatenate([[0], change])
+    return int(np.diff(edges).min())
+
+
+class InformationModel:
+    """Fisher information of candidate inputs for a fit's free parameters.
+
+    Parameters
+    ----------
+    result : FitResult
+        The fit (live or loaded from JSON): model, values, free parameters,
+        their boxes (which fix the coordinates of signed parameters) and the
+        residual RMS of its estimation data (``sigma``).
+    fs : float, optional
+        Sample rate of the inputs [Hz] (default: the fit's).
+    """
+
+    def __init__(self, result: Any, fs: float | None = None) -> None:
+        model = result.model
+        self.model = model
+        self.fs = float(fs or result.settings["fs"])
+        self.free = [n for n in result.free if n in model.params.names]
+        if not self.free:
+            raise ParameterError("the fit has no free model parameters to design for")
+        boxes = result.settings.get("bounds", {})
+        self.bounds = {n: (float(boxes[n][0]), float(boxes[n][1])) for n in self.free if n in boxes}
+        self.values = {n: float(result.values[n]) for n in model.params.names}
+        self.fixed = {n: v for n, v in self.values.items() if n not in self.free}
+        self.sigma = float(result.metrics.get("est", {}).get("rmse") or 1.0)
+        self.sim = result.simulator(self.fs)
+        self._x0 = model.x0()
+        # Coordinates of the fitted values, and the covariance of the draws.
+        # Coordinates of the fitted values (the record's x0 coordinates follow the free ones).
+        self._coords = self._problem(np.zeros(20 * (len(self.free) + 1)))
+        self.z_hat = self._coords.to_z(self._coords.start_values())
+        names = list(result.free)
+        idx = [names.index(n) for n in self.free]
+        sd = np.array([float(result.std.get(n, 0.0)) for n in self.free])
+        corr = np.asarray(result.correlation, dtype=float)
+        square = corr.shape == (len(names), len(names))
+        corr = corr[np.ix_(idx, idx)] if square else np.eye(len(idx))
+        cov = corr * np.outer(sd, sd)
+        self.cov_z = np.where(np.isfinite(cov), cov, 0.0)
+
+    def _problem(self, u: np.ndarray, values: dict[str, float] | None = None) -> Problem:
+        vals = values or self.values
+        p = np.array([vals[n] for n in self.model.params.names])
+        y = self.sim.simulate(u, p, x0=self._x0)
+        if not np.isfinite(y).all():
+            y = np.zeros_like(u)
+        # A candidate is not measured data: the data checks (excitation, clipping) do not apply.
+        ds = Dataset(np.arange(u.size) / self.fs, u, y, name="design",
+                     checks=DataChecks(require_excitation=False))
+        return Problem(self.model, ds, cost="ssr", free=self.free, fixed=self.fixed,
+                       bounds=self.bounds, initial_state="fit", simulator=self.sim,
+                       start={n: vals[n] for n in self.free})
+
+    def draws(self, n: int, seed: int | np.random.Generator | None) -> list[dict[str, float]]:
+        """The fitted values and ``n`` parameter sets drawn from the fit's covariance.
+
+        Drawn in the fitting coordinates and clipped to the fit's box.
+        """
+        out = [dict(self.values)]
+        if n <= 0:
+            return out
+        rng = np.random.default_rng(seed)
+        w, V = np.linalg.eigh(self.cov_z)
+        L = V * np.sqrt(np.clip(w, 0, None))
+        m = len(self.free)
+        box = self._coords.bounds_z()[:m]
+        for _ in range(n):
+            z = self.z_hat.copy()
+            # Within the fit's box: a weakly determined fit's covariance reaches far outside.
+            z[:m] = np.clip(z[:m] + L @ rng.standard_normal(m), box[:, 0], box[:, 1])
+            v = self._coords.from_z(z)[:m]
+            out.append({**self.values, **dict(zip(self.free, map(float, v), strict=True))})
+        return out
+
+    def covariance(self, u: np.ndarray, values: dict[str, float] | None = None
+                   ) -> tuple[np.ndarray, float]:
+        """Covariance of the free model parameters' coordinates for input ``u``, and max |y|.
+
+        The initial angle is a fitted nuisance parameter and is marginalised.
+        """
+        pr = self._problem(np.asarray(u, dtype=float), values)
+        z = pr.to_z(pr.start_values())
+        r, J = CompiledLeastSquares(pr)(z)
+        peak = float(np.max(np.abs(pr.y)))
+        info = J.T @ J / self.sigma**2
+        if not np.isfinite(info).all() or np.all(r >= 1e149):
+            return np.full((len(self.free),) * 2, np.inf), np.inf
+        try:
+            cov = np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            return np.full((len(self.free),) * 2, np.inf), peak
+        m = len(self.free)
+        return cov[:m, :m], peak
+
+    def widths(self, u: np.ndarray, values: dict[str, float] | None = None) -> dict[str, float]:
+        """Predicted relative 95 % interval width of each free model parameter for input ``u``."""
+        cov, _ = self.covariance(u, values)
+        m = len(self.free)
+        sd = np.zeros(self.z_hat.size)
+        sd[:m] = np.sqrt(np.clip(np.diag(cov), 0, None))
+        pr = self._coords if values is None else self._problem(self._coords.u, values)
+        z = pr.to_z(pr.start_values())
+        out = {}
+        for i, name in enumerate(self.free):
+            lo = pr.from_z(z - 1.96 * sd)[i]
+            hi = pr.from_z(z + 1.96 * sd)[i]
+            value = pr.from_z(z)[i]
+            out[name] = float(abs(hi - lo) / abs(value)) if value != 0 else float("inf")
+        return out
+
+
+def criterion_value(cov: np.ndarray, criterion: str) -> float:
+    """The design criterion of a covariance (smaller is better; ``inf`` if singular)."""
+    if not np.isfinite(cov).all():
+        return math.inf
+    if criterion == "d":
+        sign, logdet = np.linalg.slogdet(cov)
+        return float(logdet) if sign > 0 else math.inf
+    if criterion == "a":
+        return float(np.trace(cov))
+    w = np.linalg.eigvalsh(0.5 * (cov + cov.T))
+    return float(w[-1]) if w[0] > 0 else math.inf
+
+
+def _candidate(family: str, rng: np.random.Generator, n: int, fs: float, amp: float,
+               hold: int) -> np.ndarray | None:
+    """One random input of a family, or None if its parameters cannot meet the hold."""
+    if family == "aprbs":
+        max_hold = hold * int(rng.integers(1, 9))
+        levels = None if rng.random() < 0.5 else [-amp, amp]
+        return aprbs(n, low=-amp, high=amp, levels=levels, min_hold=hold,
+                     max_hold=max_hold, seed=rng)
+    if family == "steps":
+        irr = float(rng.uniform(0.0, 0.5))
+        most = int(n * (1 - irr) / (30 * hold))
+        if most < 1:
+            return None
+        u = irregular_steps(n, levels=int(rng.integers(1, 6)), amplitude=amp,
+                            n_periods=int(rng.integers(1, most + 1)), irregularity=irr, seed=rng)
+        return u if shortest_hold(u) >= hold else None
+    if family == "multisine":
+        f_top = min(0.45 * fs, fs / (2.0 * hold))  # no faster than the switching time allows
+        f_min = fs / n
+        f_max = float(np.exp(rng.uniform(np.log(max(2 * f_min, 0.2)), np.log(f_top))))
+        if f_max <= f_min:
+            return None
+        return multisine(n, fs, f_min=f_min, f_max=f_max, amplitude=amp, phases="random",
+                         seed=rng)
+    k = -(-n // hold)  # "free": piecewise constant on the hold grid
+    levels = rng.choice([-1.0, 1.0], size=k) if rng.random() < 0.5 else rng.uniform(-1, 1, k)
+    return np.repeat(amp * levels, hold)[:n]
+
+
+def design_input(
+    result: Any,
+    duration: float,
+    *,
+    max_input: float | None = None,
+    output_limit: float = OUTPUT_LIMIT_DEG,
+    min_hold: float = MIN_HOLD_S,
+    criterion: str = "d",
+    seed: int | None = 0,
+    fs: float | None = None,
+    families: Sequence[str] = FAMILIES,
+    candidates: int = 48,
+    local_steps: int = 120,
+    draws: int = 4,
+    reference_input: np.ndarray | None = None,
+) -> Design:
+    """Design the input that maximises the information about a fit's free parameters.
+
+    Parameters
+    ----------
+    result : FitResult
+        The fit to design from (its values, free parameters, noise level).
+    duration : float
+        Length of the designed record [s].
+    max_input : float, optional
+        Largest ``|u|`` (input units); default: the largest ``|u|`` of
+        ``reference_input`` (the fitted record's input), required without it.
+    output_limit : float
+        Largest ``|y|`` (output units) when simulated from rest at 0.
+    min_hold : float
+        Shortest hold (switching time) [s].
+    criterion : {"d", "a", "e"}
+        Design criterion (module docstring).
+    seed : int or None
+        Seeds the candidates, the draws and the local search.
+    fs : float, optional
+        Sample rate [Hz] (default: the fit's).
+    families : sequence of str
+        Families searched (:data:`FAMILIES`).
+    candidates : int
+        Random candidates per family.
+    local_steps : int
+        Steps of the local search on the best piecewise-constant candidate.
+    draws : int
+        Parameter sets from the fit's covariance the criterion is averaged over
+        (besides the fitted values).
+    reference_input : ndarray, optional
+        The fitted record's input (for the default ``max_input``).
+
+    Returns
+    -------
+    Design
+
+    Raises
+    ------
+    ParameterError
+        Bad limits, criterion or family, before any simulation.
+    """
+    if criterion not in CRITERIA:
+        raise ParameterError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    unknown = sorted(set(families) - set(FAMILIES))
+    if unknown or not families:
+        raise ParameterError(f"families must be among {', '.join(FAMILIES)}, got {list(families)}")
+    if max_input is None:
+        if reference_input is None:
+            raise ParameterError("max_input is needed when the fitted record's input is unknown")
+        max_input = float(np.max(np.abs(reference_input)))
+    for name, value in (("duration", duration), ("max_input", max_input),
+                        ("output_limit", output_limit), ("min_hold", min_hold)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
+    info = InformationModel(result, fs)
+    fs = info.fs
+    n = int(round(duration * fs))
+    hold = max(1, int(math.ceil(min_hold * fs - 1e-9)))
+    if n < 2 * hold or n < 20 * (len(info.free) + 1):
+        raise ParameterError(f"duration {duration} s is too short for min_hold {min_hold} s "
+                             f"and {len(info.free)} free parameters")
+    rng = np.random.default_rng(seed)
+    points = info.draws(draws, rng)
+    counter = {"n": 0}
+
+    def evaluate(u: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(robust criterion, peak |y|, the input actually used) with one rescale to fit.
+
+        Draws whose simulation diverges are skipped; the fitted values must not.
+        """
+        u = np.clip(u, -max_input, max_input)
+        for attempt in range(2):
+            counter["n"] += 1
+            results = [info.covariance(u, vals) for vals in points]
+            if not math.isfinite(results[0][1]):
+                return math.inf, math.inf, u
+            ok = [(criterion_value(c, criterion), pk) for c, pk in results if math.isfinite(pk)]
+            peak = max(pk for _, pk in ok)
+            if peak <= output_limit:
+                crits = [c for c, _ in ok]
+                return float(np.mean(crits)), peak, u
+            if attempt == 0:
+                u = u * (0.97 * output_limit / peak)
+        return math.inf, peak, u
+
+    best: dict[str, tuple[float, float, np.ndarray, str]] = {}
+    history: list[float] = []
+    for family in families:
+        for _ in range(int(candidates)):
+            u = _candidate(family, rng, n, fs, max_input, hold)
+            if u is None:
+                continue
+            value, peak, used = evaluate(u)
+            history.append(value)
+            if value < best.get(family, (math.inf,))[0]:
+                best[family] = (value, peak, used, family)
+    if not best or all(not math.isfinite(b[0]) for b in best.values()):
+        raise ParameterError("no candidate input keeps the output within the limit; "
+                             "raise output_limit or lower max_input")
+    # Local search on the best piecewise-constant candidate: change one hold's level.
+    steps_ok = [b for f, b in best.items() if f != "multisine" and math.isfinite(b[0])]
+    if steps_ok and local_steps > 0:
+        value, peak, u, family = min(steps_ok, key=lambda b: b[0])
+        u = u.copy()
+        levels = np.array([-1.0, -0.5, 0.5, 1.0]) * max_input
+        edges = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
+        for _ in range(int(local_steps)):
+            k = int(rng.integers(0, edges.size - 1))
+            trial = u.copy()
+            trial[edges[k]:edges[k + 1]] = rng.choice(levels)
+            if shortest_hold(trial) < hold:
+                continue
+            v, pk, used = evaluate(trial)
+            history.append(v)
+            if v < value and np.array_equal(used, np.clip(trial, -max_input, max_input)):
+                value, peak, u, family = v, pk, used, "free"
+                edges = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
+        best["free"] = (value, peak, u, family)
+    value, peak, u, family = min(best.values(), key=lambda b: b[0])
+    return Design(
+        u=u, fs=fs, criterion=criterion, value=value, family=family,
+        widths=info.widths(u), peak_output=peak, evaluations=counter["n"], history=history,
+        limits={"max_input": float(max_input), "min_hold": float(min_hold),
+                "output_limit": float(output_limit), "duration": float(duration)},
+    )

@@ -1,0 +1,411 @@
+"""Several records at once: one model, shared parameters, per-record initial states.
+
+Users record more than one run of a plant (different amplitudes, loads, days).
+:class:`MultiProblem` stacks one-record :class:`~hhra_phys.problem.Problem`
+objects into one fitting problem, the way MATLAB's multi-experiment ``nlgreyest``
+or PyBOP's multi-fitting problem do:
+
+* the model parameters are **shared** by every record (one coordinate each);
+* every record has its own **initial state** (under ``initial_state="fit"`` its
+  ``x0_<state>`` parameters, named ``x0_<state>_rec<k>`` for record ``k``,
+  counted from 1) and its own value of the model's **per-record parameters**
+  (parts declare them in a ``per_record`` attribute, e.g. the zero of a pressure
+  sensor, ``p_offset``, which drifts from day to day), named ``<name>_rec<k>``;
+* records may differ in length and sample rate: one compiled simulator per sample
+  rate is shared by the records at that rate.
+
+The cost of the global search is the sum of the records' costs (one population
+call per record); the least-squares residual of the refiners and of the
+uncertainty is the records' residuals stacked, with the exact Jacobian assembled
+block by block (:class:`~hhra_phys.refine.CompiledLeastSquares`, ``blocks()``).
+So intervals come from all records together.
+
+:func:`fit_records` is what :func:`hhra_phys.fit.fit` runs for a list of records::
+
+    res = fit([ds1, ds2])                  # shared groups, x0_theta_rec1, x0_theta_rec2
+    res.records[0]["val"]["rmse"]          # metrics per record, pooled in res.metrics
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from hhra_phys.data import Dataset
+from hhra_phys.errors import ParameterError
+from hhra_phys.metrics import score
+from hhra_phys.model import Model
+from hhra_phys.parameters import Parameter
+from hhra_phys.problem import COSTS, Problem, default_free
+from hhra_phys.simulate import Simulator
+
+__all__ = [
+    "MultiProblem",
+    "fit_records",
+    "per_record_params",
+    "pooled_score",
+    "record_name",
+    "records_result",
+    "split_record_name",
+]
+
+_REC = re.compile(r"^(?P<base>.+)_rec(?P<k>[1-9][0-9]*)$")
+
+
+def record_name(name: str, k: int) -> str:
+    """Name of parameter ``name`` of record ``k`` (counted from 1): ``<name>_rec<k>``."""
+    return f"{name}_rec{k}"
+
+
+def split_record_name(name: str) -> tuple[str, int | None]:
+    """``"x0_theta_rec2"`` -> ``("x0_theta", 2)``; a shared name -> ``(name, None)``."""
+    m = _REC.match(name)
+    return (m["base"], int(m["k"])) if m else (name, None)
+
+
+def per_record_params(model: Model) -> list[str]:
+    """Model parameters estimated once per record: those its parts list in ``per_record``."""
+    out: list[str] = []
+    for part in model.parts:
+        out += [n for n in getattr(part, "per_record", ()) if n in model.params.names]
+    return out
+
+
+class MultiProblem:
+    """One model fitted to several records (module docstring).
+
+    Offers what the optimisers, refiners and the uncertainty step use of a
+    :class:`~hhra_phys.problem.Problem`: the coordinate maps, box, start,
+    vectorised cost, stacked output ``y`` and ``blocks()``.
+
+    Parameters
+    ----------
+    model : Model
+        The model shared by all records.
+    records : sequence of Dataset
+        Estimation records (at least one; lengths and sample rates may differ).
+    cost, free, fixed, bounds, initial_state, substeps
+        As for :class:`~hhra_phys.problem.Problem`; ``free`` names model
+        parameters (the per-record copies are made here).
+    start : dict, optional
+        Start values: a shared name starts every record, ``<name>_rec<k>``
+        (e.g. ``x0_theta_rec2``) one record.
+    per_record : sequence of str, optional
+        Free model parameters estimated once per record (default:
+        :func:`per_record_params` of the model that are free).
+    names : sequence of str, optional
+        Labels of the records in reports (default: their names or sources).
+
+    Raises
+    ------
+    ParameterError
+        No records, unknown per-record names, a start for a record that does
+        not exist.
+    DataError
+        A record too short for its free parameters.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        records: Sequence[Dataset],
+        cost: str = "itae",
+        free: Sequence[str] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        initial_state: str = "data",
+        substeps: int | str = "auto",
+        start: Mapping[str, float] | None = None,
+        per_record: Sequence[str] | None = None,
+        names: Sequence[str] | None = None,
+    ) -> None:
+        records = list(records)
+        if not records:
+            raise ParameterError("a multi-record problem needs at least one record")
+        if cost not in COSTS:
+            raise ParameterError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+        free = list(free) if free is not None else default_free(model, fixed)
+        if per_record is None:
+            per_record = [n for n in per_record_params(model) if n in free]
+        per_record = list(per_record)
+        missing = sorted(set(per_record) - set(free))
+        if missing:
+            raise ParameterError(f"per-record parameters {missing} are not free ({free})")
+        shared_start: dict[str, float] = {}
+        own_start: list[dict[str, float]] = [{} for _ in records]
+        for name, value in (start or {}).items():
+            base, k = split_record_name(name)
+            if k is None:
+                shared_start[name] = float(value)
+            elif k > len(records):
+                raise ParameterError(f"start value {name!r}: there are only {len(records)} records")
+            else:
+                own_start[k - 1][base] = float(value)
+        sims: dict[float, Simulator] = {}
+        self.records: list[Problem] = []
+        for i, ds in enumerate(records):
+            sim = sims.get(float(ds.fs))
+            pr = Problem(model, ds, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
+                         bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
+                         simulator=sim, substeps=substeps,
+                         start={**shared_start, **own_start[i]})
+            sims.setdefault(float(ds.fs), pr.sim)
+            self.records.append(pr)
+        self.model = model
+        self.cost = cost
+        self.initial_state = initial_state
+        self.per_record = per_record
+        first = self.records[0]
+        self.fixed = first.fixed
+        self.sim = first.sim
+        self.simulators = sims
+
+        # Stacked layout: the shared model parameters, then record by record its own.
+        own = set(per_record)
+        params: list[Parameter] = []
+        log: list[bool] = []
+        scale: list[float] = []
+        index_of: dict[str, int] = {}
+        self._index: list[np.ndarray] = []
+        for k, pr in enumerate(self.records, start=1):
+            idx = []
+            for j, par in enumerate(pr.free_params):
+                specific = par.name in own or par.name.startswith("x0_")
+                name = record_name(par.name, k) if specific else par.name
+                if name not in index_of:
+                    index_of[name] = len(params)
+                    params.append(par.with_(name=name) if specific else par)
+                    log.append(bool(pr._log[j]))
+                    scale.append(float(pr._scale[j]))
+                idx.append(index_of[name])
+            self._index.append(np.array(idx, dtype=int))
+        self.free_params = params
+        self.free_names = [p.name for p in params]
+        self.n_free = len(params)
+        self._log = np.array(log)
+        self._scale = np.array(scale)
+        self.y = np.concatenate([pr.y for pr in self.records])
+        self.names = (list(names) if names is not None else
+                      [ds.name or ds.source or f"record {k}" for k, ds in
+                       enumerate(records, start=1)])
+
+    # The coordinate maps and the box are the one-record problem's, on the stacked arrays.
+    to_z = Problem.to_z
+    from_z = Problem.from_z
+    bounds_z = Problem.bounds_z
+
+    @property
+    def data(self) -> list[Dataset]:
+        """The estimation records."""
+        return [pr.data for pr in self.records]
+
+    def blocks(self) -> list[tuple[Problem, np.ndarray]]:
+        """``(one-record problem, indices of its coordinates in the stacked ones)`` per record."""
+        return list(zip(self.records, self._index, strict=True))
+
+    def record_values(self, values: np.ndarray, k: int) -> np.ndarray:
+        """Free values of record ``k`` (from 0) in its own problem's order, shape (..., n)."""
+        return np.asarray(values, dtype=float)[..., self._index[k]]
+
+    def start_values(self) -> np.ndarray:
+        """Starting values of the stacked free parameters (physical units)."""
+        out = np.empty(self.n_free)
+        for pr, idx in self.blocks():
+            out[idx] = pr.start_values()
+        return out
+
+    def full(self, values: np.ndarray) -> np.ndarray:
+        """Full model parameter vector(s) of the first record (shared parameters)."""
+        return self.records[0].full(self.record_values(values, 0))
+
+    def initial_states(self, values: np.ndarray) -> np.ndarray:
+        """Initial states of the first record, shape (n_pop, nx)."""
+        return self.records[0].initial_states(self.record_values(values, 0))
+
+    def __call__(self, Z: np.ndarray) -> np.ndarray:
+        """Vectorised objective: the sum of the records' costs, (n, n_free) -> (n,)."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        total = np.zeros(Z.shape[0])
+        for pr, idx in self.blocks():
+            total = total + pr(Z[:, idx])
+        return np.where(np.isfinite(total), total, np.inf)
+
+    def simulate_values(self, values: np.ndarray) -> np.ndarray:
+        """Stacked simulated outputs of the records, (n_free,) -> (sum N,) or (n, .) -> (n, .)."""
+        parts = [pr.simulate_values(self.record_values(values, k))
+                 for k, pr in enumerate(self.records)]
+        return np.concatenate(parts, axis=-1)
+
+    def residual_function(self) -> ca.Function:
+        """CasADi ``r(z)``: the records' symbolic residuals stacked (exact Hessian)."""
+        if getattr(self, "_residual_fn", None) is None:
+            z = ca.MX.sym("z", self.n_free)
+            parts = [pr.residual_function()(ca.vertcat(*[z[int(i)] for i in idx]))
+                     for pr, idx in self.blocks()]
+            self._residual_fn = ca.Function("residual", [z], [ca.vertcat(*parts)], ["z"], ["r"])
+        return self._residual_fn
+
+
+def pooled_score(records: Sequence[Dataset], outputs: Sequence[np.ndarray]) -> dict[str, float]:
+    """Metrics of several records together.
+
+    MSE, RMSE, VAF, fit and the largest error over all samples pooled; ITAE is
+    the sum of the records' own ITAE (each on its own time axis).
+    """
+    y = np.concatenate([ds.y for ds in records])
+    yhat = np.concatenate([np.asarray(o, dtype=float) for o in outputs])
+    out = {k: float(v) for k, v in score(y, yhat).items()}
+    out["itae"] = float(sum(score(ds.y, o, ds.t)["itae"]
+                            for ds, o in zip(records, outputs, strict=True)))
+    return out
+
+
+def fit_records(
+    records: Sequence[Dataset],
+    model: Model | None,
+    validation: Sequence[Dataset] | Dataset | None,
+    split: float,
+    problem_kwargs: Mapping[str, Any],
+    per_record: Sequence[str] | None = None,
+) -> tuple[MultiProblem, list[Dataset | None], list[Dataset]]:
+    """Build the stacked problem of a multi-record fit (used by :func:`hhra_phys.fit.fit`).
+
+    Returns the problem, the validation part of each estimation record (``None``
+    without a split) and the whole validation records; the search and the result
+    are :func:`~hhra_phys.fit.fit`'s. Without a model, the default model's
+    automatic bounds are merged over the records (the widest of each).
+    """
+    from hhra_phys.fit import default_model
+
+    records = list(records)
+    for ds in records:
+        if not isinstance(ds, Dataset):
+            raise ParameterError(f"fit() takes Dataset records, got {type(ds).__name__}")
+    whole_val = ([validation] if isinstance(validation, Dataset)
+                 else list(validation or []))
+    if whole_val or split >= 1:
+        est, val_parts = records, [None] * len(records)
+    else:
+        if not 0 < split < 1:
+            raise ParameterError(f"split must be in (0, 1], got {split}")
+        pairs = [ds.split(split) for ds in records]
+        est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
+    kw = dict(problem_kwargs)
+    bounds = kw.pop("bounds", None)
+    if model is None:
+        model, auto = default_model(records[0])
+        for ds in records[1:]:
+            for name, (lo, hi) in default_model(ds)[1].items():
+                old = auto.get(name, (lo, hi))
+                auto[name] = (min(old[0], lo), max(old[1], hi))
+        free = kw.get("free")
+        chosen = set(free) if free is not None else set(default_free(model, kw.get("fixed")))
+        bounds = {**{k: v for k, v in auto.items() if k in chosen}, **(bounds or {})}
+    names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
+    problem = MultiProblem(model, est, bounds=bounds, per_record=per_record, names=names, **kw)
+    return problem, val_parts, whole_val
+
+
+def _describe(ds: Dataset) -> dict[str, Any]:
+    return {"name": ds.name, "source": ds.source, "n": len(ds), "fs": float(ds.fs)}
+
+
+def records_result(
+    problem: MultiProblem,
+    z: np.ndarray,
+    stages: list[Any],
+    history: list[float],
+    val_parts: Sequence[Dataset | None],
+    whole_val: Sequence[Dataset],
+    settings: dict[str, Any],
+    seed: int | None,
+    datasheet: Any | None,
+    intervals: str,
+    t_start: float,
+) -> Any:
+    """The :class:`~hhra_phys.result.FitResult` of a multi-record fit at coordinates ``z``.
+
+    ``values``/``x0`` hold the shared parameters and the first record's own;
+    ``records`` one entry per estimation record (``name``, ``fs``, ``n_est``,
+    ``n_val``, ``x0``, ``values`` of its per-record parameters, ``est`` and
+    ``val`` metrics) and then one per whole validation record (``est`` empty);
+    ``metrics`` the pooled ``est`` and ``val`` (:func:`pooled_score`).
+    """
+    import time
+
+    from hhra_phys.fit import _intervals
+    from hhra_phys.result import FitResult
+
+    model = problem.model
+    v = problem.from_z(z)
+    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
+    records: list[dict[str, Any]] = []
+    est_y, est_sim, val_y, val_sim = [], [], [], []
+    for k, (pr, part) in enumerate(zip(problem.records, val_parts, strict=True)):
+        vk = problem.record_values(v, k)
+        x0 = pr.initial_states(vk)[0]
+        y_est = pr.simulate_values(vk)
+        entry: dict[str, Any] = {
+            "name": problem.names[k], "source": pr.data.source, "fs": float(pr.data.fs),
+            "n_est": len(pr.data), "n_val": len(part) if part is not None else 0,
+            "x0": dict(zip(model.state_names, x0.tolist(), strict=True)),
+            "values": {n: float(pr.full(vk)[model.params.index(n)])
+                       for n in problem.per_record},
+            "est": {kk: float(vv) for kk, vv in score(pr.data.y, y_est, pr.data.t).items()},
+            "val": {},
+        }
+        est_y.append(pr.data)
+        est_sim.append(y_est)
+        if part is not None:
+            y_val = pr.simulate_values(vk, data=part)
+            entry["val"] = {kk: float(vv) for kk, vv in score(part.y, y_val, part.t).items()}
+            val_y.append(part)
+            val_sim.append(y_val)
+        records.append(entry)
+    first = problem.records[0]
+    v0 = problem.record_values(v, 0)
+    for ds in whole_val:
+        y_val = first.simulate_values(v0, data=ds)
+        records.append({"name": ds.name or ds.source or "validation", "source": ds.source,
+                        "fs": float(ds.fs), "n_est": 0, "n_val": len(ds), "est": {},
+                        "val": {kk: float(vv) for kk, vv in score(ds.y, y_val, ds.t).items()}})
+        val_y.append(ds)
+        val_sim.append(y_val)
+    metrics = {"est": pooled_score(est_y, est_sim),
+               "val": pooled_score(val_y, val_sim) if val_y else {}}
+    values = model.params.as_dict(first.full(v0))
+    units = {p.name: p.unit for p in model.params}
+    units.update({p.name: p.unit for p in problem.free_params})
+    physical, why = model.physical_view(values, datasheet, first.data.metadata)
+    if why:
+        warnings.append(why)
+    settings = dict(settings)
+    settings["per_record"] = list(problem.per_record)
+    settings["data"] = [_describe(pr.data) for pr in problem.records]
+    settings["validation"] = [_describe(ds) for ds in whole_val]
+    settings["seconds"] = time.perf_counter() - t_start
+    return FitResult(
+        model_spec=model.to_json(),
+        values=values,
+        free=problem.free_names,
+        units=units,
+        ci95=ci95,
+        std=std,
+        correlation=corr,
+        warnings=warnings,
+        metrics=metrics,
+        stages=[s.to_json() for s in stages],
+        history=history,
+        tf=model.tf_coefficients_of(values),
+        x0=records[0]["x0"],
+        settings=settings,
+        seed=seed,
+        physical=physical,
+        intervals=interval_info,
+        problem=problem,
+        records=records,
+    )

@@ -1,0 +1,116 @@
+"""The loop's honest selection and its executors, on short records.
+
+* the test part chooses nothing: corrupting it changes only the test scores;
+* the same seed gives the same loop here, in local processes and on a Dask
+  ``LocalCluster`` (2 worker processes);
+* ``fit_many`` and the CLI's ``--workers``/``--dask`` run through the same executors.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+import pytest
+
+from hhra_phys.data import Dataset
+from hhra_phys.loop import augment, split_record
+from hhra_phys.reference import reference_record
+
+#: A short record with a dead zone (8 s at 250 Hz: 1000 estimation, 500 selection
+#: and 500 test samples) and a small loop: two candidates, one round.
+LOOP = {"candidates": ["valve_deadzone", "input_delay"], "max_effects": 1, "pop_size": 20,
+        "max_iter": 20}
+
+
+def _record(seed: int = 1) -> Dataset:
+    return reference_record(seed=seed, duration=8.0, effects={"valve_deadzone": {"i_dead": 0.1}})
+
+
+def _run(ds: Dataset, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return augment(ds, **{**LOOP, **kw})
+
+
+def _summary(res) -> dict:
+    return {"chosen": res.chosen,
+            "steps": [(s.effect, s.params, s.val["rmse"], s.accepted) for s in res.steps],
+            "final": res.final.values}
+
+
+def test_split_record_makes_three_parts_in_time_order():
+    ds = _record()
+    est, sel, test = split_record(ds, 0.5, 0.25)
+    assert (est.n, sel.n, test.n) == (1000, 500, 500)
+    assert est.t[-1] < sel.t[0] and sel.t[-1] < test.t[0]
+    est2, sel2, none = split_record(ds, 0.5, 0.0)
+    assert none is None and sel2.n == 1000
+    with pytest.raises(Exception, match="test must be in"):
+        split_record(ds, 0.5, 0.5)
+
+
+@pytest.mark.slow
+def test_test_part_chooses_nothing():
+    """Replace the test part's output by garbage: the choices must not move."""
+    ds = _record()
+    res = _run(ds)
+    n_test = res.settings["data"]["n_test"]
+    y = ds.y.copy()
+    y[-n_test:] = np.random.default_rng(0).normal(0.0, 5.0, n_test)
+    bad = Dataset.from_arrays(ds.u, y, fs=ds.fs, t=ds.t)
+    res_bad = _run(bad)
+    assert _summary(res_bad) == _summary(res)
+    assert res.chosen == ["valve_deadzone"]
+    assert res_bad.test["rmse"] > 10 * res.test["rmse"]
+    js = res.to_json()
+    assert set(js["test"]) >= {"rmse", "vaf"} and js["test"]["rmse"] == res.test["rmse"]
+    assert js["base"]["test"]["rmse"] > js["final"]["test"]["rmse"]
+    assert {"base", "final", "chosen", "steps", "skipped"} <= set(js)
+
+
+@pytest.mark.slow
+def test_serial_processes_and_dask_give_the_same_loop():
+    distributed = pytest.importorskip("distributed")
+    ds = _record(seed=2)
+    serial = _summary(_run(ds, background=False))
+    with ProcessPoolExecutor(2) as pool:
+        assert _summary(_run(ds, executor=pool)) == serial
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        assert _summary(_run(ds, executor=client.get_executor())) == serial
+
+
+@pytest.mark.slow
+def test_cli_dask_and_workers(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from hhra_phys.cli import main
+    from hhra_phys.data import save
+
+    data = tmp_path / "rec.csv"
+    save(_record(seed=3), data)
+    common = [str(data), "--max-effects", "1", "--pop", "20", "--iters", "20",
+              "--effects", "valve_deadzone,input_delay"]
+    out_w, out_d = tmp_path / "w.json", tmp_path / "d.json"
+    assert main(["diagnose", *common, "--workers", "2", "--json", str(out_w)]) == 0
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        assert main(["diagnose", *common, "--dask", cluster.scheduler_address,
+                     "--json", str(out_d)]) == 0
+        fit_json = tmp_path / "f.json"
+        assert main(["fit", str(data), "--starts", "2", "--pop", "10", "--iters", "5",
+                     "--dask", cluster.scheduler_address, "--json", str(fit_json)]) == 0
+    w, d = json.loads(out_w.read_text()), json.loads(out_d.read_text())
+    assert w["chosen"] == d["chosen"] == ["valve_deadzone"]
+    assert w["test"]["rmse"] == d["test"]["rmse"] and {"rmse", "vaf"} <= set(w["test"])
+    assert json.loads(fit_json.read_text())["seed"] in (0, 1)
+
+
+def test_cli_refuses_workers_and_dask_together(tmp_path, capsys):
+    from hhra_phys.cli import main
+
+    assert main(["diagnose", "--workers", "2", "--dask", "tcp://127.0.0.1:1"]) == 1
+    assert "either --workers or --dask" in capsys.readouterr().err

@@ -1,0 +1,44 @@
+"""The loop's acceptance rule, case by case (``hhra_phys.loop._decide``).
+
+A candidate is accepted only when all three hold: the selection RMSE falls by the margin,
+the information criterion on estimation falls, and the variance it removes exceeds what
+noise and structural mismatch allow, ``((1 + noise_tol)^2 - 1) * noise^2``. Each case
+below breaks exactly one of them.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from hhra_phys.loop import Step, _decide
+
+NOISE = 0.05
+
+
+def _step(val_rmse: float, criterion: float) -> Step:
+    return Step(1, "x", {}, {}, {}, {}, {"rmse": val_rmse}, criterion, 0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("rmse_cur", "val_rmse", "crit", "accepted", "why"),
+    [
+        (0.20, 0.10, -10.0, True, "all three hold"),
+        (0.20, 0.19, -10.0, False, "a 5 % gain is below the 10 % margin"),
+        (0.20, 0.21, -10.0, False, "worse on selection"),
+        (0.20, 0.10, +10.0, False, "the criterion disagrees"),
+        # an 11 % gain near the noise floor: less than the allowance (next test)
+        (0.0600, 0.0535, -10.0, False, "removes less than the noise allowance"),
+    ],
+)
+def test_each_condition_is_needed(rmse_cur, val_rmse, crit, accepted, why):
+    step = _step(val_rmse, crit)
+    assert _decide(step, rmse_cur, 0.0, NOISE, 0.1, 0.15, "bic") is accepted, why
+    assert step.reason
+
+
+def test_allowance_case_is_what_it_claims():
+    # 0.0600^2 - 0.0535^2 = 0.000738 < ((1.15)^2 - 1) * 0.05^2 = 0.000806, with an 11 % gain
+    assert 0.0535 <= 0.9 * 0.0600
+    assert 0.0600 ** 2 - 0.0535 ** 2 < (1.15 ** 2 - 1) * NOISE ** 2
+    # and the same gain far above the noise is accepted
+    assert _decide(_step(0.0535 * 4, -1.0), 0.0600 * 4, 0.0, NOISE, 0.1, 0.15, "bic")
