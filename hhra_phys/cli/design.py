@@ -28,7 +28,7 @@ def register(subparsers: Any) -> None:
             "the Fisher information of the free parameters, from the exact sensitivities, "
             "averaged over parameter draws from the fit's covariance, within the input, "
             "switching-time and output limits. Writes t,u at the fit's sample rate and a JSON "
-            "side-car (same name, .json) with the predicted 95 %% interval widths for the "
+            "side-car (same name, .json) with the predicted 95 % interval widths for the "
             "designed input and for the fitted record's input."
         ),
     )

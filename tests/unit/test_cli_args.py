@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hhra_phys.cli import build_parser
-from hhra_phys.cli._common import FILE_OPTIONS, load_data, parse_fixed
+from hhra_phys.cli._common import FILE_OPTIONS, load_records, parse_fixed
 from hhra_phys.errors import ParameterError
 from hhra_phys.models.hhra.model import HHRAModel
 
@@ -110,5 +110,5 @@ def test_file_options_without_a_file_are_refused(data, given_opts) -> None:
         argv += [flag, values[flag]]
     args = PARSER.parse_args(argv)
     with pytest.raises(ParameterError) as err:
-        load_data(args)
+        load_records(args)
     assert all(flag in str(err.value) for flag in given_opts)
