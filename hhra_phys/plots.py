@@ -93,32 +93,37 @@ def plot_fit(
     ax_z = fig.add_subplot(grid[3, 0] if show_conv else grid[3, :])
     measured = {"color": "k", "lw": 0.9}
     model = {"color": "C0", "lw": 0.9, "ls": "--"}
-    for k, (label, ds, y_sim) in enumerate(parts):
+    xs = _time_axes([ds for _, ds, _ in parts])
+    for k, ((label, ds, y_sim), x) in enumerate(zip(parts, xs, strict=True)):
         first = k == 0
-        ax_u.plot(ds.t, ds.u, color="C2", lw=0.8, label="input" if first else None)
-        ax_y.plot(ds.t, ds.y, label="measured" if first else None, **measured)
-        ax_y.plot(ds.t, y_sim, label="model (free run)" if first else None, **model)
+        ax_u.plot(x, ds.u, color="C2", lw=0.8, label="input" if first else None)
+        ax_y.plot(x, ds.y, label="measured" if first else None, **measured)
+        ax_y.plot(x, y_sim, label="model (free run)" if first else None, **model)
         rms = float(np.sqrt(np.mean(np.square(ds.y - y_sim))))
-        ax_r.plot(ds.t, ds.y - y_sim, color="C3", lw=0.6)
-        mid = float(ds.t[0] + ds.t[-1]) / 2
+        ax_r.plot(x, ds.y - y_sim, color="C3", lw=0.6)
+        mid = float(x[0] + x[-1]) / 2
         ax_u.text(mid, 1.0, label, transform=ax_u.get_xaxis_transform(), ha="center",
                   va="bottom", fontsize=9)
         ax_r.text(mid, 0.97, f"{label}: RMSE {rms:.3g} {y_unit}",
-                  transform=ax_r.get_xaxis_transform(), ha="center", va="top", fontsize=8,
+                  transform=ax_r.get_xaxis_transform(), ha="center", va="top",
+                  fontsize=8 if len(parts) <= 2 else 6.5,
                   bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
         if not first:
             for ax in (ax_u, ax_y, ax_r):
-                ax.axvline(float(ds.t[0]), color="0.3", lw=0.8, ls=":")
-                ax.axvspan(float(ds.t[0]), float(ds.t[-1]), color="C2", alpha=0.06)
+                ax.axvline(float(x[0]), color="0.3", lw=0.8, ls=":")
+                if k % 2:  # alternate parts shaded
+                    ax.axvspan(float(x[0]), float(x[-1]), color="C2", alpha=0.06)
     ax_u.set_ylabel(f"{ds0.input_name} [{u_unit}]")
     ax_y.set_ylabel(f"{ds0.output_name} [{y_unit}]")
     ax_r.set_ylabel(f"residual y - y_model [{y_unit}]")
-    ax_r.set_xlabel(f"time [{t_unit}]")
+    placed = any(x is not ds.t for x, (_, ds, _) in zip(xs, parts, strict=True))
+    ax_r.set_xlabel(f"time [{t_unit}]" + (" (records placed end to end)" if placed else ""))
     plt.setp(ax_u.get_xticklabels(), visible=False)
     plt.setp(ax_y.get_xticklabels(), visible=False)
 
     # Zoom where the model is worst on the last part (validation when there is one).
     label, ds, y_sim = parts[-1]
+    x = xs[-1]
     width = max(10, int(zoom * sum(len(d) for _, d, _ in parts)))
     centre = int(np.nanargmax(np.abs(ds.y - y_sim))) if np.isfinite(y_sim).any() else 0
     a = int(np.clip(centre - width // 2, 0, max(0, len(ds) - width)))
@@ -128,7 +133,7 @@ def plot_fit(
     ax_z.set(xlabel=f"time [{t_unit}]", ylabel=f"{ds0.output_name} [{y_unit}]")
     ax_z.set_title(f"zoom: {label}, around its largest residual", fontsize=9)
     ax_z.legend(fontsize=7)
-    ax_y.axvspan(float(ds.t[sl][0]), float(ds.t[sl][-1]), color="C1", alpha=0.35,
+    ax_y.axvspan(float(x[sl][0]), float(x[sl][-1]), color="C1", alpha=0.35,
                  label="zoomed below")
     ax_y.legend(fontsize=7, loc="upper right")
 
@@ -141,6 +146,20 @@ def plot_fit(
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return p
+
+
+def _time_axes(records: Sequence[Dataset]) -> list[np.ndarray]:
+    """Each part's time axis; parts that overlap in time (several records, each from 0)
+    are placed end to end instead, so none is drawn over another."""
+    ordered = all(b.t[0] >= a.t[-1] for a, b in zip(records, records[1:], strict=False))
+    if ordered:
+        return [ds.t for ds in records]
+    out, end = [], None
+    for ds in records:
+        x = ds.t - ds.t[0] + (0.0 if end is None else end + ds.dt)
+        out.append(x)
+        end = float(x[-1])
+    return out
 
 
 def _convergence(
@@ -190,10 +209,13 @@ def _convergence(
 def _plain_log_ticks(ax: Any) -> None:
     """Log-axis ticks as plain numbers ("118", not "1.18 x 10^2") on short ranges."""
     fmt = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
+    # Minor ticks: only 2 and 5 times a power of ten are labelled, and only on a range of
+    # less than two decades (wider ranges have enough major ticks).
+    minor = ticker.FuncFormatter(
+        lambda v, _: f"{v:.3g}" if f"{v:.0e}"[0] in "25" else "")
     lo, hi = ax.get_ylim()
     ax.yaxis.set_major_formatter(fmt)
-    # Minor ticks are labelled only within one decade, where there are no major ones.
-    ax.yaxis.set_minor_formatter(fmt if hi < 10 * lo else ticker.NullFormatter())
+    ax.yaxis.set_minor_formatter(minor if hi < 100 * lo else ticker.NullFormatter())
     ax.tick_params(axis="y", which="both", labelsize=7)
 
 
