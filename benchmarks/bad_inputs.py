@@ -159,6 +159,7 @@ def cases(d: Path) -> Iterator[Case]:
                         ("--fs", ("0", "-250", "nan", "inf", "fast"))):
         for v in values:
             yield Case(g, ["fit", str(rig), f"{opt}={v}"], 2, opt)
+    yield Case(g, ["fit", str(rig), "--starts", "0"], 2, "--starts")
     for opt, values in (("--top", ("0", "-1", "one")), ("--max-effects", ("-1", "x")),
                         ("--split", ("1",))):
         for v in values:
@@ -193,6 +194,12 @@ def cases(d: Path) -> Iterator[Case]:
     yield Case(g, ["fit", str(rig), "--fs", "250", "--time-unit", "ms"], 2, "--time-unit")
     yield Case(g, ["compare", str(rig), "--public"], 2, "--public")
     yield Case(g, ["fit", str(rig), "--model", "nofile.py:make"], 1, "nofile.py")
+    yield Case(g, ["fit", str(rig), "--validate", str(d / "nothere.csv"), *QUICK], 1,
+               "nothere.csv")
+    yield Case(g, ["fit", str(rig), str(d / "nothere.csv"), *QUICK], 1, "nothere.csv")
+    yield Case(g, ["diagnose", str(rig), "--test", "0.6"], 2, "test")
+    yield Case(g, ["design", str(d / "nofit.json"), "--duration", "2", "--out",
+                   str(d / "u.csv")], 1, "nofit.json")
     yield Case(g, ["fit", str(rig), "--model", "x.py:make", "--valve", "linear"], 2, "--valve")
 
 
