@@ -615,7 +615,8 @@ def plot_residuals(
                 continue
             rms = float(np.sqrt(np.mean(np.square(rv))))
             style = grey if key == "before" else {"color": "C3", "lw": 0.7}
-            label = ("before" if key == "before" else now) + f", validation (RMSE {rms:.3g})"
+            rest = "validation" + "".join(f" + {name}" for _, name in marks)
+            label = ("before" if key == "before" else now) + f", {rest} (RMSE {rms:.3g})"
             ax_t.plot(tv, rv, label=label, **style)
     ax_t.axhspan(-diag.noise, diag.noise, color="C1", alpha=0.15,
                  label=f"+-noise estimate ({diag.noise:.2g}{' ' + unit if unit else ''})")
