@@ -47,6 +47,8 @@ MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
 EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
 LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model.py",
               "tests/integration/test_diagnose.py")
+RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
+                "tests/integration/test_bad_inputs.py")
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
 
@@ -533,6 +535,35 @@ MUTATIONS: tuple[Mutation, ...] = (
         'best = min(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
         'best = max(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
         LOOP_TESTS,
+    ),
+    # -- reliability: interrupts, widening, checks of values and units ---------------------------
+    _m(
+        "reliab-interrupt-forgotten",
+        "a Ctrl-C swallowed by a solver is not raised again when the block ends",
+        "        yield\n        check()\n",
+        "        yield\n",
+        RELIAB_TESTS,
+    ),
+    _m(
+        "reliab-widen-wrong-side",
+        "a box is widened on the side opposite to the edge the group ended at",
+        "k = 0 if side == \"lower\" else 1",
+        "k = 1 if side == \"lower\" else 0",
+        ("tests/integration/test_widen.py",),
+    ),
+    _m(
+        "reliab-fix-box-unchecked",
+        "--fix values outside the box are accepted silently",
+        "if not par.lower <= v <= par.upper:",
+        "if False:",
+        RELIAB_TESTS,
+    ),
+    _m(
+        "reliab-rad-factor-inverted",
+        "radians converted to degrees with the inverse factor",
+        "\"rad\": 180.0 / math.pi",
+        "\"rad\": math.pi / 180.0",
+        RELIAB_TESTS,
     ),
 )
 

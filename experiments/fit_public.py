@@ -46,11 +46,12 @@ def run(seeds: int, pop: int, iters: int) -> dict[str, Any]:
         rows = []
         for seed in range(seeds):
             t0 = time.perf_counter()
-            res = fit(est, model, validation=val, bounds=bounds, pop_size=pop, max_iter=iters,
-                      seed=seed)
+            res = fit(est, model, validation=val, default_bounds=bounds, pop_size=pop,
+                      max_iter=iters, seed=seed)
             rows.append({"seed": seed, "est": res.metrics["est"], "val": res.metrics["val"],
                          "params": {n: res.values.get(n) for n in res.free if n in res.values},
-                         "warnings": res.warnings, "seconds": time.perf_counter() - t0})
+                         "warnings": res.warnings, "widened": res.settings.get("widened", []),
+                         "seconds": time.perf_counter() - t0})
             print(f"{valve} seed {seed}: est RMSE {res.metrics['est']['rmse']:.4f}, "
                   f"val RMSE {res.metrics['val']['rmse']:.4f}", file=sys.stderr)
             if valve not in best or res.metrics["est"]["rmse"] < best[valve].metrics["est"]["rmse"]:
@@ -108,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         plot_fit(args.figure, [("estimation", est, chosen.predict(est)),
                                ("validation", val, chosen.predict(val))],
                  chosen.history, title="public hydraulic-actuator record: physical HHRA fit",
-                 overwrite=args.overwrite)
+                 overwrite=args.overwrite, stages=chosen.stages)
     return 0
 
 

@@ -19,7 +19,7 @@ import json
 import warnings
 
 from hhra_phys.data import load_public_actuator
-from hhra_phys.diagnose import plot_residuals
+from hhra_phys.diagnose import plot_loop_residuals
 from hhra_phys.loop import augment, base_model_for
 
 
@@ -40,12 +40,8 @@ def main() -> None:
     out = res.to_json()
     with open(f"{args.prefix}.json", "w") as fh:
         json.dump(out, fh, indent=1)
-    plot_residuals(res.diagnoses[0], f"{args.prefix}_before.png", "public record, base model",
-                   overwrite=True)
-    if res.final_diagnosis is not None:
-        plot_residuals(res.final_diagnosis, f"{args.prefix}_after.png",
-                       f"public record, final model ({', '.join(res.chosen) or 'no effect'})",
-                       overwrite=True)
+    plot_loop_residuals(res, data, f"{args.prefix}_before.png", f"{args.prefix}_after.png",
+                        overwrite=True, label="public record")
     print("chosen:", res.chosen)
     for part in ("est", "val"):
         print(part, "base", out["base"][part], "final", out["final"][part])

@@ -56,6 +56,7 @@ __all__ = [
     "regressor_table",
     "analyse",
     "diagnose_fit",
+    "plot_loop_residuals",
     "plot_residuals",
     "DETECTABLE",
     "ENTRY_ALIASES",
@@ -520,14 +521,55 @@ def diagnose_fit(result: Any, data: Dataset, split: float | None = None,
     return analyse(problem, np.array(vals), candidates=candidates)
 
 
-def plot_residuals(diag: Diagnosis, path: str, title: str = "", overwrite: bool = False) -> str:
-    """Four-panel residual figure (residual, autocorrelation, input cross-correlation,
-    spectrum) saved as PNG; returns the path.
+def plot_residuals(
+    diag: Diagnosis,
+    path: str,
+    title: str = "",
+    overwrite: bool = False,
+    *,
+    before: Diagnosis | None = None,
+    accepted: Sequence[str] | None = None,
+    validation: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    unit: str = "",
+    marks: Sequence[tuple[float, str]] = (),
+) -> str:
+    """Residual figure of a diagnosis, optionally against the one before; returns the path.
+
+    Panels: the residual over time (estimation part, and the validation part when
+    ``validation`` is given, right of a line marking the split); its autocorrelation
+    and its cross-correlation with the input, each with the 95 % band of a white
+    residual (``+-1.96/sqrt(N)``: bars inside it are what white noise of that length
+    gives by chance); and its spectrum. With ``before``, the diagnosis before the loop
+    is drawn in grey on the same axes.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+        The diagnosis to show ("after", or the only one).
+    path : str
+        Figure file (``.png``, ``.svg``, ``.pdf`` ...).
+    title : str
+        Figure title.
+    overwrite : bool
+        Replace an existing file.
+    before : Diagnosis, optional
+        The base model's diagnosis, drawn in grey for comparison.
+    accepted : sequence of str, optional
+        Effects the loop accepted; when it is empty "after" is the base model, and
+        the figure says so instead of drawing the same curves twice.
+    validation : mapping, optional
+        ``{"before": (t, residual), "after": (t, residual)}`` on the validation part
+        (time in the record's unit, residual in output units).
+    unit : str
+        Output unit, for the residual and spectrum axes.
+    marks : sequence of (float, str)
+        Further part boundaries on the residual panel: (time, name of the part that
+        starts there), e.g. the loop's test part.
 
     Raises
     ------
-    FileExistsError
-        ``path`` exists and ``overwrite`` is False.
+    OutputPathError, OutputExistsError
+        ``path`` cannot be written, or exists and ``overwrite`` is False.
     """
     import matplotlib
 
@@ -536,26 +578,150 @@ def plot_residuals(diag: Diagnosis, path: str, title: str = "", overwrite: bool 
 
     target = check_output_path(path, overwrite=overwrite, what="residual figure",
                                suffixes=FIGURE_SUFFIXES)
-    fig, ax = plt.subplots(2, 2, figsize=(10, 6.5))
-    ax[0, 0].plot(diag.t, diag.residual, lw=0.7)
-    ax[0, 0].set(title=f"residual (RMSE {diag.rmse:.3g}, noise {diag.noise:.2g})",
-                 xlabel="time")
-    w = diag.whiteness
-    lag = np.arange(w["acf"].size)
-    ax[0, 1].vlines(lag, 0, w["acf"])
-    ax[0, 1].axhspan(-w["band"], w["band"], color="C1", alpha=0.3)
-    ax[0, 1].set(title=f"autocorrelation (Ljung-Box p={w['ljung_box_p']:.2g})", xlabel="lag")
-    xc = diag.xcorr_input
-    ax[1, 0].plot(xc["lags"], xc["values"])
-    ax[1, 0].axhspan(-xc["band"], xc["band"], color="C1", alpha=0.3)
-    ax[1, 0].set(title="residual vs input cross-correlation", xlabel="lag [samples]")
+    same = before is not None and accepted is not None and not accepted
+    if same:
+        before = None  # nothing accepted: "after" is the base model, drawn once
+    u = f" [{unit}]" if unit else ""
+    t_unit = "samples" if diag.spectrum.get("unit") == "1/sample" else "s"
+    grey = {"color": "0.6", "lw": 0.7}
+    fig = plt.figure(figsize=(11, 8.5))
+    grid = fig.add_gridspec(3, 2, height_ratios=[1.2, 1, 1])
+    ax_t = fig.add_subplot(grid[0, :])
+    ax_a, ax_x = fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])
+    ax_s = fig.add_subplot(grid[2, :])
+    now = "after" if before is not None else ("base model = after" if same else "residual")
+
+    # Residual over time: estimation, then validation right of the split.
+    if before is not None:
+        ax_t.plot(before.t, before.residual, label=f"before, estimation (RMSE {before.rmse:.3g})",
+                  **grey)
+    ax_t.plot(diag.t, diag.residual, color="C0", lw=0.7,
+              label=f"{now}, estimation (RMSE {diag.rmse:.3g})")
+    if validation:
+        split_t = float(diag.t[-1])
+        ax_t.axvspan(split_t, float(max(v[0][-1] for v in validation.values())),
+                     color="C2", alpha=0.07)
+        ax_t.axvline(split_t, color="k", lw=0.8, ls=":")
+        ax_t.text(split_t, 1.0, " validation >", transform=ax_t.get_xaxis_transform(),
+                  va="top", fontsize=8)
+        ax_t.text(split_t, 1.0, "< estimation ", transform=ax_t.get_xaxis_transform(),
+                  va="top", ha="right", fontsize=8)
+        for t_mark, name in marks:
+            ax_t.axvline(t_mark, color="k", lw=0.8, ls=":")
+            ax_t.text(t_mark, 1.0, f" {name} >", transform=ax_t.get_xaxis_transform(),
+                      va="top", fontsize=8)
+        for key, (tv, rv) in validation.items():
+            if key == "before" and before is None:
+                continue
+            rms = float(np.sqrt(np.mean(np.square(rv))))
+            style = grey if key == "before" else {"color": "C3", "lw": 0.7}
+            rest = "validation" + "".join(f" + {name}" for _, name in marks)
+            label = ("before" if key == "before" else now) + f", {rest} (RMSE {rms:.3g})"
+            ax_t.plot(tv, rv, label=label, **style)
+    ax_t.axhspan(-diag.noise, diag.noise, color="C1", alpha=0.15,
+                 label=f"+-noise estimate ({diag.noise:.2g}{' ' + unit if unit else ''})")
+    ax_t.set(xlabel=f"time [{t_unit}]", ylabel=f"residual y - y_model{u}")
+    ax_t.legend(fontsize=7, ncol=3, loc="lower left")
+
+    band_label = "95 % band of a white residual (+-1.96/sqrt(N))"
+    for ax, get, xlabel, ylabel, what in (
+        (ax_a, lambda d: (np.arange(d.whiteness["acf"].size), d.whiteness["acf"],
+                          d.whiteness["band"]),
+         "lag [samples]", "autocorrelation [-]",
+         f"residual autocorrelation (Ljung-Box p={diag.whiteness['ljung_box_p']:.2g})"),
+        (ax_x, lambda d: (np.asarray(d.xcorr_input["lags"]), d.xcorr_input["values"],
+                          d.xcorr_input["band"]),
+         "lag [samples] (> 0: input earlier)", "cross-correlation [-]",
+         "residual vs input cross-correlation"),
+    ):
+        if before is not None:
+            lag_b, val_b, _ = get(before)
+            ax.plot(lag_b, val_b, ".", ms=3, color="0.6", label="before")
+        lag, val, band = get(diag)
+        ax.plot(lag, val, ".-", ms=3, lw=0.6, color="C0", label=now)
+        ax.axhspan(-band, band, color="C1", alpha=0.25, label=band_label)
+        ax.set(xlabel=xlabel, ylabel=ylabel, title=what)
+        ax.title.set_fontsize(9)
+        ax.legend(fontsize=7)
+
     sp = diag.spectrum
-    ax[1, 1].semilogy(sp["f"][1:], sp["pxx"][1:])
-    ax[1, 1].set(title="residual spectrum (Welch)", xlabel=f"frequency [{sp['unit']}]")
+    if before is not None:
+        ax_s.semilogy(before.spectrum["f"][1:], before.spectrum["pxx"][1:], label="before",
+                      **grey)
+    ax_s.semilogy(sp["f"][1:], sp["pxx"][1:], color="C0", lw=0.8, label=now)
+    ax_s.set(xlabel=f"frequency [{sp['unit']}]",
+             ylabel=f"PSD [{unit or 'unit'}^2/{'Hz' if sp['unit'] == 'Hz' else 'cycle/sample'}]",
+             title="residual spectrum (Welch), estimation part")
+    ax_s.title.set_fontsize(9)
+    ax_s.legend(fontsize=7)
+    if same:
+        fig.text(0.5, 0.005, "No effect was accepted: the model after the loop is the base "
+                 "model, so 'after' equals 'before' (drawn once).", ha="center", fontsize=9,
+                 color="C3")
+    elif accepted:
+        fig.text(0.5, 0.005, f"accepted: {', '.join(accepted)}", ha="center", fontsize=9)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
     with atomic_path(target) as tmp:
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
+
+
+def plot_loop_residuals(
+    res: Any,
+    data: Dataset,
+    before_path: str | None,
+    after_path: str | None,
+    overwrite: bool = False,
+    label: str = "",
+) -> list[str | None]:
+    """The before/after residual figures of a diagnosis loop (:func:`plot_residuals`).
+
+    Both show the estimation part and everything after it (the selection part and, when
+    the loop held one out, the test part, marked); "after" draws "before" in grey on the
+    same axes, and says so on the figure when no effect was accepted.
+
+    Parameters
+    ----------
+    res : LoopResult
+        Result of :func:`hhra_phys.loop.augment` (its ``base``/``final`` fits,
+        ``diagnoses``, ``final_diagnosis``, ``chosen`` and ``settings["split"]``).
+    data : Dataset
+        The whole record the loop ran on.
+    before_path, after_path : str or None
+        Figure files (None: not drawn).
+    overwrite : bool
+        Replace existing files.
+    label : str
+        Prefix of the titles (e.g. the record's name).
+
+    Returns
+    -------
+    list of (str or None)
+        The two paths written (None where not drawn).
+    """
+    from hhra_phys.loop import split_record
+
+    split, test = float(res.settings["split"]), float(res.settings.get("test") or 0.0)
+    _, _, held = split_record(data, split, test)
+    # Everything after the estimation part: selection, then (if any) the test part.
+    val = data.split(split)[1]
+    r_val = {"before": (val.t, val.y - res.base.predict(val)),
+             "after": (val.t, val.y - res.final.predict(val))}
+    marks = [(float(held.t[0]), "test")] if held is not None else []
+    first = res.diagnoses[0] if res.diagnoses else None
+    prefix = f"{label}: " if label else ""
+    out: list[str | None] = [None, None]
+    if before_path and first is not None:
+        out[0] = plot_residuals(first, before_path, f"{prefix}before: base model", overwrite,
+                                validation={"after": r_val["before"]}, unit=data.output_unit,
+                                marks=marks)
+    if after_path and res.final_diagnosis is not None:
+        title = (f"{prefix}after: base model + {', '.join(res.chosen)}" if res.chosen
+                 else f"{prefix}after: no effect accepted (the base model)")
+        out[1] = plot_residuals(res.final_diagnosis, after_path, title, overwrite, before=first,
+                                accepted=res.chosen, validation=r_val, unit=data.output_unit,
+                                marks=marks)
+    return out

@@ -29,21 +29,31 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
+from hhra_phys.interrupt import interruptible
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.optim import minimize
 from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
-from hhra_phys.refine import CompiledLeastSquares, Stage, refine_ipopt, refine_nlopt
+from hhra_phys.refine import (
+    CompiledLeastSquares,
+    Stage,
+    least_squares_cost,
+    refine_ipopt,
+    refine_nlopt,
+)
 from hhra_phys.result import FitResult, uncertainty
 
 __all__ = [
+    "MAX_WIDEN_DECADES",
+    "at_edges",
     "OPTIMIZERS",
     "default_model",
     "fit",
@@ -111,6 +121,8 @@ def fit(
     seed_population: bool | None = None,
     intervals: str = "linear",
     per_record: Sequence[str] | None = None,
+    default_bounds: Mapping[str, tuple[float, float]] | None = None,
+    widen_bounds: bool = True,
 ) -> FitResult:
     """Fit a physical model to a record, or to several records at once.
 
@@ -126,7 +138,10 @@ def fit(
     model : Model, optional
         Model to fit (default: :func:`default_model`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
-        sample units for records without a sample time).
+        sample units for records without a sample time). With the default model a
+        single record is first converted to its units (mA, deg) where it declares
+        others, and implausible ranges are warned about
+        (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
     optimizer : {"hgwo", "gwo", "pso", "de", "none"}
         Global search (``"none"``: start the refiners from the nominal values or
         ``start``).
@@ -180,10 +195,29 @@ def fit(
     per_record : sequence of str, optional
         With several records: free model parameters estimated once per record
         (default: those the model's parts declare, such as a sensor offset).
+    default_bounds : dict, optional
+        ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
+        boxes of a record in sample units); unlike ``bounds`` they may be widened.
+    widen_bounds : bool
+        When a log-scaled free group ends at the edge of its default box (the model's,
+        or ``default_bounds``), widen that side by a decade (at most
+        :data:`MAX_WIDEN_DECADES`, fewer when a refit does not lower the cost) and
+        refit; the result's warnings and ``settings["widened"]`` say so. Groups with
+        explicit ``bounds``, fits of a given ``problem`` and fits of several records are
+        never widened.
 
     Returns
     -------
     FitResult
+        ``status`` is ``"diverged"`` (with a warning) when the fitted model's
+        simulation does not stay finite; intervals that cannot be computed are
+        ``(nan, nan)`` and listed in ``intervals["undetermined"]``.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        On Ctrl-C anywhere in the search or the refiners (also inside IPOPT and NLopt
+        callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
     t_start = time.perf_counter()
     if intervals not in ("linear", "profile"):
@@ -200,42 +234,185 @@ def fit(
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
         if problem is None:
+            # Boxes are not widened for several records: default boxes act as bounds.
+            bounds = {**(default_bounds or {}), **(bounds or {})} or None
             problem, val_parts, whole_val = fit_records(
                 data, model, validation, split,
                 {"cost": cost, "free": free, "fixed": fixed, "bounds": bounds,
                  "initial_state": initial_state, "start": start}, per_record)
         else:
             val_parts, whole_val = [None] * len(problem.records), list(validation or [])
-        z, stages, history = _search_and_refine(
-            problem, optimizer, refine, pop_size, max_iter, seed, lam, options,
-            refine_options, start, seed_population, progress, callback)
+        with interruptible():
+            z, stages, history = _search_and_refine(
+                problem, optimizer, refine, pop_size, max_iter, seed, lam, options,
+                refine_options, start, seed_population, progress, callback)
         from hhra_phys.multi import records_result
 
         return records_result(problem, z, stages, history, val_parts, whole_val,
                               _settings(problem, optimizer, refine, pop_size, max_iter, lam,
                                         split, time.perf_counter() - t_start),
                               seed, datasheet, intervals, t_start)
+    widen_bounds = widen_bounds and problem is None
+    record_notes: list[str] = []
+    if model is None and problem is None:
+        # The default HHRA knows its units: convert the record, warn about odd ranges.
+        from hhra_phys.models.hhra.defaults import prepare_record
+
+        data, notes, warns = prepare_record(data)
+        record_notes = notes + warns
+        if validation is not None:
+            validation, notes, warns = prepare_record(validation)
+            record_notes += notes + warns
     if validation is None:
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
         est, val = data.split(split) if split < 1 else (data, None)
     else:
         est, val = data, validation
+    # The user's explicit bounds are kept as given; default boxes may be widened.
+    fixed_box = set(bounds or {})
     if problem is None:
         if model is None:
             model, auto_bounds = default_model(data)
-            chosen = set(free) if free is not None else set(default_free(model, fixed))
-            auto_bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
-            bounds = {**auto_bounds, **(bounds or {})}
+            default_bounds = {**auto_bounds, **(default_bounds or {})}
+        chosen = set(free) if free is not None else set(default_free(model, fixed))
+        default_bounds = {k: v for k, v in (default_bounds or {}).items() if k in chosen}
+        bounds = {**default_bounds, **(bounds or {})}
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                           bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                           start=start)
-    z, stages, history = _search_and_refine(
-        problem, optimizer, refine, pop_size, max_iter, seed, lam, options, refine_options,
-        start, seed_population, progress, callback)
-    return _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
-                   max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
-                   intervals)
+    search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
+                     pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
+                     options=options, refine_options=refine_options, start=start,
+                     seed_population=seed_population, progress=progress, callback=callback)
+    widened: list[dict[str, Any]] = []
+    with interruptible():
+        z, stages, history = search(problem)
+        if widen_bounds:
+            problem, z, widened = _widen(problem, z, search, stages, history, fixed_box)
+    result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
+                     max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
+                     intervals)
+    if widened:
+        result.settings["widened"] = widened
+        result.warnings.extend(_widening_notes(widened))
+    result.warnings.extend(record_notes)
+    return result
+
+
+def _widening_notes(widened: list[dict[str, Any]]) -> list[str]:
+    """One sentence per widened box side, from the rounds of :func:`_widen`."""
+    sides: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for w in widened:
+        sides.setdefault((w["name"], w["side"]), []).append(w)
+    notes = []
+    for (name, side), rounds in sides.items():
+        first, last = rounds[0], rounds[-1]
+        n = len(rounds)
+        text = (f"{name} ended at the {side} edge of its default box [{first['from'][0]:.4g}, "
+                f"{first['from'][1]:.4g}]; that side was widened by {n} decade"
+                f"{'s' if n > 1 else ''} to [{last['to'][0]:.4g}, {last['to'][1]:.4g}] and the "
+                "fit repeated")
+        if last.get("gain", 1.0) < WIDEN_MIN_GAIN:
+            text += (f", which lowered the sum of squares by only {100 * last['gain']:.2g} %: "
+                     f"the data do not determine {name} beyond the old edge (it is negligible "
+                     "or unobservable there), so widening stopped")
+        notes.append(text)
+    return notes
+
+
+#: Decades a default box side may be widened in all, one per refit. Three decades
+#: beyond the factor-10 default box (a factor 10^4 from nominal) is the most a group of a
+#: working actuator can plausibly differ from the rig's; further out a group at its edge is
+#: a model or unit error, which the edge warning reports.
+MAX_WIDEN_DECADES = 3
+#: Distance to a box edge (fraction of the box in fitting coordinates) that counts as "at it".
+EDGE_TOL = 1e-4
+#: Relative fall of the least-squares cost below which a widened box did not help: the
+#: group sits at its edge because the data do not see it there (a leakage of zero), not
+#: because the truth lies beyond, and further decades would only cost refits.
+WIDEN_MIN_GAIN = 1e-3
+
+
+def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
+    """Free parameters (index, ``"lower"``/``"upper"``) whose coordinate ends at its box edge.
+
+    Parameters
+    ----------
+    problem : Problem
+    z : ndarray, shape (n_free,)
+        Fitting coordinates.
+    tol : float
+        Distance to an edge, as a fraction of the box width, that counts as at it.
+    """
+    bz = problem.bounds_z()
+    span = bz[:, 1] - bz[:, 0]
+    out = []
+    for i in range(problem.n_free):
+        lo, hi = z[i] - bz[i, 0], bz[i, 1] - z[i]
+        if min(lo, hi) <= tol * span[i]:
+            out.append((i, "lower" if lo <= hi else "upper"))
+    return out
+
+
+def _widen(
+    problem: Problem,
+    z: np.ndarray,
+    search: Callable[..., tuple[np.ndarray, list[Stage], list[float]]],
+    stages: list[Stage],
+    history: list[float],
+    fixed_box: set[str],
+) -> tuple[Problem, np.ndarray, list[dict[str, Any]]]:
+    """Widen default boxes whose edge a log-scaled free group ends at, and refit.
+
+    One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side, and no
+    further once a round lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
+    (relative); the user's explicit bounds (``fixed_box``), initial-state and linear (signed)
+    parameters are never widened. Each refit (``search``, :func:`_search_and_refine`)
+    starts its global search with the previous optimum in the population, so it cannot end
+    worse. ``stages`` and ``history`` are extended.
+    """
+    original = {p.name: (p.lower, p.upper) for p in problem.free_params}
+    widened: list[dict[str, Any]] = []
+    cost = least_squares_cost(problem, z)
+    for round_ in range(1, MAX_WIDEN_DECADES + 1):
+        if not np.isfinite(cost):
+            break  # a diverged fit is not at an edge for a reason a wider box would fix
+        box = {p.name: [p.lower, p.upper] for p in problem.free_params
+               if not p.name.startswith("x0_")}
+        changes = []
+        for i, side in at_edges(problem, z):
+            par = problem.free_params[i]
+            if par.scale != "log" or par.name in fixed_box or par.name not in box:
+                continue
+            k = 0 if side == "lower" else 1
+            if abs(np.log10(box[par.name][k] / original[par.name][k])) >= MAX_WIDEN_DECADES - 0.5:
+                continue
+            before = tuple(box[par.name])
+            box[par.name][k] = box[par.name][k] / 10 if k == 0 else box[par.name][k] * 10
+            changes.append({"name": par.name, "side": side, "round": round_,
+                            "from": list(before), "to": list(box[par.name])})
+        if not changes:
+            break
+        values = problem.from_z(z)
+        problem = Problem(problem.model, problem.data, cost=problem.cost,  # type: ignore[arg-type]
+                          free=list(box), fixed=problem.fixed,
+                          bounds={n: tuple(b) for n, b in box.items()},
+                          initial_state=problem.initial_state,  # type: ignore[arg-type]
+                          simulator=problem.sim)
+        z, more, hist = search(problem, z_start=problem.to_z(values),
+                               label=f" (widened {round_})")
+        stages.extend(more)
+        history.extend(hist)
+        new_cost = least_squares_cost(problem, z)
+        gain = (cost - new_cost) / cost if cost > 0 else 0.0
+        for c in changes:
+            c["gain"] = float(gain)
+        widened.extend(changes)
+        cost = new_cost
+        if gain < WIDEN_MIN_GAIN:
+            break
+    return problem, z, widened
 
 
 def _search_and_refine(
@@ -252,11 +429,21 @@ def _search_and_refine(
     seed_population: bool | None,
     progress: bool,
     callback: Callable[[Any], bool | None] | None,
+    z_start: np.ndarray | None = None,
+    label: str = "",
 ) -> tuple[np.ndarray, list[Stage], list[float]]:
-    """Global search then refiners on a problem (one record or stacked); (z, stages, history)."""
+    """Global search then refiners on a problem (one record or stacked); (z, stages, history).
+
+    ``z_start`` (a refit after widening a box) starts there, with it in the first
+    population; ``label`` is appended to the stage names.
+    """
     stages: list[Stage] = []
     history: list[float] = []
-    z_start = problem.to_z(problem.start_values())
+    warm = bool(start) if seed_population is None else seed_population
+    if z_start is None:
+        z_start = problem.to_z(problem.start_values())
+    else:
+        warm = True
     z = z_start
     if optimizer != "none":
         t0 = time.perf_counter()
@@ -264,7 +451,6 @@ def _search_and_refine(
         if optimizer == "hgwo":
             opts.setdefault("lam", lam)
         bz = problem.bounds_z()
-        warm = bool(start) if seed_population is None else seed_population
         x0 = np.clip(z_start, bz[:, 0], bz[:, 1])[None, :] if warm else None
         res = minimize(problem, bz, method=optimizer, pop_size=pop_size, max_iter=max_iter,
                        seed=seed, vectorized=True, options=opts, x0=x0, progress=progress,
@@ -272,7 +458,7 @@ def _search_and_refine(
         first = float(res.history.best[0]) if len(res.history.best) else float("nan")
         history = [float(v) for v in res.history.best]
         z = np.asarray(res.x, dtype=float)
-        stages.append(Stage(optimizer, z, first, float(res.fun), int(res.nfev),
+        stages.append(Stage(optimizer + label, z, first, float(res.fun), int(res.nfev),
                             time.perf_counter() - t0,
                             {"nit": int(res.nit), "noi": _int_or_none(res.noi),
                              "cost": problem.cost, "options": opts}))
@@ -285,6 +471,7 @@ def _search_and_refine(
             keys = ("max_eval", "xtol_rel", "ftol_rel")
             st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
                               **{k: v for k, v in ropts.items() if k in keys})
+        st.name += label
         stages.append(st)
         z = st.z
     return z, stages, history
@@ -312,12 +499,20 @@ def _intervals(
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     ci95: dict[str, tuple[float, float]] = {}
     std: dict[str, float] = {}
+    undetermined: list[str] = []
     for i, name in enumerate(problem.free_names):
-        lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
-        ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
+        if not np.isfinite(sd[i]):
+            ci95[name] = (float("nan"), float("nan"))
+            undetermined.append(name)
+        else:
+            lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
+            ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
+    diverged = not (np.all(np.isfinite(r)) and np.all(np.isfinite(J)))
     interval_info: dict[str, Any] = {"method": "linear"}
-    if intervals == "profile":
+    if intervals == "profile" and diverged:
+        warnings.append("profile intervals skipped: the fit diverged")
+    elif intervals == "profile":
         t0 = time.perf_counter()
         profiles = profile_intervals(problem, z)
         interval_info = {
@@ -348,17 +543,18 @@ def _intervals(
                         f"{name}: the profile stays below the 95 % threshold up to the {side} "
                         "end of the search box, so the interval is open there"
                     )
+    if undetermined:
+        interval_info["undetermined"] = undetermined
 
-    bz = problem.bounds_z()
-    span = bz[:, 1] - bz[:, 0]
+    edges = dict(at_edges(problem, z))
     for i, name in enumerate(problem.free_names):
-        if min(z[i] - bz[i, 0], bz[i, 1] - z[i]) <= 1e-6 * span[i]:
-            side = "lower" if z[i] - bz[i, 0] <= bz[i, 1] - z[i] else "upper"
+        if i in edges:
+            side = edges[i]
             warnings.append(
                 f"{name} ended at its {side} bound: the data push it out of the box, so its value "
                 "and interval are not meaningful (widen the bound or fix it)"
             )
-        elif problem.free_params[i].scale == "log" and sd[i] > 0.5:
+        elif problem.free_params[i].scale == "log" and np.isfinite(sd[i]) and sd[i] > 0.5:
             decades = 2 * 1.96 * sd[i]
             warnings.append(
                 f"{name} is poorly determined by these data: its 95 % interval spans "
@@ -395,6 +591,11 @@ def _result(
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
     y_est = problem.simulate_values(values_free)
+    diverged = not np.all(np.isfinite(y_est))
+    if diverged:
+        warnings.insert(0, "DIVERGED: the simulation with these parameters does not stay "
+                        "finite on the estimation record, so the fit failed; check the units "
+                        "of the input and output and the values given with --fix / fixed")
     metrics = {"est": _score(problem.data, y_est), "val": {}}
     if val is not None:
         y_val = problem.simulate_values(values_free, data=val)
@@ -433,6 +634,7 @@ def _result(
         physical=physical,
         intervals=interval_info,
         problem=problem,
+        status="diverged" if diverged else "ok",
     )
 
 
@@ -459,6 +661,8 @@ def _settings(problem: Any, optimizer: str, refine: Any, pop_size: int, max_iter
 
 
 def _score(ds: Dataset, y_sim: np.ndarray) -> dict[str, float]:
+    if not np.all(np.isfinite(y_sim)):  # a diverged simulation has no score
+        return {k: float("nan") for k in ("mse", "rmse", "vaf", "itae", "fit", "max_abs")}
     return {k: float(v) for k, v in score(ds.y, y_sim, ds.t).items()}
 
 

@@ -25,6 +25,7 @@ from hhra_phys.errors import OutputExistsError, OutputPathError
 
 __all__ = [
     "FIGURE_SUFFIXES",
+    "OVERWRITE_HINT",
     "atomic_path",
     "atomic_write_bytes",
     "atomic_write_text",
@@ -33,6 +34,9 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike
+
+#: How every "exists" refusal says what to do; the CLI replaces it with its own words.
+OVERWRITE_HINT = "pass overwrite=True (CLI: --overwrite)"
 
 #: Suffixes matplotlib writes. Figures must have one: without it ``savefig`` would append
 #: ".png" (a file other than the one checked) and could not write through a temporary name.
@@ -88,7 +92,7 @@ def check_output_path(
         raise OutputPathError(f"{label} is a directory; give a file name")
     if p.exists() and not overwrite:
         raise OutputExistsError(
-            f"{label} exists; pass overwrite=True (CLI: --overwrite) to replace it"
+            f"{label} exists; {OVERWRITE_HINT} to replace it"
         )
     parent = p.parent
     if not parent.is_dir():

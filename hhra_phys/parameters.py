@@ -169,6 +169,62 @@ class ParameterSet:
             )
         return arr
 
+    def check_values(
+        self,
+        values: Mapping[str, float],
+        *,
+        allow_outside_box: bool = False,
+        what: str = "--fix",
+    ) -> list[str]:
+        """Check held values against each parameter's sign and box.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            ``{name: value}`` in the parameters' units (e.g. the CLI's ``--fix``).
+        allow_outside_box : bool
+            Accept a finite value of the right sign outside ``[lower, upper]`` (the
+            returned notes then say so); otherwise it is an error.
+        what : str
+            How the values were given, for messages.
+
+        Returns
+        -------
+        list of str
+            Notes about accepted values outside the box.
+
+        Raises
+        ------
+        ParameterError
+            Unknown name, non-finite value, a value <= 0 for a log-scaled (positive)
+            parameter, or a value outside the box without ``allow_outside_box``.
+        """
+        notes: list[str] = []
+        for name, value in values.items():
+            try:
+                par = self[self.index(name)]
+            except ParameterError as exc:
+                raise ParameterError(f"{what} {name}={value}: {exc}") from None
+            v = float(value)
+            if not math.isfinite(v):
+                raise ParameterError(f"{what} {name}={value}: the value must be finite")
+            if par.scale == "log" and v <= 0:
+                raise ParameterError(
+                    f"{what} {name}={value}: {name} ({par.description or par.unit}) is a "
+                    f"positive quantity; give a value > 0 (its box is [{par.lower:g}, "
+                    f"{par.upper:g}] {par.unit})"
+                )
+            if not par.lower <= v <= par.upper:
+                text = (f"{what} {name}={value} lies outside its box [{par.lower:g}, "
+                        f"{par.upper:g}] {par.unit}")
+                if not allow_outside_box:
+                    raise ParameterError(
+                        f"{text}; check the value and its unit, or pass --allow-outside-box "
+                        "(allow_outside_box=True) if it is meant"
+                    )
+                notes.append(f"{text} (accepted: outside the box was allowed)")
+        return notes
+
     def replace(self, name: str, **changes: float | str) -> ParameterSet:
         """Return a new set with one parameter's fields changed."""
         i = self.index(name)

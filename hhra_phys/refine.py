@@ -27,6 +27,7 @@ from typing import Any, Literal
 import casadi as ca
 import numpy as np
 
+from hhra_phys import interrupt
 from hhra_phys.errors import ParameterError
 from hhra_phys.problem import Problem
 
@@ -192,6 +193,7 @@ class _ResidualCallback(ca.Callback):
         return True
 
     def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+        interrupt.check()  # after Ctrl-C every evaluation fails, so IPOPT stops at once
         z = np.frombuffer(arg[0], dtype=np.float64)
         np.frombuffer(res[0], dtype=np.float64)[:] = self.engine(z)[0]
         return 0
@@ -228,6 +230,7 @@ class _JacobianCallback(ca.Callback):
         return True
 
     def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+        interrupt.check()
         z = np.frombuffer(arg[0], dtype=np.float64)
         np.frombuffer(res[0], dtype=np.float64)[:] = self.engine(z)[1].ravel(order="F")
         return 0
@@ -331,7 +334,8 @@ def refine_ipopt(
     elif hessian == "lbfgs":
         opts["ipopt.hessian_approximation"] = "limited-memory"
     solver = ca.nlpsol("refine_ipopt", "ipopt", nlp, opts)
-    sol = solver(x0=z0, lbx=bz[:, 0], ubx=bz[:, 1])
+    with interrupt.interruptible():  # CasADi swallows a Ctrl-C raised in the callbacks
+        sol = solver(x0=z0, lbx=bz[:, 0], ubx=bz[:, 1])
     return _ipopt_stage(problem, z0, cost_before, np.array(sol["x"]).ravel(), solver.stats(),
                         t0, hessian=hessian, shooting="single",
                         derivatives="compiled" if use_compiled else "casadi")
@@ -443,7 +447,8 @@ def _ipopt_multiple_shooting(
         opts["ipopt.hessian_approximation"] = "limited-memory"
     solver = ca.nlpsol("refine_ipopt_ms", "ipopt", {"x": w, "f": f, "g": g}, opts)
     cost_before = least_squares_cost(problem, z0)
-    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    with interrupt.interruptible():
+        sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
     zs = np.array(sol["x"]).ravel()[: problem.n_free]
     return _ipopt_stage(problem, z0, cost_before, zs, solver.stats(), t0, hessian=hessian,
                         shooting="multiple", segments=segments)
@@ -501,6 +506,7 @@ def refine_nlopt(
     counter = {"f": 0, "g": 0}
 
     def objective(x: np.ndarray, grad: np.ndarray) -> float:
+        interrupt.check()
         counter["f"] += 1
         if grad.size > 0 and engine is not None:
             counter["g"] += 1
@@ -525,7 +531,8 @@ def refine_nlopt(
         opt.set_initial_step(np.minimum(0.05, 0.25 * (bz[:, 1] - bz[:, 0])))
     cost_before = least_squares_cost(problem, z0)
     try:
-        z = opt.optimize(z0)
+        with interrupt.interruptible():  # NLopt may turn a Ctrl-C into a forced stop
+            z = opt.optimize(z0)
         status = int(opt.last_optimize_result())
     except (nlopt.RoundoffLimited, RuntimeError, ValueError) as exc:
         z = z0

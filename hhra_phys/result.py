@@ -64,34 +64,52 @@ def uncertainty(
     """
     n_obs, n = J.shape
     dof = max(n_obs - n, 1)
+    warnings: list[str] = []
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        # A diverged simulation: no curvature to read, every interval is undetermined.
+        warnings.append("the residual or its Jacobian is not finite at the result (the "
+                        "simulation diverges there): confidence intervals are undetermined")
+        cov = np.full((n, n), np.nan)
+        np.fill_diagonal(cov, np.inf)
+        return cov, np.eye(n), warnings
     s2 = float(r @ r) / dof
     info = J.T @ J
-    warnings: list[str] = []
     scale = np.sqrt(np.diag(info))
-    if not np.all(np.isfinite(info)) or np.any(scale == 0):
-        dead = [names[i] for i in range(n) if not (np.isfinite(scale[i]) and scale[i] > 0)]
+    dead = np.array([not (np.isfinite(scale[i]) and scale[i] > 0) for i in range(n)], dtype=bool)
+    if dead.any():
         warnings.append(
-            f"parameters {', '.join(dead)} do not affect the output at the optimum: "
-            "not identifiable from these data"
+            f"parameters {', '.join(names[i] for i in np.flatnonzero(dead))} do not affect the "
+            "output at the optimum: not identifiable from these data (intervals undetermined)"
         )
-        scale = np.where(scale > 0, scale, 1.0)
+        scale = np.where(dead, 1.0, scale)
     normed = info / np.outer(scale, scale)
     eigval, eigvec = np.linalg.eigh(normed)
-    cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
-    if cond > IDENTIFIABILITY_COND:
-        weak = np.abs(eigvec[:, 0])
-        involved = [names[i] for i in np.argsort(-weak) if weak[i] > 0.3]
-        warnings.append(
-            f"information matrix near singular (condition {cond:.2e}): "
-            f"{', '.join(involved)} are not identifiable separately from these data"
-        )
+    with np.errstate(over="ignore"):  # an exactly singular matrix: condition inf
+        cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
+    if cond > IDENTIFIABILITY_COND or dead.any():
+        if cond > IDENTIFIABILITY_COND and not dead.all():
+            weak = np.abs(eigvec[:, 0])
+            involved = [names[i] for i in np.argsort(-weak) if weak[i] > 0.3]
+            warnings.append(
+                f"information matrix near singular (condition {cond:.2e}): "
+                f"{', '.join(involved)} are not identifiable separately from these data"
+            )
         cov_n = np.linalg.pinv(normed, rcond=1e-12)
     else:
-        cov_n = np.linalg.inv(normed)
+        try:
+            cov_n = np.linalg.inv(normed)
+        except np.linalg.LinAlgError:  # exactly singular although well scaled
+            cov_n = np.linalg.pinv(normed, rcond=1e-12)
     cov = s2 * cov_n / np.outer(scale, scale)
+    # A parameter the output does not see has no variance to report: infinite, so its
+    # interval is marked undetermined rather than given the pseudo-inverse's zero.
+    cov[dead, :] = np.nan
+    cov[:, dead] = np.nan
+    cov[dead, dead] = np.inf
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
+    corr = np.where(np.isfinite(np.outer(sd, sd)), corr, 0.0)
     corr = np.where(np.isfinite(corr), corr, 0.0)
     np.fill_diagonal(corr, 1.0)
     for i in range(n):
@@ -157,7 +175,13 @@ class FitResult:
         How :attr:`ci95` was obtained: ``{"method": "linear"}``, or for profile
         intervals ``{"method": "profile", "linear": {name: [lo, hi]}, "open_ends":
         {name: [lower, upper]}, "solves": n, "seconds": s}`` (the linearised
-        intervals kept for comparison).
+        intervals kept for comparison). ``"undetermined"`` lists the parameters whose
+        interval could not be computed (singular information matrix, diverged
+        simulation); their :attr:`ci95` is ``(nan, nan)`` (``[null, null]`` in JSON).
+    status : {"ok", "diverged"}
+        ``"diverged"`` when the simulation with the fitted parameters does not stay
+        finite on the estimation record: the values are where the search stopped, the
+        metrics are not finite and the result must not be used (a warning says why).
     """
 
     model_spec: dict[str, Any]
@@ -179,6 +203,7 @@ class FitResult:
     created: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
     intervals: dict[str, Any] = field(default_factory=lambda: {"method": "linear"})
     problem: Any = field(default=None, repr=False, compare=False)
+    status: str = "ok"
     records: list[dict[str, Any]] = field(default_factory=list)
 
     # -- reuse ------------------------------------------------------------------------
@@ -319,15 +344,20 @@ class FitResult:
             if not info["free"] and info["value"] == 0.0:
                 continue
             ci = info["ci95"]
-            ci_text = f"[{ci[0]:.6g}, {ci[1]:.6g}]" if ci else "fixed"
+            ci_text = "fixed" if not ci else (
+                f"[{ci[0]:.6g}, {ci[1]:.6g}]" if _finite(ci) else "undetermined")
             lines.append(f"{name:<12} {info['value']:>13.6g} {info['unit']:<10} {ci_text:>29}")
         for part in ("est", "val"):
             m = self.metrics.get(part) or {}
             if m:
                 lines.append(
-                    f"{'estimation' if part == 'est' else 'validation':<10}: RMSE {m['rmse']:.4g}, "
-                    f"VAF {m['vaf']:.4f} %, MSE {m['mse']:.4g}, ITAE {m['itae']:.4g}"
+                    f"{'estimation' if part == 'est' else 'validation':<10}: "
+                    f"RMSE {_fmt(m.get('rmse'))}, VAF {_fmt(m.get('vaf'), '.4f')} %, "
+                    f"MSE {_fmt(m.get('mse'))}, ITAE {_fmt(m.get('itae'))}"
                 )
+        if self.status != "ok":
+            lines.append(f"status: {self.status.upper()} (see the warnings; do not use these "
+                         "values)")
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -337,6 +367,7 @@ class FitResult:
         return {
             "format": "hhra-phys fit result",
             "version": FORMAT_VERSION,
+            "status": self.status,
             "params": self.params,
             "tf": self.tf,
             "est": self.metrics.get("est", {}),
@@ -383,7 +414,8 @@ class FitResult:
             values=values,
             free=list(d["free"]),
             units={n: v["unit"] for n, v in params.items()},
-            ci95={n: tuple(v["ci95"]) for n, v in params.items() if v.get("ci95")},
+            ci95={n: tuple(np.nan if c is None else c for c in v["ci95"])
+                  for n, v in params.items() if v.get("ci95")},
             std=d.get("std_fit_coordinates", {}),
             correlation=np.array(d.get("correlation", [])),
             warnings=list(d.get("warnings", [])),
@@ -397,7 +429,17 @@ class FitResult:
             physical=d.get("physical"),
             created=d.get("created", ""),
             intervals=d.get("intervals", {"method": "linear"}),
+            status=d.get("status", "ok"),
             records=list(d.get("records", [])),
         )
+
+
+def _finite(values: Any) -> bool:
+    return all(v is not None and np.isfinite(v) for v in values)
+
+
+def _fmt(value: Any, spec: str = ".4g") -> str:
+    """A metric for the summary; a diverged fit's missing or non-finite one as "-"."""
+    return format(value, spec) if value is not None and np.isfinite(value) else "-"
 
 

@@ -100,6 +100,10 @@ ROS4_MIN_STIFF = 8
 #: relaxes within a sample: ROS4 (A-stable, damping it) need not resolve it.
 STIFF_REAL = 2.0
 
+#: Most substeps per sample ``substeps="auto"`` may choose; more is refused
+#: (:class:`SimulationError`) as a sign of a time axis in the wrong unit.
+MAX_AUTO_SUBSTEPS = 64
+
 #: Status codes of :attr:`Simulator.last_status`.
 STATUS_OK = 0
 STATUS_UNSTABLE = 1  # spectral radius times substep above rho_max: not simulated reliably
@@ -246,6 +250,15 @@ class Simulator:
             self.substeps = max(int(substeps), n_auto)
         else:
             self.substeps = int(substeps)
+        if self.substeps_auto and n_auto > MAX_AUTO_SUBSTEPS:
+            # Refused before anything is compiled: such a model generates megabytes of C
+            # and the cause is nearly always a time axis in the wrong unit.
+            raise SimulationError(
+                f"the sample period {self.dt:.4g} s needs {n_auto} {chosen.upper()} substeps "
+                f"per sample ({why}; at most {MAX_AUTO_SUBSTEPS} are allowed): is the time "
+                "column in ms? Pass --time-unit ms (CLI) or divide t by 1000; a record in "
+                "sample units needs Model.time_scaled"
+            )
         if self.substeps_auto and n_auto > 2 * RK4_MAX_SUBSTEPS:
             # Usually a unit mismatch: nominal values per second on data in samples.
             warnings.warn(

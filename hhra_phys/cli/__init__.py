@@ -35,14 +35,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``hhra-phys`` console script."""
+    """Entry point of the ``hhra-phys`` console script.
+
+    Exit codes, the same on every command: 0 done; 1 data or runtime error (unreadable
+    record, diverged fit, simulation refused, a failed write); 2 usage error (bad option or
+    value, output path that cannot be written, also argparse's own errors); 130 Ctrl-C,
+    with nothing written (every writer is atomic and runs after the work).
+    """
+    from hhra_phys.cli._common import report_error
+    from hhra_phys.errors import HHRAError
+    from hhra_phys.interrupt import interruptible
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with interruptible():  # a Ctrl-C that a solver swallowed is raised again here
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print(f"hhra-phys {args.command}: interrupted; nothing written", file=sys.stderr)
         return 130
+    except (HHRAError, OSError) as exc:  # a command that did not catch its own
+        return report_error(args.command, exc)

@@ -3,30 +3,101 @@
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 from pathlib import Path
 from typing import Any
 
 from hhra_phys.data import Dataset, load, load_public_actuator
 from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
-from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
+from hhra_phys.outputs import FIGURE_SUFFIXES, OVERWRITE_HINT, check_output_path
+from hhra_phys.units import TIME_UNITS, rescale_time
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (``--pop``, ``--iters``, ``--top`` ...)."""
+    return _int_at_least(text, 1)
+
+
+def population(text: str) -> int:
+    """argparse type: a population size, an integer >= 4 (what every optimiser needs)."""
+    return _int_at_least(text, 4)
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (``--max-effects``)."""
+    return _int_at_least(text, 0)
+
+
+def _int_at_least(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type: a fraction in (0, 1] (``--split``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}")
+    return value
+
+
+def add_record_arguments(
+    p: argparse.ArgumentParser,
+    input_aliases: tuple[str, ...] = (),
+    output_aliases: tuple[str, ...] = (),
+) -> None:
+    """The one data vocabulary of every command that reads a record.
+
+    ``--time-col``, ``--input-col``, ``--output-col``, ``--fs``, ``--delimiter`` and
+    ``--time-unit``; ``input_aliases``/``output_aliases`` keep a command's older spellings
+    (``compare``'s ``--u``/``--y``) working.
+    """
+    p.add_argument("--time-col", default=None, metavar="COL",
+                   help="time column / variable (CSV default 't')")
+    p.add_argument("--input-col", *input_aliases, dest="input_col", default=None,
+                   metavar="COL", help="input column / variable (CSV default 'u')")
+    p.add_argument("--output-col", *output_aliases, dest="output_col", default=None,
+                   metavar="COL", help="output column / variable (CSV default 'y')")
+    p.add_argument("--fs", type=_positive_float, default=None, metavar="HZ",
+                   help="sample rate in Hz if the file has no time column")
+    add_delimiter_argument(p)
+    p.add_argument("--time-unit", choices=tuple(TIME_UNITS), default=None,
+                   help="unit of the file's time column (default s; ms divides it by 1000)")
 
 
 def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
-    """``DATA`` (or ``DATA ...`` with ``several``) plus the column options of the loaders."""
+    """``DATA`` (or ``DATA ...`` with ``several``) plus the record vocabulary
+    (:func:`add_record_arguments`) and ``--rig-seed``."""
     p.add_argument(
         "data", nargs="*" if several else "?", default=None, metavar="DATA",
         help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
-             "record in ../shared/data, or nothing for the built-in simulated rig"
+             "record in ../shared/data, or nothing (or 'rig') for the built-in simulated rig"
              + ("; several records are fitted jointly (shared parameters, an initial state "
                 "per record)" if several else ""),
     )
-    p.add_argument("--time-col", default=None, help="time column / variable (CSV default 't')")
-    p.add_argument("--input-col", default=None, help="input column / variable (CSV default 'u')")
-    p.add_argument("--output-col", default=None, help="output column / variable (CSV default 'y')")
-    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz if the file has none")
-    add_delimiter_argument(p)
-    p.add_argument("--rig-seed", type=int, default=0, help="seed of the simulated rig (no DATA)")
+    add_record_arguments(p)
+    p.add_argument("--rig-seed", type=int, default=None,
+                   help="seed of the simulated rig (only without DATA; default 0)")
 
 
 def _delimiter(text: str) -> str | None:
@@ -45,14 +116,22 @@ def add_delimiter_argument(p: argparse.ArgumentParser) -> None:
     )
 
 
-def load_data(args: argparse.Namespace) -> Dataset:
-    """The dataset named on the command line (or the simulated rig)."""
-    if args.data is None or args.data == "rig":
-        from hhra_phys.models.hhra.rig import simulate_rig
+#: Options of :func:`add_record_arguments` that describe a file (not the rig or 'public').
+FILE_OPTIONS = (("time_col", "--time-col"), ("input_col", "--input-col"),
+                 ("output_col", "--output-col"), ("fs", "--fs"), ("delimiter", "--delimiter"),
+                 ("time_unit", "--time-unit"))
 
-        return simulate_rig(seed=args.rig_seed)
-    if args.data == "public":
-        return load_public_actuator()
+
+def is_builtin(data: str | None) -> bool:
+    """Whether DATA names a built-in record (nothing, 'rig' or 'public') rather than a file."""
+    return data is None or data.lower() in ("rig", "public")
+
+
+def read_record(args: argparse.Namespace) -> Dataset:
+    """The record file ``args.data`` read with the vocabulary's options (time unit applied)."""
+    if args.fs is not None and args.time_unit not in (None, "s"):
+        raise ParameterError("--fs and --time-unit exclude each other: --fs builds the time "
+                             "axis, --time-unit rescales the file's time column")
     kw: dict[str, object] = {}
     suffix = Path(args.data).suffix.lower()
     for opt, key in (("time_col", "t"), ("input_col", "u"), ("output_col", "y")):
@@ -64,7 +143,72 @@ def load_data(args: argparse.Namespace) -> Dataset:
     kw["delimiter"] = getattr(args, "delimiter", None)
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
-    return load(args.data, **kw)
+    data = load(args.data, **kw)
+    return rescale_time(data, args.time_unit) if args.time_unit else data
+
+
+def load_data(args: argparse.Namespace) -> Dataset:
+    """The dataset named on the command line (or the simulated rig).
+
+    Raises
+    ------
+    ParameterError
+        File options (``--time-col`` ...) with a built-in record, or ``--rig-seed`` with a
+        record that is not the rig: they would be silently ignored.
+    """
+    if is_builtin(args.data):
+        given = [flag for opt, flag in FILE_OPTIONS if getattr(args, opt, None) is not None]
+        if given:
+            verb = "describes" if len(given) == 1 else "describe"
+            raise ParameterError(f"{', '.join(given)} {verb} a DATA file; the "
+                                 f"{'public record' if args.data == 'public' else 'simulated rig'}"
+                                 " needs none")
+    rig_seed = getattr(args, "rig_seed", None)
+    if args.data is None or args.data.lower() == "rig":
+        from hhra_phys.models.hhra.rig import simulate_rig
+
+        return simulate_rig(seed=0 if rig_seed is None else rig_seed)
+    if rig_seed is not None:
+        raise ParameterError(f"--rig-seed seeds the simulated rig; it has no effect on DATA "
+                             f"{args.data!r} (leave it out, or leave out DATA)")
+    if args.data.lower() == "public":
+        return load_public_actuator()
+    return read_record(args)
+
+
+def record_for_model(args: argparse.Namespace, data: Dataset) -> tuple[Dataset, list[str]]:
+    """``data`` in the built-in HHRA's units, and warnings about implausible ranges.
+
+    With ``--model`` (a user's model, whose units hhra-phys does not know) the record is
+    returned unchanged. Conversions are printed on stderr; the warnings are printed and
+    returned, so they can also go into the result.
+    """
+    if getattr(args, "model", None):
+        return data, []
+    from hhra_phys.models.hhra.defaults import prepare_record
+
+    data, notes, warns = prepare_record(data)
+    for line in notes:
+        print(f"note: {line}", file=sys.stderr)
+    for line in warns:
+        print(f"warning: {line}", file=sys.stderr)
+    return data, warns
+
+
+def exit_code(exc: BaseException) -> int:
+    """The exit code of an error: 2 for usage (bad options, output paths), 1 for the rest.
+
+    A :class:`~hhra_phys.errors.ParameterError` (which includes output-path errors) is a
+    usage error; data, model, simulation and operating-system errors exit 1.
+    """
+    return 2 if isinstance(exc, ParameterError) else 1
+
+
+def report_error(command: str, exc: BaseException) -> int:
+    """Print ``hhra-phys COMMAND: error: ...`` on stderr and return :func:`exit_code`."""
+    text = str(exc).replace(OVERWRITE_HINT, "pass --overwrite")  # the CLI's words
+    print(f"hhra-phys {command}: error: {text}", file=sys.stderr)
+    return exit_code(exc)
 
 
 def load_records(args: argparse.Namespace, names: list[str] | None = None) -> list[Dataset]:
@@ -87,6 +231,8 @@ def parse_fixed(items: list[str] | None) -> dict[str, float]:
         if "=" not in item:
             raise ParameterError(f"--fix expects NAME=VALUE, got {item!r}")
         name, value = item.split("=", 1)
+        if not name.strip():
+            raise ParameterError(f"--fix expects NAME=VALUE, got {item!r} (no name)")
         try:
             out[name.strip()] = float(value)
         except ValueError:

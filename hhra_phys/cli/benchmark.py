@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
+from hhra_phys.cli._common import report_error
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
@@ -89,8 +90,7 @@ def run(args: argparse.Namespace) -> int:
                 progress=progress,
                 executor=ex,
             )
-    except HHRAError as exc:
-        print(f"hhra-phys benchmark: error: {exc}", file=sys.stderr)
-        return 2
+    except (HHRAError, OSError) as exc:
+        return report_error("benchmark", exc)
     print(text)
     return 0

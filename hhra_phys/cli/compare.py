@@ -7,7 +7,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hhra_phys.cli._common import add_delimiter_argument, add_model_arguments
+from hhra_phys.cli._common import (
+    FILE_OPTIONS,
+    add_model_arguments,
+    add_record_arguments,
+    is_builtin,
+    population,
+    positive_int,
+    read_record,
+    report_error,
+)
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
 
@@ -55,9 +64,8 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("data", nargs="?", metavar="DATA", help="data file, 'public' or 'rig'")
     p.add_argument("--public", action="store_true", help="use the public actuator record")
-    p.add_argument("--u", metavar="SPEC", help="input column/variable of DATA (see docs/data.md)")
-    p.add_argument("--y", metavar="SPEC", help="output column/variable of DATA")
-    add_delimiter_argument(p)
+    # The one data vocabulary of every command; --u/--y are compare's older spellings.
+    add_record_arguments(p, input_aliases=("--u",), output_aliases=("--y",))
     p.add_argument(
         "--split",
         type=_split,
@@ -71,8 +79,8 @@ def register(subparsers: Any) -> None:
         default=None,
         help="comma-separated method names (default: every registered method)",
     )
-    p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
-    p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
+    p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
+    p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
     p.add_argument("--na", type=int, default=3, help="ARX output order (default 3)")
     p.add_argument("--nb", type=int, default=3, help="ARX input order (default 3)")
     p.add_argument("--nk", type=int, default=1, help="ARX input delay (default 1)")
@@ -102,7 +110,8 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--plot",
         metavar="OUT.png",
-        help="figure of measured vs simulated output; convergence goes to OUT_convergence.png",
+        help="figure of measured vs simulated output (.png, .svg or .pdf); convergence goes "
+             "to OUT_convergence with the same suffix",
     )
     p.add_argument("--report", metavar="OUT.md", help="write the Markdown table")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -111,20 +120,29 @@ def register(subparsers: Any) -> None:
 
 
 def _load(args: argparse.Namespace) -> Any:
-    from hhra_phys.data import load, load_public_actuator
+    from hhra_phys.data import load_public_actuator
+    from hhra_phys.models.hhra.defaults import PLAUSIBLE_FS
     from hhra_phys.models.hhra.rig import simulate_rig
+    from hhra_phys.units import range_warnings
 
     word = (args.data or "").lower()
     if args.public and args.data and word not in PUBLIC_WORDS:
         raise ParameterError(f"give DATA ({args.data!r}) or --public, not both")
+    if args.public or is_builtin(args.data):
+        given = [flag for opt, flag in FILE_OPTIONS if getattr(args, opt, None) is not None]
+        if given:
+            raise ParameterError(f"{', '.join(given)}: options of a DATA file; the built-in "
+                                 "records need none")
     if args.public or word in PUBLIC_WORDS:
         return load_public_actuator(), 512  # the usual split of that record (its README)
     if not args.data or word in RIG_WORDS:
         if not args.duration > 0:
             raise ParameterError(f"--duration must be positive, got {args.duration}")
         return simulate_rig(seed=args.seed, duration=args.duration), 0.5
-    kw = {k: v for k, v in (("u", args.u), ("y", args.y)) if v is not None}
-    return load(args.data, delimiter=args.delimiter, **kw), 0.5
+    data = read_record(args)
+    for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
+        print(f"warning: {line}", file=sys.stderr)
+    return data, 0.5
 
 
 def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
@@ -196,8 +214,7 @@ def run(args: argparse.Namespace) -> int:
             C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
             if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
                 C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
-    except HHRAError as exc:
-        print(f"hhra-phys compare: error: {exc}", file=sys.stderr)
-        return 2
+    except (HHRAError, OSError) as exc:
+        return report_error("compare", exc)
     print(table)
     return 0

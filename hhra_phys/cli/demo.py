@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.cli._common import report_error
 from hhra_phys.data import check_save_path, save_csv
 from hhra_phys.errors import HHRAError
 from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
@@ -61,8 +62,9 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(files["loop_plot"], overwrite=args.overwrite,
                           suffixes=FIGURE_SUFFIXES)
     except (HHRAError, OSError) as exc:
-        print(f"hhra-phys demo: error: {exc} (or choose another --out)", file=sys.stderr)
-        return 2
+        code = report_error("demo", exc)
+        print("hhra-phys demo: (or choose another --out)", file=sys.stderr)
+        return code
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
     n_steps = 6
     try:
@@ -80,14 +82,14 @@ def run(args: argparse.Namespace) -> int:
         est, val = data.split(0.5)
         plot_fit(files["plot"], [("estimation", est, res.predict(est)),
                                  ("validation", val, res.predict(val))],
-                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite)
+                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
+                 stages=res.stages)
         hidden, truth_e = hidden_effect(args.seed)
         _step(6, n_steps, "closing the loop: a rig record with an effect the model does not "
                           "declare (drawn from the seed), diagnosed with the effect library")
         loop = _close_loop(args, duration, pop, iters, files, hidden, truth_e)
-    except (HHRAError, FileExistsError) as exc:
-        print(f"hhra-phys demo: error: {exc}", file=sys.stderr)
-        return 2
+    except (HHRAError, OSError) as exc:
+        return report_error("demo", exc)
 
     truth = data.metadata["true_params"]
     print("\nParameter groups: truth, fit and 95 % confidence interval")

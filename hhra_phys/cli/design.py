@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from hhra_phys.cli._common import report_error
 from hhra_phys.design import CRITERIA, MIN_HOLD_S, OUTPUT_LIMIT_DEG, InformationModel
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
@@ -27,7 +28,7 @@ def register(subparsers: Any) -> None:
             "the Fisher information of the free parameters, from the exact sensitivities, "
             "averaged over parameter draws from the fit's covariance, within the input, "
             "switching-time and output limits. Writes t,u at the fit's sample rate and a JSON "
-            "side-car (same name, .json) with the predicted 95 %% interval widths for the "
+            "side-car (same name, .json) with the predicted 95 % interval widths for the "
             "designed input and for the fitted record's input."
         ),
     )
@@ -110,9 +111,8 @@ def run(args: argparse.Namespace) -> int:
                               output_limit=args.output_limit, min_hold=args.min_hold,
                               criterion=args.criterion, seed=args.seed, draws=args.draws,
                               reference_input=None if record is None else record.u)
-    except (HHRAError, FileExistsError, OSError) as exc:
-        print(f"hhra-phys design: error: {exc}", file=sys.stderr)
-        return 2
+    except (HHRAError, OSError) as exc:
+        return report_error("design", exc)
     broken = design.check()
     fitted = None
     if record is not None:

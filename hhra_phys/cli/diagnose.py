@@ -13,12 +13,18 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    fraction,
     load_data,
     model_for,
+    nonnegative_int,
+    population,
+    positive_int,
+    record_for_model,
+    report_error,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
-from hhra_phys.errors import HHRAError
-from hhra_phys.outputs import atomic_write_text
+from hhra_phys.errors import HHRAError, ParameterError
+from hhra_phys.outputs import atomic_write_text, jsonable
 
 
 def register(subparsers: Any) -> None:
@@ -41,21 +47,23 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
     p.add_argument("--report", metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
-    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
-    p.add_argument("--top", type=int, default=None,
-                   help="candidates refitted per round, best ranked first (default: all)")
+    p.add_argument("--max-effects", type=nonnegative_int, default=3,
+                   help="most effects to add (default 3)")
+    p.add_argument("--top", type=positive_int, default=None,
+                   help="candidates refitted per round, best ranked first, at least 1 "
+                        "(default: all)")
     p.add_argument("--effects", default=None,
                    help="comma-separated effects to consider (default: all registered, the "
                         "library's and those of --effects-from)")
     p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
-    p.add_argument("--split", type=float, default=None,
+    p.add_argument("--split", type=fraction, default=None,
                    help="estimation fraction of the record (default 0.5)")
     p.add_argument("--test", type=float, default=0.25,
                    help="fraction held out at the end as the test part, which chooses nothing "
                         "(default 0.25; 0: the old two-way split, selection = validation)")
-    p.add_argument("--pop", type=int, default=100,
+    p.add_argument("--pop", type=population, default=100,
                    help="base fit population (default 100, as hhra-phys fit)")
-    p.add_argument("--iters", type=int, default=200,
+    p.add_argument("--iters", type=positive_int, default=200,
                    help="base fit iterations (default 200, as hhra-phys fit)")
     p.add_argument("--margin", type=float, default=0.1,
                    help="required relative fall of the selection RMSE (default 0.1)")
@@ -68,7 +76,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the loop and write the outputs; 0 on success, 1 on a user error."""
+    """Run the loop and write the outputs; 0 on success, 2 on a usage error, 1 otherwise."""
     from hhra_phys.cli._common import parse_names
     from hhra_phys.extensions import import_effects
     from hhra_phys.loop import augment
@@ -79,12 +87,14 @@ def run(args: argparse.Namespace) -> int:
         figs = [f"{stem}_before.png", f"{stem}_after.png"]
     try:
         check_outputs([args.json, args.report], args.overwrite, figures=figs)
-        if args.max_effects < 0:
-            raise HHRAError(f"--max-effects must be >= 0, got {args.max_effects}")
+        if args.split is not None and args.split >= 1:
+            raise ParameterError("--split: the diagnosis needs selection data; give a "
+                                 f"fraction below 1, got {args.split}")
         added = import_effects(args.effects_from)
         if added:
             print(f"registered effects: {', '.join(added)}", file=sys.stderr)
         data = load_data(args)
+        data, data_warnings = record_for_model(args, data)
         model, bounds = model_for(args, data)
         split = args.split if args.split is not None else 0.5
         print(f"diagnosing {data.name or data.source or 'record'} ({len(data)} samples, "
@@ -97,29 +107,26 @@ def run(args: argparse.Namespace) -> int:
                 noise_tol=args.noise_tol, bounds=bounds, executor=ex,
                 progress=lambda s: print(s, file=sys.stderr, flush=True),
             )
-    except (HHRAError, OSError, ValueError) as exc:
-        print(f"hhra-phys diagnose: error: {exc}", file=sys.stderr)
-        return 1
-    out = res.to_json()
-    print(f"chosen: {', '.join(res.chosen) or 'none'}")
-    for part in ("est", "val", "test"):
-        b, f = out["base"].get(part, {}), out["final"].get(part, {})
-        if not f:
-            continue
-        print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
-              f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
-    if args.json:
-        atomic_write_text(args.json, json.dumps(out, indent=2))
-        print(f"wrote {args.json}")
-    if args.report:
-        from hhra_phys.diagnose import plot_residuals
+        res.warnings.extend(data_warnings)
+        out = res.to_json()
+        print(f"chosen: {', '.join(res.chosen) or 'none'}")
+        for part in ("est", "val", "test"):
+            b, f = out["base"].get(part, {}), out["final"].get(part, {})
+            if not f:
+                continue
+            print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
+                  f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
+        if args.json:
+            atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
+            print(f"wrote {args.json}")
+        if args.report:
+            from hhra_phys.diagnose import plot_loop_residuals
 
-        paths = [plot_residuals(res.diagnoses[0], figs[0], "before (base model)",
-                                args.overwrite) if res.diagnoses else None,
-                 plot_residuals(res.final_diagnosis, figs[1], "after (augmented model)",
-                                args.overwrite) if res.final_diagnosis else None]
-        atomic_write_text(args.report, markdown_report(res, paths, args.report))
-        print(f"wrote {args.report}")
+            paths = plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite)
+            atomic_write_text(args.report, markdown_report(res, paths, args.report))
+            print(f"wrote {args.report}")
+    except (HHRAError, OSError) as exc:
+        return report_error("diagnose", exc)
     return 0
 
 

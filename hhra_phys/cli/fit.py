@@ -10,10 +10,15 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    fraction,
     load_records,
     model_for,
     parse_fixed,
     parse_names,
+    population,
+    positive_int,
+    record_for_model,
+    report_error,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
@@ -28,7 +33,11 @@ def register(subparsers: Any) -> None:
         description=(
             "Global search (H-GWO by default, population 100, 200 iterations as in the paper) "
             "over the identifiable parameter groups, then local refinement with IPOPT or NLopt, "
-            "95 %% confidence intervals and free-run scores on estimation and validation data."
+            "95 % confidence intervals and free-run scores on estimation and validation data. "
+            "A group that ends at the edge of its default box gets that side widened by a "
+            "decade and the fit is repeated (--no-widen turns this off). "
+            "Exit codes: 0 done, 1 data or runtime error (also a diverged fit, whose JSON is "
+            "still written), 2 usage error, 130 interrupted (nothing written)."
         ),
     )
     add_data_arguments(p, several=True)
@@ -40,19 +49,24 @@ def register(subparsers: Any) -> None:
                    help="comma-separated free parameters (default: all but those the model "
                         "holds, for the HHRA g_spring and g_load)")
     p.add_argument("--fix", action="extend", nargs="+", default=None, metavar="NAME=VALUE",
-                   help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable)")
-    p.add_argument("--split", type=float, default=0.5,
+                   help="hold parameters at values: --fix g_leak=6.4 g_damping=4 (repeatable); "
+                        "checked against the parameter's sign and box")
+    p.add_argument("--allow-outside-box", action="store_true",
+                   help="accept --fix values outside the parameter's box (not its sign)")
+    p.add_argument("--no-widen", action="store_true",
+                   help="do not widen a default box whose edge a group ends at")
+    p.add_argument("--split", type=fraction, default=0.5,
                    help="estimation fraction of every record (default 0.5)")
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="whole records for validation (same column options); then every DATA "
                         "record is used for estimation")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search")
-    p.add_argument("--starts", type=int, default=1, metavar="K",
+    p.add_argument("--starts", type=positive_int, default=1, metavar="K",
                    help="multi-start: K fits with seeds SEED..SEED+K-1, the lowest estimation "
                         "error kept (default 1)")
     add_cluster_arguments(p, "the starts")
-    p.add_argument("--pop", type=int, default=100, help="population size (default 100)")
-    p.add_argument("--iters", type=int, default=200, help="iterations (default 200)")
+    p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
+    p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
                    help="global-search cost (default itae, the paper's)")
     p.add_argument("--lam", type=float, default=1.0,
@@ -63,24 +77,37 @@ def register(subparsers: Any) -> None:
                    help="95 %% intervals: linearised at the optimum (default) or profile "
                         "likelihood (a few seconds more)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the result as JSON")
-    p.add_argument("--plot", default=None, metavar="OUT.png", help="write a figure")
+    p.add_argument("--plot", default=None, metavar="OUT.png",
+                   help="write a figure (.png, .svg or .pdf)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the fit; returns the exit code."""
+    """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
     from hhra_phys.fit import default_free
 
     try:
         check_outputs([args.json], args.overwrite, figures=[args.plot])
-        records = load_records(args)
-        validation = load_records(args, args.validate) if args.validate else None
+        fixed = parse_fixed(args.fix)
+        free = parse_names(args.free)
+        data_warnings: list[str] = []
+        records, validation = [], None
+        for ds in load_records(args):
+            ds, warns = record_for_model(args, ds)
+            records.append(ds)
+            data_warnings += warns
+        if args.validate:
+            validation = []
+            for ds in load_records(args, args.validate):
+                ds, warns = record_for_model(args, ds)
+                validation.append(ds)
+                data_warnings += warns
         data = records[0]
         model, auto_bounds = model_for(args, data, args.valve)
-        free = parse_names(args.free)
-        fixed = parse_fixed(args.fix)
+        for note in model.params.check_values(fixed, allow_outside_box=args.allow_outside_box):
+            print(f"note: {note}", file=sys.stderr)
         chosen = set(free) if free is not None else set(default_free(model, fixed))
         bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
         for other in records[1:] + (validation or []):  # the widest automatic box of all
@@ -88,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
                 if k in bounds:
                     bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
         refine = [r for r in args.refine.split("+")] if args.refine else None
-        if args.starts < 1:
-            raise HHRAError(f"--starts must be >= 1, got {args.starts}")
         what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
                 if len(records) > 1 else
                 f"{data.name or data.source or 'record'} ({len(data)} samples)")
@@ -105,30 +130,42 @@ def run(args: argparse.Namespace) -> int:
             results = fit_many(
                 [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
                 model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
-                bounds=bounds, split=args.split, validation=val_arg, pop_size=args.pop,
-                max_iter=args.iters, cost=args.cost, lam=args.lam,
+                default_bounds=bounds, split=args.split, validation=val_arg,
+                pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
                 progress=not args.quiet and args.starts == 1 and ex is None,
-                intervals=args.intervals)
+                intervals=args.intervals, widen_bounds=not args.no_widen)
         res = best_of(results)
-    except (HHRAError, FileExistsError) as exc:
-        print(f"hhra-phys fit: error: {exc}", file=sys.stderr)
-        return 2
-    print(res.summary())
-    for rec in res.records:
-        parts = [f"{label} RMSE {rec[key]['rmse']:.4g}"
-                 for key, label in (("est", "estimation"), ("val", "validation")) if rec[key]]
-        print(f"record {rec['name']}: {', '.join(parts)}")
-    for st in res.stages:
-        print(f"stage {st['name']:<16} cost {st['cost_before']:.6g} -> {st['cost']:.6g}, "
-              f"{st['nfev']} evaluations, {st['seconds']:.2f} s")
-    if args.json:
-        print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-    if args.plot:
-        plotted = (plot_records(res, records, validation, args.plot, args.split, args.overwrite)
-                   if several or validation else
-                   plot_result(res, data, args.plot, args.split, args.overwrite))
-        print(f"wrote {plotted}")
+        res.warnings.extend(data_warnings)
+        print(res.summary())
+        for rec in res.records:
+            parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
+                     for key, label in (("est", "estimation"), ("val", "validation"))
+                     if rec[key]]
+            print(f"record {rec['name']}: {', '.join(parts)}")
+        for st in res.stages:
+            print(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
+                  f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
+        if args.json:
+            print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+        if res.status == "diverged":
+            print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+                  "stay finite with the fitted values); "
+                  + ("the result marked diverged is in the JSON; " if args.json else "")
+                  + "check the units of the record and the --fix values", file=sys.stderr)
+            return 1
+        if args.plot:
+            plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                    args.overwrite)
+                       if several or validation else
+                       plot_result(res, data, args.plot, args.split, args.overwrite))
+            print(f"wrote {plotted}")
+    except (HHRAError, OSError) as exc:
+        return report_error("fit", exc)
     return 0
+
+
+def _num(x: float | None, spec: str = ".6g") -> str:
+    return "-" if x is None else format(x, spec)
 
 
 def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -> Any:
@@ -139,7 +176,8 @@ def plot_result(res: Any, data: Any, path: str, split: float, overwrite: bool) -
     parts = [("estimation", est, res.predict(est))]
     if val is not None:
         parts.append(("validation", val, res.predict(val)))
-    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)
+    return plot_fit(path, parts, res.history, title=f"hhra-phys fit of {data.name or 'record'}",
+                    overwrite=overwrite, stages=res.stages)
 
 
 def plot_records(res: Any, records: list[Any], validation: list[Any] | None, path: str,
@@ -156,4 +194,5 @@ def plot_records(res: Any, records: list[Any], validation: list[Any] | None, pat
             parts.append((name, piece, res.predict(piece)))
     for ds in validation or []:
         parts.append((f"{ds.name or ds.source or 'record'} validation", ds, res.predict(ds)))
-    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite)
+    return plot_fit(path, parts, res.history, title="hhra-phys fit", overwrite=overwrite,
+                    stages=res.stages)

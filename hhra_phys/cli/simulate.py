@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
+from hhra_phys.cli._common import report_error
 from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
@@ -87,9 +87,8 @@ def run(args: argparse.Namespace) -> int:
                               fs=args.fs, amplitude=args.amplitude,
                               quantization=args.quantization)
         path = save(ds, args.out, overwrite=args.overwrite)
-    except HHRAError as exc:
-        print(f"hhra-phys simulate: error: {exc}", file=sys.stderr)
-        return 2
+    except (HHRAError, OSError) as exc:
+        return report_error("simulate", exc)
     print(f"wrote {path} ({len(ds)} samples, {ds.duration:.2f} s, angle "
           f"{ds.y.min():.1f}..{ds.y.max():.1f} deg)")
     return 0

@@ -143,13 +143,18 @@ def _safe_split(line: str, delimiter: str) -> list[str]:
         return [line]
 
 
+#: Separators some exports use that detection does not try, but a hint names.
+HINT_ONLY = ("|", ":")
+
+
 def delimiter_hint(header: str, used: str) -> str:
     """``"; the header looks ';'-delimited: pass --delimiter ';' ..."`` or ``""``.
 
     Given when the header, split with ``used``, lacks a column the caller asked for, and
     another delimiter would split it into several fields.
     """
-    for cand in (*CANDIDATES, WHITESPACE):
+    # Detection only tries the common separators; a hint may also name rarer ones.
+    for cand in (*CANDIDATES, *HINT_ONLY, WHITESPACE):
         if cand == used:
             continue
         fields = _safe_split(header, cand) if cand != WHITESPACE else header.split()

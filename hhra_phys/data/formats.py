@@ -42,7 +42,13 @@ from hhra_phys.data.errors import (
     UnsupportedFormatError,
 )
 from hhra_phys.errors import DataError, OutputExistsError, ParameterError
-from hhra_phys.outputs import atomic_path, atomic_write_text, check_output_path, jsonable
+from hhra_phys.outputs import (
+    OVERWRITE_HINT,
+    atomic_path,
+    atomic_write_text,
+    check_output_path,
+    jsonable,
+)
 
 __all__ = [
     "load",
@@ -121,7 +127,7 @@ def check_save_path(path: PathLike, overwrite: bool = False) -> list[Path]:
         _writable(side, overwrite, what="side-car")
     except DataFileExistsError:
         raise DataFileExistsError(
-            f"{side} (the side-car of {p.name}) exists; pass overwrite=True to replace it"
+            f"{side} (the side-car of {p.name}) exists; {OVERWRITE_HINT} to replace it"
         ) from None
     return [p, side]
 
@@ -240,8 +246,14 @@ def _dataset_fields(
     name: str | None,
     metadata: Mapping[str, Any] | None,
     default_name: str,
+    found_units: Mapping[str, str | None] | None = None,
 ) -> dict[str, Any]:
-    """Names, units and metadata: explicit argument > file's description > default."""
+    """Names, units and metadata: explicit argument > file's description > default.
+
+    ``found_units`` are units the file itself states (``angle [rad]`` in a CSV header):
+    they replace the defaults, so a labelled column is never read in another unit.
+    """
+    found = {k: v for k, v in (found_units or {}).items() if v}
 
     def pick(key: str, explicit: str | None, default: str | None) -> Any:
         if explicit is not None:
@@ -252,9 +264,9 @@ def _dataset_fields(
     meta.update(metadata or {})
     return {
         "input_name": pick("input_name", input_name, "current"),
-        "input_unit": pick("input_unit", input_unit, "mA"),
+        "input_unit": pick("input_unit", input_unit, found.get("input_unit", "mA")),
         "output_name": pick("output_name", output_name, "angle"),
-        "output_unit": pick("output_unit", output_unit, "deg"),
+        "output_unit": pick("output_unit", output_unit, found.get("output_unit", "deg")),
         "name": pick("name", name, default_name),
         "metadata": meta,
     }
@@ -354,6 +366,8 @@ def _column_index(
     if not isinstance(spec, str):
         raise ParameterError(f"column for {_role(role)} must be a name or an index, got {spec!r}")
     hits = [i for i, h in enumerate(header) if h == spec]
+    if not hits:  # "y" names a column "y [rad]": the unit in brackets is the column's unit
+        hits = [i for i, h in enumerate(header) if _UNIT.sub("", h).strip() == spec]
     if not hits:
         raise MissingColumnError(
             f"{path}: no column {spec!r} (for {_role(role)}); available columns: "
@@ -497,6 +511,10 @@ def load_csv(
     }
 
     time, sample_units = _time_axis(values.get("t"), fs, len(rows))
+    header_units = {
+        "input_unit": _header_unit(header[index["u"]]),
+        "output_unit": _header_unit(header[index["y"]]),
+    }
     fields_ = _dataset_fields(
         info,
         input_name=input_name,
@@ -506,6 +524,7 @@ def load_csv(
         name=name,
         metadata=metadata,
         default_name=p.stem,
+        found_units=header_units,
     )
     if sample_units:
         fields_["metadata"].setdefault("time_unit", "samples")
@@ -535,10 +554,7 @@ def load_csv(
             ds,
             time_from_file="t" in values,
             channels=header,
-            units={
-                "input_unit": _header_unit(labels["u"]),
-                "output_unit": _header_unit(labels["y"]),
-            },
+            units=header_units,
         )
     return ds
 
@@ -576,7 +592,7 @@ def save_csv(ds: Dataset, path: PathLike, overwrite: bool = False) -> Path:
         _writable(side, overwrite, what="side-car")
     except DataFileExistsError:
         raise DataFileExistsError(
-            f"{side} (the side-car of {p.name}) exists; pass overwrite=True to replace it"
+            f"{side} (the side-car of {p.name}) exists; {OVERWRITE_HINT} to replace it"
         ) from None
     text = _to_json(ds, side)
     data = np.column_stack([ds.t, ds.u, ds.y, *ds.extra.values()])

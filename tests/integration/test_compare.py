@@ -173,7 +173,7 @@ def test_cli_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     assert list(json.loads(out.read_text())["methods"]) == ["ls"]
     assert main(["compare", "--methods", "ls,nope", "--duration", "4"]) == 2
     assert "nope" in capsys.readouterr().err
-    assert main(["compare", str(tmp_path / "missing.csv"), "--methods", "ls"]) == 2
+    assert main(["compare", str(tmp_path / "missing.csv"), "--methods", "ls"]) == 1
     assert "missing.csv" in capsys.readouterr().err
     assert main(["compare", "--plugin", "no_such_module_xyz"]) == 2
 

@@ -125,5 +125,5 @@ def test_cli_diagnose_writes_json_and_report_and_refuses_overwrite(tmp_path, cap
     text = rep.read_text()
     assert "valve_deadzone" in text and "95 % CI" in text and "d_before.png" in text
     assert (tmp_path / "d_before.png").exists() and (tmp_path / "d_after.png").exists()
-    assert main(args) == 1
-    assert "exists" in capsys.readouterr().err
+    assert main(args) == 2  # outputs exist: a usage error, as on every command
+    assert "exists; pass --overwrite" in capsys.readouterr().err

@@ -112,5 +112,5 @@ def test_cli_dask_and_workers(tmp_path):
 def test_cli_refuses_workers_and_dask_together(tmp_path, capsys):
     from hhra_phys.cli import main
 
-    assert main(["diagnose", "--workers", "2", "--dask", "tcp://127.0.0.1:1"]) == 1
+    assert main(["diagnose", "--workers", "2", "--dask", "tcp://127.0.0.1:1"]) == 2  # usage error
     assert "either --workers or --dask" in capsys.readouterr().err

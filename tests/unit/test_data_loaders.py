@@ -69,7 +69,7 @@ def test_explicit_wrong_encoding_is_a_data_error(tmp_path: Path) -> None:
 def test_cli_reports_a_binary_file_without_traceback(tmp_path: Path, capsys) -> None:
     path = tmp_path / "junk.csv"
     path.write_bytes(b"\x00\x01\x02PK\x03\x04" * 100)
-    assert main(["fit", str(path), "--quiet", "--iters", "1", "--pop", "4"]) == 2
+    assert main(["fit", str(path), "--quiet", "--iters", "1", "--pop", "4"]) == 1  # data error
     err = capsys.readouterr().err
     assert "junk.csv" in err and "binary" in err and "Traceback" not in err
 
@@ -104,7 +104,7 @@ def test_decimal_commas_are_read_as_semicolon_file(tmp_path: Path) -> None:
 def test_cli_delimiter_flag(tmp_path: Path, capsys) -> None:
     path = _write(tmp_path / "s.csv", "t|u|y", _rows(sep="|"))
     assert main(["fit", str(path), "--delimiter", ",", "--iters", "1", "--pop", "4",
-                 "--quiet", "--refine", "none"]) == 2
+                 "--quiet", "--refine", "none"]) == 1  # a data error, not a usage error
     assert "no column 't'" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse rejects a bad delimiter up front
         main(["fit", str(path), "--delimiter", "ab"])

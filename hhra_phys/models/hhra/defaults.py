@@ -7,13 +7,30 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.model import Model
 from hhra_phys.models.hhra.model import HHRAModel
+from hhra_phys.units import ChannelRange, convert_record, range_warnings
 
-__all__ = ["NOMINAL_FS", "SAMPLE_UNIT_SPAN", "default_model"]
+__all__ = ["NOMINAL_FS", "PLAUSIBLE", "PLAUSIBLE_FS", "SAMPLE_UNIT_SPAN", "default_model",
+           "prepare_record"]
 
 #: Sample rate whose time scale the nominal groups describe (the rig's) [Hz].
 NOMINAL_FS = 250.0
 #: Box of every positive group, as a factor around its nominal, for records in sample units.
 SAMPLE_UNIT_SPAN = 100.0
+
+#: Plausible ranges of an HHRA record in the model's units. Wide on purpose (warnings, not
+#: errors): the simulated rig's current peaks at 1 mA and its angle spans about 55 deg, so a
+#: record in A or in radians lands 50x below these limits, one scaled by 1e5 far above;
+#: servo-valve rated currents are 10 to 200 mA.
+PLAUSIBLE: dict[str, ChannelRange] = {
+    "input": ChannelRange("mA", 0.02, 300.0, "peak",
+                          too_low="is the valve current in A rather than mA?",
+                          too_high="is the valve current in uA, or scaled?"),
+    "output": ChannelRange("deg", 2 * 3.141592653589793, 36000.0, "span",
+                           too_low="is the angle in radians rather than degrees?",
+                           too_high="is the angle scaled (counts, or a gain of 1e3 or more)?"),
+}
+#: Plausible sample rates of an HHRA record [Hz] (the rig's is 250 Hz).
+PLAUSIBLE_FS = (5.0, 1e6)
 
 
 def default_model(
@@ -42,3 +59,34 @@ def default_model(
         bounds["p_gain"] = (-10 * peak, 10 * peak)
         bounds["p_offset"] = (-peak, peak)
     return model, bounds
+
+
+def prepare_record(data: Dataset) -> tuple[Dataset, list[str], list[str]]:
+    """A record in the HHRA's units, with what was converted and what looks implausible.
+
+    The input is converted to mA and an angle output to degrees when the record declares
+    another known unit (``rad``, ``A`` ...); a pressure output keeps its unit (its gain is
+    fitted). See :mod:`hhra_phys.units`.
+
+    Parameters
+    ----------
+    data : Dataset
+
+    Returns
+    -------
+    Dataset
+        The record in the model's units (``data`` itself if nothing changed).
+    notes : list of str
+        One line per converted channel.
+    warnings : list of str
+        Ranges that do not fit the units (:data:`PLAUSIBLE`, :data:`PLAUSIBLE_FS`).
+
+    Raises
+    ------
+    DataError
+        A unit the model cannot convert (the message names both units).
+    """
+    angle = data.output_name != "pressure"
+    data, notes = convert_record(data, input_unit="mA", output_unit="deg" if angle else None)
+    ranges = dict(PLAUSIBLE) if angle else {"input": PLAUSIBLE["input"]}
+    return data, notes, range_warnings(data, ranges, PLAUSIBLE_FS)

@@ -1,0 +1,261 @@
+"""Feed classes of bad input through the CLI and count how each is answered.
+
+Usage::
+
+    PYTHONPATH=$PWD python benchmarks/bad_inputs.py [--json OUT.json]
+
+Every case is a command line with something wrong in it (the record, its units, an option,
+an output path, a combination of options). Each is run in this process through
+``hhra_phys.cli.main`` and classified:
+
+clear
+    the expected exit code (2 usage, 1 data or runtime error; 0 with a warning for
+    records that are plausible-looking but likely in the wrong unit), no traceback, and
+    the message names the file, column or flag at fault;
+vague
+    an error, but the wrong exit code or a message that does not name what is wrong;
+silent
+    exit 0 and no word about the problem;
+traceback
+    an exception escaped.
+
+Fits that get past the checks run with ``--pop 4 --iters 1 --refine none`` on a 4 s
+record, so the whole run takes a minute or two. The table goes to stdout; ``docs/data.md``
+quotes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hhra_phys.cli import main
+from hhra_phys.data import save
+from hhra_phys.models.hhra.model import HHRAModel
+from hhra_phys.models.hhra.rig import simulate_rig
+
+QUICK = ["--pop", "4", "--iters", "1", "--refine", "none", "--quiet"]
+
+
+@dataclass
+class Case:
+    """One bad command line: the class it belongs to, what must happen, what must be named."""
+
+    group: str
+    argv: list[str]
+    code: int
+    token: str
+    warn: bool = False  # exit 0 is right, but only with a warning containing ``token``
+
+
+def _rows(t: np.ndarray, u: np.ndarray, y: np.ndarray, sep: str = ",") -> str:
+    return "\n".join(sep.join(repr(v) for v in r) for r in zip(t.tolist(), u.tolist(),
+                                                                  y.tolist(), strict=True))
+
+
+def cases(d: Path) -> Iterator[Case]:
+    """Every bad input, class by class, written into folder ``d``."""
+    ds = simulate_rig(seed=0, duration=4.0)
+    rig = d / "rig.csv"
+    save(ds, rig)
+    t, u, y = ds.t, ds.u, ds.y
+
+    def file(name: str, text: str | bytes) -> str:
+        p = d / name
+        p.write_bytes(text if isinstance(text, bytes) else text.encode())
+        return str(p)
+
+    body = _rows(t, u, y)
+    # -- file contents ---------------------------------------------------------------------
+    g = "file content"
+    yield Case(g, ["fit", file("junk.csv", b"\x00\x01PK\x03" * 200)], 1, "junk.csv")
+    yield Case(g, ["fit", file("empty.csv", "")], 1, "empty.csv")
+    yield Case(g, ["fit", file("header.csv", "t,u,y\n")], 1, "header.csv")
+    yield Case(g, ["fit", str(d / "missing.csv")], 1, "missing.csv")
+    yield Case(g, ["fit", file("notcsv.xlsx", "x")], 1, "notcsv.xlsx")
+    yield Case(g, ["fit", str(d)], 1, str(d))
+    for k, enc in enumerate(("utf-16", "utf-8-sig", "latin-1")):  # readable: no error wanted
+        p = d / f"enc{k}.csv"
+        p.write_bytes(f"t,u,Winkel [°]\n{body}\n".encode(enc))
+        yield Case(g, ["fit", str(p), "--output-col", "Winkel", *QUICK], 0, "")
+    # -- columns and values -----------------------------------------------------------------
+    g = "columns and values"
+    for col in ("time", "current", "angle", "T", ""):
+        yield Case(g, ["fit", str(rig), "--input-col", col, *QUICK], 1 if col else 1,
+                   f"'{col}'" if col else "column")
+    for i, bad in enumerate(("nan", "abc", "", "1,5", "inf")):
+        rows = body.split("\n")
+        rows[50] = f"{t[50]!r},{bad},{y[50]!r}"
+        yield Case(g, ["fit", file(f"cell{i}.csv", "t,u,y\n" + "\n".join(rows)), *QUICK], 1,
+                   "line 52")
+    tt = t.copy()
+    tt[100] = tt[99]
+    yield Case(g, ["fit", file("mono.csv", "t,u,y\n" + _rows(tt, u, y)), *QUICK], 1, "row")
+    tt = t.copy()
+    tt[100:] += 0.5
+    yield Case(g, ["fit", file("gap.csv", "t,u,y\n" + _rows(tt, u, y)), *QUICK], 1, "row")
+    yield Case(g, ["fit", file("short.csv", "t,u,y\n" + _rows(t[:5], u[:5], y[:5])), *QUICK],
+               1, "short.csv")
+    yield Case(g, ["fit", file("flat.csv", "t,u,y\n" + _rows(t, 0 * u, y)), *QUICK], 1,
+               "flat.csv")
+    yield Case(g, ["fit", file("dup.csv", "t,u,u\n" + body), *QUICK], 1, "u")
+    # -- delimiters -------------------------------------------------------------------------
+    g = "delimiters"
+    for sep, name in ((";", "semi"), ("\t", "tab"), ("|", "pipe")):
+        p = file(f"{name}.csv", f"t{sep}u{sep}y\n" + _rows(t, u, y, sep))
+        yield Case(g, ["fit", p, "--delimiter", ",", *QUICK], 1, "--delimiter")
+    for bad in ("ab", "", "\\n"):
+        yield Case(g, ["fit", str(rig), "--delimiter", bad], 2, "--delimiter")
+    # -- units and scales -------------------------------------------------------------------
+    g = "units and scales"
+    yield Case(g, ["fit", file("ms.csv", "t,u,y\n" + _rows(t * 1000, u, y)), *QUICK], 1,
+               "--time-unit ms")
+    yield Case(g, ["fit", file("us.csv", "t,u,y\n" + _rows(t * 1e6, u, y)), *QUICK], 1,
+               "--time-unit ms")
+    yield Case(g, ["fit", file("rad.csv", "t,u,y\n" + _rows(t, u, np.deg2rad(y))), *QUICK], 0,
+               "radians", warn=True)
+    yield Case(g, ["fit", file("e5.csv", "t,u,y\n" + _rows(t, u, y * 1e5)), *QUICK], 0,
+               "scaled", warn=True)
+    yield Case(g, ["fit", file("amp.csv", "t,u,y\n" + _rows(t, u / 1000, y)), *QUICK], 0,
+               "in A rather than mA", warn=True)
+    # (a warning before the fit; the fit then diverges, exit 1)
+    yield Case(g, ["fit", file("kilo.csv", "t,u,y\n" + _rows(t, u * 1000, y)), *QUICK], 1,
+               "scaled")
+    yield Case(g, ["compare", d / "ms.csv", "--methods", "ls", "--quiet"], 0, "--time-unit ms",
+               warn=True)
+    yield Case(g, ["fit", file("volt.csv", "t,u,y [V]\n" + body), *QUICK], 1, "'V'")
+    yield Case(g, ["fit", file("lbl.csv", "t,u [A],y [rad]\n" + _rows(t, u / 1000,
+                                                                     np.deg2rad(y))), *QUICK],
+               0, "converted", warn=True)
+    # -- --fix values -----------------------------------------------------------------------
+    g = "--fix values"
+    for par in HHRAModel().params:
+        if par.scale == "log":
+            for v in (-1.0, 0.0):
+                yield Case(g, ["fit", str(rig), "--fix", f"{par.name}={v}"], 2,
+                           f"--fix {par.name}")
+        for v in (par.upper * 1e3 if par.upper > 0 else 1e9, par.lower - abs(par.upper) * 10):
+            if par.scale == "log" and v <= 0:
+                continue
+            yield Case(g, ["fit", str(rig), "--fix", f"{par.name}={v}"], 2, "--allow-outside-box")
+    for item in ("g_leak", "g_leak=", "g_leak=abc", "g_bogus=1", "=1", "g_leak=nan",
+                 "g_leak=inf"):
+        yield Case(g, ["fit", str(rig), "--fix", item], 2, "g_" if "g_" in item else "--fix")
+    # -- numeric options ---------------------------------------------------------------------
+    g = "numeric options"
+    for opt, values in (("--pop", ("0", "-1", "2", "abc", "1.5")),
+                        ("--iters", ("0", "-5", "x")),
+                        ("--split", ("0", "1.5", "-0.1", "nan", "half")),
+                        ("--fs", ("0", "-250", "nan", "inf", "fast"))):
+        for v in values:
+            yield Case(g, ["fit", str(rig), f"{opt}={v}"], 2, opt)
+    yield Case(g, ["fit", str(rig), "--starts", "0"], 2, "--starts")
+    for opt, values in (("--top", ("0", "-1", "one")), ("--max-effects", ("-1", "x")),
+                        ("--split", ("1",))):
+        for v in values:
+            yield Case(g, ["diagnose", str(rig), f"{opt}={v}"], 2, opt)
+    for opt, values in (("--pop", ("0", "3")), ("--iters", ("0",)), ("--split", ("0", "-3")),
+                        ("--box", ("1",))):
+        for v in values:
+            yield Case(g, ["compare", str(rig), f"{opt}={v}"], 2, opt)
+    # -- output paths -------------------------------------------------------------------------
+    g = "output paths"
+    exists = file("exists.json", "{}")
+    (d / "adir").mkdir()
+    for cmd in (["fit", str(rig), *QUICK], ["diagnose", str(rig)],
+                ["compare", str(rig), "--methods", "ls"]):
+        yield Case(g, [*cmd, "--json", exists], 2, "--overwrite")
+        yield Case(g, [*cmd, "--json", str(d / "no" / "x.json")], 2, "does not exist")
+        yield Case(g, [*cmd, "--json", str(d / "adir")], 2, "directory")
+    for cmd in (["fit", str(rig), *QUICK], ["compare", str(rig), "--methods", "ls"]):
+        for suffix in (".xyz", "", ".json"):
+            yield Case(g, [*cmd, "--plot", str(d / f"fig{suffix}")], 2, "suffix")
+    yield Case(g, ["simulate", "--out", str(rig)], 2, "--overwrite")
+    yield Case(g, ["simulate", "--out", str(d / "x.txt")], 1, "x.txt")
+    yield Case(g, ["demo", "--out", str(exists)], 1, "exists.json")
+    # -- combinations of options --------------------------------------------------------------
+    g = "option combinations"
+    yield Case(g, ["fit", str(rig), "--rig-seed", "2"], 2, "--rig-seed")
+    yield Case(g, ["diagnose", "public", "--rig-seed", "2"], 2, "--rig-seed")
+    for opt, v in (("--time-col", "t"), ("--input-col", "u"), ("--fs", "100"),
+                   ("--time-unit", "ms"), ("--delimiter", ";")):
+        yield Case(g, ["fit", opt, v], 2, opt)
+        yield Case(g, ["compare", "rig", opt, v], 2, opt)
+    yield Case(g, ["fit", str(rig), "--fs", "250", "--time-unit", "ms"], 2, "--time-unit")
+    yield Case(g, ["compare", str(rig), "--public"], 2, "--public")
+    yield Case(g, ["fit", str(rig), "--model", "nofile.py:make"], 1, "nofile.py")
+    yield Case(g, ["fit", str(rig), "--validate", str(d / "nothere.csv"), *QUICK], 1,
+               "nothere.csv")
+    yield Case(g, ["fit", str(rig), str(d / "nothere.csv"), *QUICK], 1, "nothere.csv")
+    yield Case(g, ["diagnose", str(rig), "--test", "0.6"], 2, "test")
+    yield Case(g, ["design", str(d / "nofit.json"), "--duration", "2", "--out",
+                   str(d / "u.csv")], 1, "nofit.json")
+    yield Case(g, ["fit", str(rig), "--model", "x.py:make", "--valve", "linear"], 2, "--valve")
+
+
+def classify(case: Case) -> tuple[str, str]:
+    """(class, stderr) of one case."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main([str(a) for a in case.argv])
+        except SystemExit as exc:
+            code = int(exc.code) if isinstance(exc.code, int) else 2
+        except Exception:  # noqa: BLE001 - an escaped exception is what is counted here
+            return "traceback", traceback.format_exc(limit=3)
+    text = err.getvalue()
+    if "Traceback" in text:
+        return "traceback", text
+    if case.code == 0 and not case.warn:  # a readable record: success expected
+        return ("clear" if code == 0 else "vague"), text
+    if code == 0 and not (case.warn and case.token in text):
+        return "silent", text
+    if code == case.code and case.token in text:
+        return "clear", text
+    return "vague", text
+
+
+def run(report: Callable[[str], None] = print) -> dict[str, dict[str, int]]:
+    """Run every case; returns ``{group: {class: count}}`` and prints non-clear cases."""
+    table: dict[str, dict[str, int]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases(Path(tmp)):
+            kind, text = classify(case)
+            row = table.setdefault(case.group, {"inputs": 0, "clear": 0, "vague": 0,
+                                                "silent": 0, "traceback": 0})
+            row["inputs"] += 1
+            row[kind] += 1
+            if kind != "clear":
+                report(f"[{kind}] {' '.join(map(str, case.argv))}\n    {text.strip()[-300:]}")
+    return table
+
+
+def markdown(table: dict[str, dict[str, int]]) -> str:
+    """The table of :func:`run` as Markdown, with a total row."""
+    cols = ("inputs", "clear", "vague", "silent", "traceback")
+    lines = ["| class of bad input | " + " | ".join(cols) + " |",
+             "|---|" + "---|" * len(cols)]
+    total = {c: sum(r[c] for r in table.values()) for c in cols}
+    for name, row in [*table.items(), ("**all**", total)]:
+        lines.append(f"| {name} | " + " | ".join(str(row[c]) for c in cols) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--json", help="also write the counts as JSON")
+    a = ap.parse_args()
+    result = run(lambda line: print(line, file=sys.stderr))
+    print(markdown(result))
+    if a.json:
+        Path(a.json).write_text(json.dumps(result, indent=1))
