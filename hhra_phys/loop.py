@@ -50,6 +50,7 @@ from hhra_phys.simulate import Simulator
 
 __all__ = [
     "information_criterion",
+    "acceptance",
     "Step",
     "LoopResult",
     "augment",
@@ -73,6 +74,39 @@ def information_criterion(result: FitResult, kind: str = "bic") -> float:
     if kind not in ("bic", "aic"):
         raise ParameterError(f"criterion must be 'bic' or 'aic', got {kind!r}")
     return n * math.log(mse) + pen
+
+
+def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_after: float,
+               margin: float, criterion: str = "bic") -> tuple[bool, bool, str]:
+    """The loop's acceptance rule for a candidate (a library effect or a discovered term).
+
+    Parameters
+    ----------
+    rmse_before, rmse_after : float
+        Validation RMSE of the current model and of the candidate (output units).
+    crit_before, crit_after : float
+        Information criterion on estimation (:func:`information_criterion`).
+    margin : float
+        Required relative fall of the validation RMSE.
+    criterion : str
+        Name of the criterion (for the reason).
+
+    Returns
+    -------
+    gain_ok : bool
+        ``rmse_after <= (1 - margin) * rmse_before``.
+    crit_ok : bool
+        ``crit_after < crit_before``.
+    reason : str
+        Both comparisons in words. The candidate is accepted when both hold.
+    """
+    gain_ok = rmse_after <= (1 - margin) * rmse_before
+    crit_ok = crit_after < crit_before
+    reason = (f"val RMSE {rmse_before:.4g} -> {rmse_after:.4g} "
+              f"({'clear gain' if gain_ok else f'gain below {100 * margin:.0f} %'}); "
+              f"{criterion.upper()} {crit_before:.1f} -> {crit_after:.1f} "
+              f"({'agrees' if crit_ok else 'disagrees'})")
+    return gain_ok, crit_ok, reason
 
 
 @dataclass
@@ -243,6 +277,8 @@ def augment(
     ipopt_iter: int = 60,
     progress: Callable[[str], None] | None = None,
     initial_state: str = "fit",
+    discover: bool = True,
+    discover_kw: Mapping[str, Any] | None = None,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -292,6 +328,12 @@ def augment(
         Called with a line of text at every step.
     initial_state : {"fit", "data", "zero"}
         Initial-state rule of every fit (:mod:`hhra_phys.problem`).
+    discover : bool
+        After the library rounds, look for a term outside the library
+        (:func:`hhra_phys.discover.discover_step`), accepted by the same rule.
+    discover_kw : dict, optional
+        Options of :func:`~hhra_phys.discover.discover_step` (``method``,
+        ``n_entries``, ``max_terms``, ``entries``).
 
     Returns
     -------
@@ -386,13 +428,8 @@ def augment(
                         f"validation drives the output to [{vrange[0]:.3g}, {vrange[1]:.3g}] "
                         f"{unit}, outside the estimation range [{lo:.3g}, {hi:.3g}]: this "
                         "position-dependent effect is extrapolated there")
-            gain_ok = vr <= (1 - margin) * rmse_cur
-            crit_ok = crit < crit_cur
-            step.reason = (
-                f"val RMSE {rmse_cur:.4g} -> {vr:.4g} "
-                f"({'clear gain' if gain_ok else f'gain below {100 * margin:.0f} %'}); "
-                f"{criterion.upper()} {crit_cur:.1f} -> {crit:.1f} "
-                f"({'agrees' if crit_ok else 'disagrees'})")
+            gain_ok, crit_ok, step.reason = acceptance(rmse_cur, vr, crit_cur, crit, margin,
+                                                       criterion)
             step.seconds = time.perf_counter() - ts
             say(f"  tried {ev.name}: {step.reason} [{step.seconds:.1f} s]")
             steps.append(step)
@@ -407,6 +444,19 @@ def augment(
         chosen.append(best[0].effect)
         cur, cur_prob, cur_free = best[1], best[2], best[3]
         say(f"round {rnd}: accepted {best[0].effect}")
+    # --- discovery: a term outside the library, the loop's last candidate -------------
+    if discover:
+        from hhra_phys.discover import discover_step
+
+        found, won = discover_step(fitter, cur, cur_prob, list(cur_free),
+                                   round_no=len(diagnoses) + 1, margin=margin,
+                                   criterion=criterion, progress=say, **dict(discover_kw or {}))
+        steps.extend(found)
+        if won is not None:
+            cur, cur_prob, cur_free, term_name = won
+            chosen.append(term_name)
+            say(f"discovery: accepted {term_name}")
+    # ------------------------------------------------------------------------------------
     final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
         n for n in names if n not in chosen]) if names else None
     lo, hi = est_range
@@ -420,7 +470,7 @@ def augment(
     settings = {"split": split, "candidates": names, "max_effects": max_effects, "top_k": top_k,
                 "pop_size": pop_size, "max_iter": max_iter, "cand_pop": cand_pop,
                 "cand_iter": cand_iter, "seed": seed, "margin": margin, "criterion": criterion,
-                "backend": backend, "seconds": time.perf_counter() - t0,
+                "backend": backend, "discover": discover, "seconds": time.perf_counter() - t0,
                 "data": {"name": data.name, "n": data.n, "fs": data.fs}}
     return LoopResult(base, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
                       skipped)

@@ -50,6 +50,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--iters", type=int, default=40, help="base fit iterations (default 40)")
     p.add_argument("--margin", type=float, default=0.1,
                    help="required relative fall of the validation RMSE (default 0.1)")
+    p.add_argument("--no-discover", action="store_true",
+                   help="do not look for a term outside the library after it (discovery, "
+                        "hhra_phys.discover, is on by default)")
+    p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
+                   help="sparsity rule of the discovery (default threshold)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 
@@ -81,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
             max_iter=args.iters, seed=args.seed, margin=args.margin, bounds=bounds,
             progress=lambda s: print(s, file=sys.stderr, flush=True),
+            discover=not args.no_discover, discover_kw={"method": args.discover_method},
         )
     except (HHRAError, OSError, ValueError) as exc:
         print(f"hhra-phys diagnose: error: {exc}", file=sys.stderr)
@@ -160,6 +166,7 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
             ci = res.final.ci95.get(n, (math.nan, math.nan))
             lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
         lines.append("")
+    lines += discovery_section(res)
     if res.warnings or res.final.warnings:
         lines += ["## Warnings", ""] + [f"- {w}" for w in res.warnings + res.final.warnings]
     lines += ["", "## Residual plots", ""]
@@ -171,3 +178,33 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
             lines.append(f"![residual {label}]({rel})")
             lines.append("")
     return "\n".join(lines) + "\n"
+
+
+def discovery_section(res: Any) -> list[str]:
+    """Markdown lines on the discovered terms tried (expression, CIs, verdict); none if off."""
+    found = [s for s in res.steps if hasattr(s, "expression")]
+    if not res.settings.get("discover", False):
+        return []
+    lines = ["", "## Discovered terms (outside the library)", ""]
+    if not found:
+        return lines + ["Discovery ran; no entry point gave a term that survived its sparse refit.",
+                        ""]
+    lines += ["| term | expression | uses | val RMSE before -> after | accepted | notes |",
+              "|---|---|---|---|---|---|"]
+    for s in found:
+        notes = "; ".join(n for n in s.notes if "outside the range" in n)
+        lines.append(f"| {s.effect} | `{s.expression}` | {', '.join(s.uses)} | "
+                     f"{_fmt(s.val_rmse_before)} -> {_fmt(s.val.get('rmse'))} | "
+                     f"{'yes' if s.accepted else 'no'} | {s.reason}"
+                     f"{'; ' + notes if notes else ''} |")
+    for s in found:
+        lines += ["", f"### {s.effect} ({s.entry}, {s.method})", "", f"`{s.expression}`", "",
+                  "| parameter | value | 95 % CI |", "|---|---|---|"]
+        for n, v in s.params.items():
+            ci = s.ci95.get(n, (math.nan, math.nan))
+            lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
+        lines += ["", "Sparse refits: " + "; ".join(n for n in s.notes
+                                                     if "outside the range" not in n)]
+    lines += ["", "Residual plots before (base model) and after (with every accepted effect and "
+              "term) are in the section below."]
+    return lines + [""]
