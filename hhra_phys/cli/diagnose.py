@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         stem = Path(args.report).with_suffix("")
         figs = [f"{stem}_before.png", f"{stem}_after.png"]
+        if not args.no_discover:
+            figs.append(f"{stem}_discovery.png")
     try:
         check_outputs([args.json, args.report], args.overwrite, figures=figs)
         if args.max_effects < 0:
@@ -107,6 +109,11 @@ def run(args: argparse.Namespace) -> int:
                                 args.overwrite) if res.diagnoses else None,
                  plot_residuals(res.final_diagnosis, figs[1], "after (augmented model)",
                                 args.overwrite) if res.final_diagnosis else None]
+        found = [s for s in res.steps if getattr(s, "residuals", None)]
+        if found:
+            from hhra_phys.discover import plot_discovery
+
+            paths.append(plot_discovery(found, figs[2], args.overwrite))
         atomic_write_text(args.report, markdown_report(res, paths, args.report))
         print(f"wrote {args.report}")
     return 0
@@ -171,7 +178,8 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
         lines += ["## Warnings", ""] + [f"- {w}" for w in res.warnings + res.final.warnings]
     lines += ["", "## Residual plots", ""]
     base = Path(report_path).parent
-    for label, p in zip(("before", "after"), figures, strict=False):
+    for label, p in zip(("before", "after", "before and after the discovered terms"), figures,
+                        strict=False):
         if p:
             rel = Path(p).resolve().relative_to(base.resolve()) if Path(p).resolve().is_relative_to(
                 base.resolve()) else Path(p)
@@ -205,6 +213,7 @@ def discovery_section(res: Any) -> list[str]:
             lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
         lines += ["", "Sparse refits: " + "; ".join(n for n in s.notes
                                                      if "outside the range" not in n)]
-    lines += ["", "Residual plots before (base model) and after (with every accepted effect and "
-              "term) are in the section below."]
+    lines += ["", "Residual plots: before (base model) and after (every accepted effect and "
+              "term), and the residual just before and after each discovered term (estimation "
+              "and validation), are in the section below."]
     return lines + [""]

@@ -117,27 +117,48 @@ def test_acceptance_rule_needs_both_gain_and_criterion():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("term,size,signal", [("quadratic_drag", 400.0, "omega"),
-                                              ("pressure_leak", 100.0, "p")])
-def test_outside_library_term_is_discovered(term, size, signal):
-    ds = outside_record(term, size, seed=3, noise_deg=NOISE)
-    res = _run(ds)
-    found = [s for s in _discovered(res) if s.accepted]
-    assert len(found) == 1, [s.reason for s in _discovered(res)]
-    step = found[0].to_json()
-    assert signal in step["uses"]
-    assert step["effect"].startswith("discovered_") and step["expression"]
-    base, final = res.base.metrics["val"]["rmse"], res.final.metrics["val"]["rmse"]
+                                              ("cubic_spring", 1000.0, "theta")])
+def test_outside_library_term_is_discovered_by_the_cli(term, size, signal, tmp_path, capsys):
+    from hhra_phys.cli import main
+    from hhra_phys.data import save
+
+    # Record and search seed 3, as in experiments/discover.py (docs/diagnosis.md).
+    data = tmp_path / "rec.csv"
+    save(outside_record(term, size, seed=3, noise_deg=NOISE), data)
+    out, rep = tmp_path / "d.json", tmp_path / "d.md"
+    assert main(["diagnose", str(data), "--json", str(out), "--report", str(rep),
+                 "--max-effects", "0", "--pop", "20", "--iters", "30", "--seed", "3"]) == 0
+    js = json.loads(out.read_text())
+    found = [s for s in js["steps"] if s["effect"].startswith("discovered_")]
+    accepted = [s for s in found if s["accepted"]]
+    assert len(accepted) == 1, [s["reason"] for s in found]
+    step = accepted[0]
+    # The contract outside checks use.
+    assert isinstance(step["expression"], str) and step["expression"].startswith(
+        ("d ", "u +=", "y +="))
+    assert signal in step["uses"] and isinstance(step["val"]["rmse"], float)
+    assert js["chosen"] == [step["effect"]]
+    base, final = js["base"]["val"]["rmse"], js["final"]["val"]["rmse"]
     assert final <= base / 3 or final <= 1.5 * NOISE, (base, final)
-    assert res.chosen == [step["effect"]]
-    json.dumps(res.to_json())  # the diagnose JSON stays serialisable
+    text = rep.read_text()
+    assert "Discovered terms" in text and step["expression"] in text and "95 % CI" in text
+    assert (tmp_path / "d_discovery.png").exists()
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 5])
 def test_clean_record_discovers_nothing(seed):
-    res = _run(outside_record("none", 0.0, seed=seed, noise_deg=NOISE))
+    res = _run(outside_record("none", 0.0, seed=seed, noise_deg=NOISE), seed=seed)
     assert res.chosen == []
     assert not any(s.accepted for s in res.steps)
+    assert res.settings["discover"] is True
+
+
+def test_no_discover_flag_is_parsed():
+    from hhra_phys.cli import build_parser
+
+    args = build_parser().parse_args(["diagnose", "public", "--no-discover"])
+    assert args.no_discover is True and args.discover_method == "threshold"
 
 
 @register_part
