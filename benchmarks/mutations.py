@@ -46,6 +46,7 @@ MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
                "tests/integration/test_reference_rig.py")
 EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
 LOOP_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_diagnose.py")
+DISCOVER_TESTS = ("tests/integration/test_discover.py",)
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
 
@@ -508,8 +509,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "loop-margin-inverted",
         "a candidate is accepted when it makes validation worse by less than the margin",
-        "gain_ok = vr <= (1 - margin) * rmse_cur",
-        "gain_ok = vr <= (1 + margin) * rmse_cur",
+        "gain_ok = rmse_after <= (1 - margin) * rmse_before",
+        "gain_ok = rmse_after <= (1 + margin) * rmse_before",
         LOOP_TESTS,
     ),
     _m(
@@ -518,6 +519,21 @@ MUTATIONS: tuple[Mutation, ...] = (
         'best = min(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
         'best = max(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
         LOOP_TESTS,
+    ),
+    # -- discovery ---------------------------------------------------------------------------
+    _m(
+        "discover-odd-square-is-square",
+        "the odd square q*|q| of the term library loses its sign",
+        "return x * lib.fabs(x)",
+        "return lib.fabs(x) * lib.fabs(x)",
+        DISCOVER_TESTS,
+    ),
+    _m(
+        "discover-hinge-knot-sign",
+        "a hinge term bends at -c instead of c",
+        "v = (x if family == \"hinge+\" else -x) - knot",
+        "v = (x if family == \"hinge+\" else -x) + knot",
+        DISCOVER_TESTS,
     ),
 )
 

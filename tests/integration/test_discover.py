@@ -66,11 +66,19 @@ def test_basis_numpy_and_casadi_agree():
         f = ca.Function("f", [x], [_basis(fam, [x], knot, _CA)])
         got = np.array([float(f(v)) for v in q])
         assert np.allclose(got, ref, atol=1e-12), fam
+    # Closed forms (the two implementations above share the formulas).
+    exact = {"lin": q, "sq": q ** 2, "cube": q ** 3, "odd2": q * np.abs(q), "sat": np.tanh(2 * q),
+             "sin": np.sin(q), "cos": np.cos(q)}
+    for fam, ref in exact.items():
+        assert np.allclose(_basis(fam, [q], 0.0, _NP), ref, atol=1e-12), fam
+    assert np.allclose(_basis("abs", [q], 0.0, _NP), np.abs(q), atol=0.02)
     # The smooth forms are close to their exact counterparts away from the kink.
     far = np.abs(q) > 0.2
     assert np.allclose(_basis("sign", [q], 0.0, _NP)[far], np.sign(q)[far], atol=0.01)
     assert np.allclose(_basis("hinge+", [q], 0.3, _NP)[np.abs(q - 0.3) > 0.2],
                        np.maximum(q - 0.3, 0)[np.abs(q - 0.3) > 0.2], atol=0.002)
+    assert np.allclose(_basis("hinge-", [q], 0.3, _NP)[np.abs(q + 0.3) > 0.2],
+                       np.maximum(-q - 0.3, 0)[np.abs(q + 0.3) > 0.2], atol=0.002)
 
 
 def test_discovered_term_expression_save_and_reload(tmp_path):
