@@ -49,6 +49,7 @@ LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model
               "tests/integration/test_diagnose.py")
 RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
                 "tests/integration/test_bad_inputs.py")
+DISCOVER_TESTS = ("tests/integration/test_discover.py",)
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
 
@@ -511,21 +512,21 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "loop-margin-inverted",
         "a candidate is accepted when it makes validation worse by less than the margin",
-        "gain_ok = vr <= (1 - margin) * rmse_cur",
-        "gain_ok = vr <= (1 + margin) * rmse_cur",
+        "gain_ok = vr <= (1 - margin) * rmse_before",
+        "gain_ok = vr <= (1 + margin) * rmse_before",
         LOOP_TESTS,
     ),
     _m(
         "loop-criterion-ignored",
         "the information criterion no longer has to agree",
-        "crit_ok = step.criterion < crit_cur",
+        "crit_ok = crit_after < crit_before",
         "crit_ok = True",
         LOOP_TESTS,
     ),
     _m(
         "loop-no-noise-allowance",
         "gains within what noise allows are accepted",
-        "beyond_ok = rmse_cur ** 2 - vr ** 2 > allowance",
+        "beyond_ok = rmse_before ** 2 - vr ** 2 > allowance",
         "beyond_ok = True",
         LOOP_TESTS,
     ),
@@ -564,6 +565,21 @@ MUTATIONS: tuple[Mutation, ...] = (
         "\"rad\": 180.0 / math.pi",
         "\"rad\": math.pi / 180.0",
         RELIAB_TESTS,
+    ),
+    # -- discovery ---------------------------------------------------------------------------
+    _m(
+        "discover-odd-square-is-square",
+        "the odd square q*|q| of the term library loses its sign",
+        "return x * lib.fabs(x)",
+        "return lib.fabs(x) * lib.fabs(x)",
+        DISCOVER_TESTS,
+    ),
+    _m(
+        "discover-hinge-knot-sign",
+        "a hinge term bends at -c instead of c",
+        "v = (x if family == \"hinge+\" else -x) - knot",
+        "v = (x if family == \"hinge+\" else -x) + knot",
+        DISCOVER_TESTS,
     ),
 )
 

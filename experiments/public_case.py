@@ -9,7 +9,8 @@ pressure output with its own offset).
     python experiments/public_case.py [--pop 60] [--iters 100] [--seed 0]
 
 Writes docs/figures/diagnosis_public.json and the residual figures
-docs/figures/diagnosis_public_before.png / _after.png, and prints the summary.
+docs/figures/diagnosis_public_before.png / _after.png (and _discovery.png: residuals
+just before and after each discovered term), and prints the summary.
 """
 
 from __future__ import annotations
@@ -42,6 +43,11 @@ def main() -> None:
         json.dump(out, fh, indent=1)
     plot_loop_residuals(res, data, f"{args.prefix}_before.png", f"{args.prefix}_after.png",
                         overwrite=True, label="public record")
+    found = [s for s in res.steps if getattr(s, "residuals", None)]
+    if found:  # residuals just before and after each term of the discovery step
+        from hhra_phys.discover import plot_discovery
+
+        plot_discovery(found, f"{args.prefix}_discovery.png", overwrite=True)
     print("chosen:", res.chosen)
     for part in ("est", "val"):
         print(part, "base", out["base"][part], "final", out["final"][part])

@@ -55,6 +55,8 @@ __all__ = [
     "generic_regressors",
     "regressor_table",
     "analyse",
+    "linear_response",
+    "nuisance_basis",
     "diagnose_fit",
     "plot_loop_residuals",
     "plot_residuals",
@@ -352,6 +354,58 @@ def _sensitivities(problem: Problem, values: np.ndarray, y0: np.ndarray) -> np.n
     return J
 
 
+def linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarray,
+                    umax: float) -> np.ndarray:
+    """Output response of the model linearised at ``P`` to changes at an entry point.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitted problem (model, sample period).
+    P : ndarray, shape (n_params,)
+        Full parameter vector at which to linearise.
+    entry : str
+        ``"input"``, ``"output"`` or ``"rate:<state>"`` (``"command"`` and
+        ``"accel"`` are old names, :data:`ENTRY_ALIASES`).
+    cols : ndarray, shape (N, k)
+        Changes at the entry (entry units), one column per candidate.
+    umax : float
+        Largest input magnitude; the model is linearised at ``+-umax/2``.
+
+    Returns
+    -------
+    ndarray, shape (N, k)
+        Output changes (output units).
+    """
+    return _linear_response(problem, P, entry, cols, umax)
+
+
+def nuisance_basis(problem: Problem, values: np.ndarray, yhat: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the output changes the model's own free parameters can make.
+
+    Finite-difference output sensitivities to every free parameter (the fitted
+    initial state among them), normalised and orthogonalised; directions the
+    parameters cannot move are dropped. Projecting a residual or a candidate's
+    response off this basis leaves what a refit of the base model could not absorb.
+
+    Parameters
+    ----------
+    problem : Problem
+    values : ndarray, shape (n_free,)
+        Fitted free values.
+    yhat : ndarray, shape (N,)
+        Simulated output at ``values``.
+
+    Returns
+    -------
+    ndarray, shape (N, m)
+    """
+    N = _sensitivities(problem, values, yhat)
+    N = N / np.maximum(np.linalg.norm(N, axis=0), 1e-300)
+    Q, R = np.linalg.qr(N)
+    return Q[:, np.abs(np.diag(R)) > 1e-8]
+
+
 def analyse(
     problem: Problem,
     values: np.ndarray,
@@ -408,11 +462,7 @@ def analyse(
     # among them) can absorb. No constant of its own: a constant residual is
     # absorbed only where the model can make one (an integrating output's initial
     # value), otherwise it is evidence of an offset.
-    N = _sensitivities(problem, values, yhat)
-    N = N / np.maximum(np.linalg.norm(N, axis=0), 1e-300)
-    Q, R = np.linalg.qr(N)
-    keep = np.abs(np.diag(R)) > 1e-8
-    Q = Q[:, keep]
+    Q = nuisance_basis(problem, values, yhat)
 
     def perp(M: np.ndarray) -> np.ndarray:
         return M - Q @ (Q.T @ M)

@@ -61,6 +61,7 @@ from hhra_phys.simulate import Simulator
 
 __all__ = [
     "information_criterion",
+    "acceptance",
     "Step",
     "LoopResult",
     "augment",
@@ -95,6 +96,55 @@ def information_criterion(result: FitResult, kind: str = "bic") -> float:
     if kind not in ("bic", "aic"):
         raise ParameterError(f"criterion must be 'bic' or 'aic', got {kind!r}")
     return n * math.log(mse) + pen
+
+
+def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_after: float,
+               margin: float, criterion: str = "bic", noise: float = math.nan,
+               noise_tol: float = 0.0) -> tuple[bool, str]:
+    """The loop's acceptance rule for a candidate (a library effect or a discovered term).
+
+    Accepted when all three hold: the selection RMSE falls by ``margin``
+    (``rmse_after <= (1 - margin) * rmse_before``), the information criterion on
+    estimation falls, and the variance removed exceeds what noise and structural
+    mismatch allow, ``rmse_before^2 - rmse_after^2 > ((1 + noise_tol)^2 - 1) * noise^2``
+    (MEASURED_NOTES point 8; no allowance when ``noise`` is not finite).
+
+    Parameters
+    ----------
+    rmse_before, rmse_after : float
+        Selection RMSE of the current model and of the candidate (output units).
+    crit_before, crit_after : float
+        Information criterion on estimation (:func:`information_criterion`).
+    margin : float
+        Required relative fall of the selection RMSE.
+    criterion : str
+        Name of the criterion (for the reason).
+    noise : float
+        Noise level of the selection residual (output units).
+    noise_tol : float
+        Tolerance of the noise allowance.
+
+    Returns
+    -------
+    accepted : bool
+    reason : str
+        The three comparisons in words.
+    """
+    vr = rmse_after if math.isfinite(rmse_after) else math.inf
+    gain_ok = vr <= (1 - margin) * rmse_before
+    crit_ok = crit_after < crit_before
+    # A model within (1 + noise_tol) of the noise explains everything an effect can
+    # claim; a candidate must remove more selection variance than that allowance.
+    allowance = ((1 + noise_tol) ** 2 - 1) * noise ** 2 if math.isfinite(noise) else 0.0
+    beyond_ok = rmse_before ** 2 - vr ** 2 > allowance
+    reason = (
+        f"selection RMSE {rmse_before:.4g} -> {vr:.4g} "
+        f"({'clear gain' if gain_ok else f'gain below {100 * margin:.0f} %'}; "
+        f"{'beyond' if beyond_ok else 'within'} the noise allowance "
+        f"{math.sqrt(allowance):.3g}); "
+        f"{criterion.upper()} {crit_before:.1f} -> {crit_after:.1f} "
+        f"({'agrees' if crit_ok else 'disagrees'})")
+    return gain_ok and crit_ok and beyond_ok, reason
 
 
 @dataclass
@@ -464,25 +514,27 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
 
 def _decide(step: Step, rmse_cur: float, crit_cur: float, noise: float, margin: float,
             noise_tol: float, criterion: str) -> bool:
-    """The acceptance rule of one candidate (see :func:`augment`); writes ``step.reason``."""
-    vr = float(step.val.get("rmse", math.inf))
-    if not math.isfinite(vr):
-        vr = math.inf
-    gain_ok = vr <= (1 - margin) * rmse_cur
-    crit_ok = step.criterion < crit_cur
-    # What noise and structural mismatch allow: a model within (1 + noise_tol) of
-    # the noise explains everything an effect can claim; a candidate must remove
-    # more selection variance than that allowance.
-    allowance = ((1 + noise_tol) ** 2 - 1) * noise ** 2 if math.isfinite(noise) else 0.0
-    beyond_ok = rmse_cur ** 2 - vr ** 2 > allowance
-    step.reason = (
-        f"selection RMSE {rmse_cur:.4g} -> {vr:.4g} "
-        f"({'clear gain' if gain_ok else f'gain below {100 * margin:.0f} %'}; "
-        f"{'beyond' if beyond_ok else 'within'} the noise allowance "
-        f"{math.sqrt(allowance):.3g}); "
-        f"{criterion.upper()} {crit_cur:.1f} -> {step.criterion:.1f} "
-        f"({'agrees' if crit_ok else 'disagrees'})")
-    return gain_ok and crit_ok and beyond_ok
+    """:func:`acceptance` for a tried step; writes ``step.reason``."""
+    ok, step.reason = acceptance(rmse_cur, float(step.val.get("rmse", math.inf)), crit_cur,
+                                 step.criterion, margin, criterion, noise, noise_tol)
+    return ok
+
+
+class _DiscoveryFits:
+    """What :func:`hhra_phys.discover.discover_step` needs of the loop's fits."""
+
+    def __init__(self, cfg: _Settings) -> None:
+        self.cfg = cfg
+        self.data = cfg.data
+        self.val = cfg.sel  # terms are chosen on the selection part, like effects
+
+    def problem(self, model: Model, free: Sequence[str], fixed: Mapping[str, float],
+                start: Mapping[str, float], x0: Mapping[str, float] | None = None) -> Problem:
+        return _problem(self.cfg, model, free, fixed, start, x0)
+
+    def run(self, problem: Problem, optimizer: str, pop: int, iters: int,
+            refine: str = "ipopt", warm: bool = True) -> FitResult:
+        return _run(self.cfg, problem, optimizer, pop, iters, refine=refine, warm=warm)
 
 
 def augment(
@@ -512,6 +564,8 @@ def augment(
     base: FitResult | None = None,
     executor: Executor | None = None,
     background: bool = True,
+    discover: bool = True,
+    discover_kw: Mapping[str, Any] | None = None,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -586,6 +640,12 @@ def augment(
     background : bool
         Without an executor, compile the next candidates' simulators in a
         background thread while the current one is refitted (default True).
+    discover : bool
+        After the library rounds, look for a term outside the library
+        (:func:`hhra_phys.discover.discover_step`), accepted by the same rule.
+    discover_kw : dict, optional
+        Options of :func:`~hhra_phys.discover.discover_step` (``method``,
+        ``n_entries``, ``max_terms``, ``entries``).
 
     Returns
     -------
@@ -732,6 +792,22 @@ def augment(
     finally:
         if compiler is not None:
             compiler.shutdown(wait=True, cancel_futures=True)
+    # --- discovery: a term outside the library, the loop's last candidate -------------
+    # (not where the selection residual is already at the noise level: nothing to find)
+    if discover and not stop.startswith("selection residual at the noise level"):
+        from hhra_phys.discover import discover_step
+
+        found, won = discover_step(_DiscoveryFits(cfg), cur, cur_prob, list(cur_free),
+                                   round_no=len(diagnoses) + 1, margin=margin,
+                                   criterion=criterion, progress=say,
+                                   sel_noise=float(selection_noise(cur_prob, cur, sel)["noise"]),
+                                   noise_tol=tol, **dict(discover_kw or {}))
+        steps.extend(found)
+        if won is not None:
+            cur, cur_prob, cur_free, term_name = won
+            chosen.append(term_name)
+            say(f"discovery: accepted {term_name}")
+    # ------------------------------------------------------------------------------------
     final_level = selection_noise(cur_prob, cur, sel)
     final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
         n for n in names if n not in chosen]) if names else None
@@ -749,6 +825,7 @@ def augment(
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
                 "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
                 "noise_tol": tol, "criterion": criterion, "backend": backend,
+                "discover": discover,
                 "executor": type(executor).__name__ if executor is not None else None,
                 "base_given": base is not None, "stop": stop,
                 "noise_levels": levels + [final_level],

@@ -70,6 +70,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--noise-tol", type=float, default=None,
                    help="structural-mismatch allowance over the noise level (default "
                         "hhra_phys.loop.NOISE_TOL, measured; see docs/diagnosis.md)")
+    p.add_argument("--no-discover", action="store_true",
+                   help="do not look for a term outside the library after it (discovery, "
+                        "hhra_phys.discover, is on by default)")
+    p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
+                   help="sparsity rule of the discovery (default threshold)")
     add_cluster_arguments(p, "the candidate refits")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
@@ -85,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         stem = Path(args.report).with_suffix("")
         figs = [f"{stem}_before.png", f"{stem}_after.png"]
+        if not args.no_discover:
+            figs.append(f"{stem}_discovery.png")
     try:
         check_outputs([args.json, args.report], args.overwrite, figures=figs)
         if args.split is not None and args.split >= 1:
@@ -106,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
                 max_iter=args.iters, seed=args.seed, margin=args.margin,
                 noise_tol=args.noise_tol, bounds=bounds, executor=ex,
                 progress=lambda s: print(s, file=sys.stderr, flush=True),
+                discover=not args.no_discover, discover_kw={"method": args.discover_method},
             )
         res.warnings.extend(data_warnings)
         out = res.to_json()
@@ -122,7 +130,12 @@ def run(args: argparse.Namespace) -> int:
         if args.report:
             from hhra_phys.diagnose import plot_loop_residuals
 
-            paths = plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite)
+            paths = list(plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite))
+            found = [s for s in res.steps if getattr(s, "residuals", None)]
+            if found:
+                from hhra_phys.discover import plot_discovery
+
+                paths.append(plot_discovery(found, figs[2], args.overwrite))
             atomic_write_text(args.report, markdown_report(res, paths, args.report))
             print(f"wrote {args.report}")
     except (HHRAError, OSError) as exc:
@@ -191,12 +204,45 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
         lines.append("")
     if res.warnings or res.final.warnings:
         lines += ["## Warnings", ""] + [f"- {w}" for w in res.warnings + res.final.warnings]
+    lines += discovery_section(res)
     lines += ["", "## Residual plots", ""]
     base = Path(report_path).parent
-    for label, p in zip(("before", "after"), figures, strict=False):
+    for label, p in zip(("before", "after", "before and after the discovered terms"), figures,
+                        strict=False):
         if p:
             rel = Path(p).resolve().relative_to(base.resolve()) if Path(p).resolve().is_relative_to(
                 base.resolve()) else Path(p)
             lines.append(f"![residual {label}]({rel})")
             lines.append("")
     return "\n".join(lines) + "\n"
+
+
+def discovery_section(res: Any) -> list[str]:
+    """Markdown lines on the discovered terms tried (expression, CIs, verdict); none if off."""
+    found = [s for s in res.steps if hasattr(s, "expression")]
+    if not res.settings.get("discover", False):
+        return []
+    lines = ["", "## Discovered terms (outside the library)", ""]
+    if not found:
+        return lines + ["Discovery ran; no entry point gave a term that survived its sparse refit.",
+                        ""]
+    lines += ["| term | expression | uses | val RMSE before -> after | accepted | notes |",
+              "|---|---|---|---|---|---|"]
+    for s in found:
+        notes = "; ".join(n for n in s.notes if "outside the range" in n)
+        lines.append(f"| {s.effect} | `{s.expression}` | {', '.join(s.uses)} | "
+                     f"{_fmt(s.val_rmse_before)} -> {_fmt(s.val.get('rmse'))} | "
+                     f"{'yes' if s.accepted else 'no'} | {s.reason}"
+                     f"{'; ' + notes if notes else ''} |")
+    for s in found:
+        lines += ["", f"### {s.effect} ({s.entry}, {s.method})", "", f"`{s.expression}`", "",
+                  "| parameter | value | 95 % CI |", "|---|---|---|"]
+        for n, v in s.params.items():
+            ci = s.ci95.get(n, (math.nan, math.nan))
+            lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
+        lines += ["", "Sparse refits: " + "; ".join(n for n in s.notes
+                                                     if "outside the range" not in n)]
+    lines += ["", "Residual plots: before (base model) and after (every accepted effect and "
+              "term), and the residual just before and after each discovered term (estimation "
+              "and validation), are in the section below."]
+    return lines + [""]
