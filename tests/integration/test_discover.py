@@ -114,10 +114,13 @@ def test_lasso_path_finds_the_true_support_first():
     assert sorted(supports[1]) == [3, 6]
 
 
-def test_acceptance_rule_needs_both_gain_and_criterion():
-    assert acceptance(1.0, 0.85, 0.0, -5.0, 0.1)[:2] == (True, True)
-    assert acceptance(1.0, 0.95, 0.0, -5.0, 0.1)[:2] == (False, True)
-    assert acceptance(1.0, 0.5, 0.0, 5.0, 0.1)[:2] == (True, False)
+def test_discovered_terms_face_the_library_rule():
+    """Terms are accepted by the loop's one rule (its cases: tests/unit/test_loop_rule.py)."""
+    assert acceptance(1.0, 0.85, 0.0, -5.0, 0.1)[0]
+    assert not acceptance(1.0, 0.95, 0.0, -5.0, 0.1)[0]  # gain below the margin
+    assert not acceptance(1.0, 0.5, 0.0, 5.0, 0.1)[0]  # the criterion disagrees
+    # within the noise allowance: 0.06 -> 0.0535 with noise 0.05 and tolerance 0.15
+    assert not acceptance(0.06, 0.0535, 0.0, -5.0, 0.1, noise=0.05, noise_tol=0.15)[0]
 
 
 # --- discovery in the loop ----------------------------------------------------------------
