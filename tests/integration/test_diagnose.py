@@ -26,7 +26,8 @@ HIDDEN = {
     "gravity_load": {"g_grav_cos": 10.0, "g_grav_sin": -15.0},
     "backlash": {"play": 1.5},
 }
-LOOP = {"max_effects": 1, "top_k": 2, "pop_size": 20, "max_iter": 30}
+# The library path; discovery (on by default) has its own tests (test_discover.py).
+LOOP = {"max_effects": 1, "top_k": 2, "pop_size": 20, "max_iter": 30, "discover": False}
 
 
 def _record(effects: dict[str, dict[str, float]], seed: int = 3):

@@ -22,7 +22,7 @@ from hhra_phys.reference import reference_record
 #: A short record with a dead zone (8 s at 250 Hz: 1000 estimation, 500 selection
 #: and 500 test samples) and a small loop: two candidates, one round.
 LOOP = {"candidates": ["valve_deadzone", "input_delay"], "max_effects": 1, "pop_size": 20,
-        "max_iter": 20}
+        "max_iter": 20, "discover": False}  # discovery has its own tests
 
 
 def _record(seed: int = 1) -> Dataset:
@@ -93,7 +93,7 @@ def test_cli_dask_and_workers(tmp_path):
     data = tmp_path / "rec.csv"
     save(_record(seed=3), data)
     common = [str(data), "--max-effects", "1", "--pop", "20", "--iters", "20",
-              "--effects", "valve_deadzone,input_delay"]
+              "--effects", "valve_deadzone,input_delay", "--no-discover"]
     out_w, out_d = tmp_path / "w.json", tmp_path / "d.json"
     assert main(["diagnose", *common, "--workers", "2", "--json", str(out_w)]) == 0
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
