@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import inspect
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -41,7 +42,8 @@ def import_source(source: str, what: str = "--model") -> ModuleType:
         path = Path(source).expanduser().resolve()
         if not path.is_file():
             raise ModelError(f"{what} {source}: no such Python file")
-        name = "hhra_user_" + "_".join(path.with_suffix("").parts[-3:]).replace("-", "_")
+        # A module name of identifier characters only: a dot would make it a package path.
+        name = "hhra_user_" + re.sub(r"\W", "_", "_".join(path.with_suffix("").parts[-3:]))
         if name in sys.modules:
             return sys.modules[name]
         spec = importlib.util.spec_from_file_location(name, path)
