@@ -49,6 +49,7 @@ from hhra_phys.parts import (
     Effect,
     Part,
     State,
+    part_type_name,
     register_part,
 )
 
@@ -423,7 +424,7 @@ class Model:
         parts = []
         for part in self.parts:
             args = {f.name: getattr(part, f.name) for f in fields(part)} if fields(part) else {}
-            parts.append({"type": type(part).__name__, "args": jsonable(args)})
+            parts.append({"type": part_type_name(type(part)), "args": jsonable(args)})
         return {
             "class": type(self).__name__,
             "name": self.name,
@@ -451,8 +452,9 @@ class Model:
             typ = PART_TYPES.get(entry["type"])
             if typ is None:
                 raise ModelError(
-                    f"unknown part type {entry['type']!r} in saved model; "
-                    f"known: {', '.join(sorted(PART_TYPES))}"
+                    f"unknown part type {entry['type']!r} in saved model: import the "
+                    "module that defines and registers it (register_part) before "
+                    f"loading; known: {', '.join(sorted(PART_TYPES))}"
                 )
             args = {k: tuple(v) if isinstance(v, list) else v for k, v in entry["args"].items()}
             parts.append(typ(**args))

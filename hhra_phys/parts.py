@@ -48,6 +48,7 @@ __all__ = [
     "Part",
     "PART_TYPES",
     "register_part",
+    "part_type_name",
     "Signals",
     "Effect",
     "EFFECTS",
@@ -196,16 +197,40 @@ class Part:
 PART_TYPES: dict[str, type[Part]] = {}
 
 
+def _qualified(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
 def register_part(cls: type[Part]) -> type[Part]:
     """Register a part class so that models containing it can be saved and loaded.
 
-    Usable as a class decorator. Raises :class:`~hhra_phys.errors.ModelError` if
-    ``cls`` is not a :class:`Part` subclass.
+    Usable as a class decorator. The class is registered under its qualified name
+    (``module.Class``) and, unless another class already holds it, under its bare
+    class name (the name saved files use). A user's class that shares a bare name
+    with a registered one (a ``GravityLoad`` part beside the library's
+    ``GravityLoad`` effect) therefore never replaces it; models containing it are
+    saved under the qualified name (:func:`part_type_name`). Registering the same
+    class again (a reloaded module) replaces the earlier registration.
+
+    Raises :class:`~hhra_phys.errors.ModelError` if ``cls`` is not a :class:`Part`
+    subclass.
     """
     if not (isinstance(cls, type) and issubclass(cls, Part)):
         raise ModelError(f"register_part expects a Part subclass, got {cls!r}")
-    PART_TYPES[cls.__name__] = cls
+    PART_TYPES[_qualified(cls)] = cls
+    holder = PART_TYPES.get(cls.__name__)
+    if holder is None or _qualified(holder) == _qualified(cls):
+        PART_TYPES[cls.__name__] = cls
     return cls
+
+
+def part_type_name(cls: type[Part]) -> str:
+    """Name under which a model's saved form records a part class.
+
+    The bare class name when it maps to ``cls`` in :data:`PART_TYPES` (files stay
+    readable by earlier versions), otherwise the qualified ``module.Class`` name.
+    """
+    return cls.__name__ if PART_TYPES.get(cls.__name__) is cls else _qualified(cls)
 
 
 # --- effects ------------------------------------------------------------------------

@@ -176,3 +176,41 @@ def test_old_import_paths_still_work():
     assert OldHHRA is models.hhra.HHRAModel and old_groups is models.hhra.NOMINAL_GROUPS
     assert OldPhysical is models.hhra.PhysicalParameters
     assert old_rig is models.hhra.rig.simulate_rig
+
+
+def test_a_user_part_named_like_a_library_class_does_not_replace_it():
+    """A user's ``GravityLoad`` part beside the library's ``GravityLoad`` effect: both load."""
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    from hhra_phys.effects import GravityLoad as LibraryGravity
+    from hhra_phys.parameters import Parameter
+    from hhra_phys.parts import PART_TYPES, Part, part_type_name, register_part
+
+    @register_part
+    @dataclass(frozen=True)
+    class GravityLoad(Part):
+        stage: ClassVar[str] = "motion"
+
+        @property
+        def parameters(self):
+            return (Parameter("g_gravity", "rad/s^2", 1.0, 0.01, 100.0, "log", "gravity"),)
+
+        def apply(self, ctx):
+            ctx.add_rate("omega", -ctx.p["g_gravity"] * ca.sin(ctx.x["theta"]))
+
+    try:
+        assert PART_TYPES["GravityLoad"] is LibraryGravity
+        assert part_type_name(LibraryGravity) == "GravityLoad"
+        assert part_type_name(GravityLoad).endswith(".GravityLoad")
+        base = HHRAModel()
+        user = Model([*base.parts, GravityLoad()], name="user")
+        lib = Model([*base.parts, LibraryGravity()], name="lib")
+        for model, cls in ((user, GravityLoad), (lib, LibraryGravity)):
+            again = Model.from_json(model.to_json())
+            assert type(again.parts[-1]) is cls
+            assert again.params.names == model.params.names
+    finally:
+        PART_TYPES.pop(part_type_name(GravityLoad), None)
+    with pytest.raises(ModelError, match="import the module"):
+        Model.from_json({"parts": [{"type": "nowhere.Missing", "args": {}}]})
