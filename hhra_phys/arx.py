@@ -575,8 +575,10 @@ def regression_matrix(
 
     Parameters
     ----------
-    u, y : array_like, shape (N,)
-        Measured input and output.
+    u, y : array_like, shape (N,), or lists of them
+        Measured input and output; lists of several records' signals give each
+        record's rows stacked (no row spans two records; :func:`fit_ls`,
+        :func:`fit_rls` and :func:`fit_ffrls` accept such lists too).
     na, nb, nk : int
         Structure.
     y_init, u_init : scalar or array_like, optional
@@ -592,6 +594,14 @@ def regression_matrix(
         ``y(k)``.
     """
     na, nb, nk = _orders(na, nb, nk)
+    if isinstance(u, (list, tuple)) and isinstance(y, (list, tuple)):
+        # Several records: each one's rows from its own samples, stacked, so that no
+        # row spans two records (each record's first rows are left out as above).
+        if y_init is not None or u_init is not None or len(u) != len(y) or not u:
+            raise ParameterError("several records: give as many inputs as outputs, and no "
+                                 "y_init/u_init (each record's past is its own)")
+        rows = [regression_matrix(uk, yk, na, nb, nk) for uk, yk in zip(u, y, strict=True)]
+        return np.vstack([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
     uu, yy = _pair(u, y)
     if (y_init is None) != (u_init is None):
         raise ParameterError("give both y_init and u_init, or neither")

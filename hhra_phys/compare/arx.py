@@ -21,6 +21,7 @@ from typing import Any
 from hhra_phys import arx
 from hhra_phys.compare.registry import CompareSettings, MethodFn, MethodOutcome, register_method
 from hhra_phys.data import Dataset
+from hhra_phys.multi import RecordSet
 
 __all__ = ["ARX_METHODS", "arx_outcome"]
 
@@ -89,22 +90,46 @@ def _orders(s: CompareSettings) -> dict[str, int]:
     return {"na": s.na, "nb": s.nb, "nk": s.nk}
 
 
+def _signals(est: Any) -> tuple[Any, Any]:
+    """Input and output of the estimation part, or lists of them for several records
+    (:class:`~hhra_phys.multi.RecordSet`: regression rows stacked per record)."""
+    if isinstance(est, RecordSet):
+        return [d.u for d in est], [d.y for d in est]
+    return est.u, est.y
+
+
+def _outcome(fit: arx.ARXFit, est: Any, val: Any) -> MethodOutcome:
+    """:func:`arx_outcome`, or for several records one output per record."""
+    if not isinstance(est, RecordSet):
+        return arx_outcome(fit, est, val)
+    outs = [arx_outcome(fit, e, v) for e, v in zip(est, val, strict=True)]
+    first = outs[0]
+    first.y_est, first.y_val = [o.y_est for o in outs], [o.y_val for o in outs]
+    first.info["initial_condition"] += " (each record's own)"
+    return first
+
+
 def _method_ls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", arx.ConditioningWarning)
-        fit = arx.fit_ls(est.u, est.y, **_orders(s))
-    out = arx_outcome(fit, est, val)
+        fit = arx.fit_ls(*_signals(est), **_orders(s))
+    out = _outcome(fit, est, val)
     if caught:
         out.info["warnings"] = [str(w.message) for w in caught]
     return out
 
 
 def _method_rls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return arx_outcome(arx.fit_rls(est.u, est.y, **_orders(s)), est, val)
+    return _outcome(arx.fit_rls(*_signals(est), **_orders(s)), est, val)
 
 
 def _method_ffrls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return arx_outcome(arx.fit_ffrls(est.u, est.y, **_orders(s)), est, val)
+    return _outcome(arx.fit_ffrls(*_signals(est), **_orders(s)), est, val)
+
+
+# The equation-error estimators take several records (rows stacked per record).
+for _fn in (_method_ls, _method_rls, _method_ffrls):
+    _fn.several_records = True  # type: ignore[attr-defined]
 
 
 def _metaheuristic(method: str) -> MethodFn:
