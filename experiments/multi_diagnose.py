@@ -37,7 +37,7 @@ def records(seed: int):
 
 
 def alone_width(res, ds) -> float:
-    """Width of g_coulomb's 95 % CI from the chosen model refitted on one record's estimation part."""
+    """Width of g_coulomb's 95 % CI: the chosen model refitted on one record's estimation part."""
     est = split_record(ds, 0.5, 0.25)[0]
     free = [n for n in res.final.free if not n.startswith("x0_")]
     one = fit(est, res.final.model, optimizer="none", free=free, start=res.final.values,

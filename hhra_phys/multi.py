@@ -452,15 +452,19 @@ def check_records(records: Sequence[Dataset], what: str = "record") -> None:
     if not records:
         return
     first = records[0]
+
+    def where(ds: Dataset, k: int) -> str:  # the file, where the record came from one
+        return str(ds.source or ds.name or f"{what} {k}")
+
     for k, ds in enumerate(records[1:], start=2):
         for attr, label in (("output_unit", "output unit"), ("output_name", "output"),
                             ("input_unit", "input unit"), ("input_name", "input")):
             a, b = getattr(first, attr), getattr(ds, attr)
             if a != b:
                 raise DataError(
-                    f"{what} {_label(ds, k)!r} has {label} {b!r}, {what} "
-                    f"{_label(first, 1)!r} has {a!r}: records fitted together must measure "
-                    "the same signals in the same units (convert the file, or fit them apart)")
+                    f"{where(ds, k)}: {label} {b!r}, but {where(first, 1)} has {a!r}: "
+                    f"{what}s fitted together must measure the same signals in the same "
+                    "units (convert the file, or fit them apart)")
 
 
 class RecordSet(tuple):  # type: ignore[type-arg]

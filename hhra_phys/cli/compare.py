@@ -203,6 +203,9 @@ def run(args: argparse.Namespace) -> int:
                 f"--methods: unknown {unknown}; registered: {', '.join(registered)}"
             )
         dataset, default_split = _load(args)
+        if isinstance(dataset, list) and args.plot:
+            raise ParameterError("--plot draws one record; with several DATA records use "
+                                 "--json/--report (scores per record)")
         split = default_split if args.split is None else args.split
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))

@@ -90,12 +90,15 @@ def _orders(s: CompareSettings) -> dict[str, int]:
     return {"na": s.na, "nb": s.nb, "nk": s.nk}
 
 
-def _signals(est: Any) -> tuple[Any, Any]:
-    """Input and output of the estimation part, or lists of them for several records
-    (:class:`~hhra_phys.multi.RecordSet`: regression rows stacked per record)."""
+def _signals(est: Any, time: bool = False) -> tuple[Any, ...]:
+    """Input and output (and time with ``time``) of the estimation part, or lists of them
+    for several records (:class:`~hhra_phys.multi.RecordSet`: regression rows stacked
+    per record, ITAEs summed over the records)."""
     if isinstance(est, RecordSet):
-        return [d.u for d in est], [d.y for d in est]
-    return est.u, est.y
+        out = ([d.u for d in est], [d.y for d in est], [d.t for d in est])
+    else:
+        out = (est.u, est.y, est.t)
+    return out if time else out[:2]
 
 
 def _outcome(fit: arx.ARXFit, est: Any, val: Any) -> MethodOutcome:
@@ -127,17 +130,10 @@ def _method_ffrls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutco
     return _outcome(arx.fit_ffrls(*_signals(est), **_orders(s)), est, val)
 
 
-# The equation-error estimators take several records (rows stacked per record).
-for _fn in (_method_ls, _method_rls, _method_ffrls):
-    _fn.several_records = True  # type: ignore[attr-defined]
-
-
 def _metaheuristic(method: str) -> MethodFn:
     def run(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
         fit = arx.fit_metaheuristic(
-            est.u,
-            est.y,
-            est.t,
+            *_signals(est, time=True),
             method=method,
             bounds=s.bounds,
             pop_size=s.pop_size,
@@ -147,8 +143,9 @@ def _metaheuristic(method: str) -> MethodFn:
             progress=s.progress,
             **_orders(s),
         )
-        return arx_outcome(fit, est, val)
+        return _outcome(fit, est, val)
 
+    run.several_records = True  # type: ignore[attr-defined]
     run.__name__ = f"_method_{method}"
     run.__doc__ = f"ARX coefficients by {_LABELS[method]} minimising the free-run ITAE."
     return run
@@ -156,9 +153,7 @@ def _metaheuristic(method: str) -> MethodFn:
 
 def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
     fit = arx.fit_ffrls_hgwo(
-        est.u,
-        est.y,
-        est.t,
+        *_signals(est, time=True),
         zeta_s=s.zeta_s,
         pop_size=s.pop_size,
         max_iter=s.max_iter,
@@ -167,7 +162,13 @@ def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> Method
         progress=s.progress,
         **_orders(s),
     )
-    return arx_outcome(fit, est, val)
+    return _outcome(fit, est, val)
+
+
+# Every built-in row takes several records: the equation-error estimators on their
+# regression rows stacked per record, the metaheuristics on the sum of their ITAEs.
+for _fn in (_method_ls, _method_rls, _method_ffrls, _method_ffrls_hgwo):
+    _fn.several_records = True  # type: ignore[attr-defined]
 
 
 register_method("ls", _method_ls, label=_LABELS["ls"])

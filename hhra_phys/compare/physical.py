@@ -48,7 +48,8 @@ def _method(optimizer: str, refine: str | None) -> MethodFn:
         # Several records: one joint fit of their estimation parts (shared parameters,
         # an initial state per record), each part then predicted as one record's.
         res = fit(list(est) if several else est, model,
-                  validation=None if several else val, split=1.0 if several else 0.5, optimizer=optimizer, refine=refine or "none",
+                  validation=None if several else val, split=1.0 if several else 0.5,
+                  optimizer=optimizer, refine=refine or "none",
                   pop_size=s.pop_size, max_iter=s.max_iter, seed=s.seed,
                   progress=s.progress, **extra)
         seconds = time.perf_counter() - t0
