@@ -155,7 +155,7 @@ def _reporter(progress: bool | Callable[[str], None]) -> Callable[[str], None] |
 
 
 def run_comparison(
-    dataset: Dataset,
+    dataset: Dataset | Sequence[Dataset],
     split: float | int = 0.5,
     methods: Sequence[str] | None = None,
     seed: int = 0,
@@ -304,7 +304,7 @@ def _scored(
 
 
 def compare(
-    dataset: Dataset,
+    dataset: Dataset | Sequence[Dataset],
     split: float | int = 0.5,
     methods: Sequence[str] | None = None,
     seed: int = 0,
@@ -313,7 +313,10 @@ def compare(
     progress: bool | Callable[[str], None] = False,
     **kw: Any,
 ) -> dict[str, Any]:
-    """Run :func:`run_comparison` and return its JSON report (layout: :mod:`hhra_phys.compare`)."""
+    """Run :func:`run_comparison` and return its JSON report (layout: :mod:`hhra_phys.compare`).
+
+    ``dataset`` may be several records (:func:`run_comparison`).
+    """
     return run_comparison(
         dataset, split, methods, seed, pop_size, max_iter, progress, **kw
     ).to_dict()
