@@ -51,9 +51,11 @@ def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root
     assert all(r["test_rmse"] < 1.15 * 0.05 for r in found), rows
 
 
+@pytest.mark.slow  # two candidate refits at two sample rates: about 15 s on a loaded machine
 def test_records_of_different_lengths_and_rates_layout_and_pooling():
-    a = _short(3, 3.0)
-    b = _short(4, 2.5, fs=200.0, amplitude=0.6)
+    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
+    a = _short(3, 3.0, effects=friction)
+    b = _short(4, 2.5, fs=200.0, amplitude=0.6, effects=friction)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         res = augment([a, b], seed=0, **TINY)
@@ -76,6 +78,21 @@ def test_records_of_different_lengths_and_rates_layout_and_pooling():
     # every fit is a joint one: shared groups, one initial angle per record
     assert {"x0_theta_rec1", "x0_theta_rec2", "g_valve"} <= set(res.final.free)
     assert sorted(res.final.problem.simulators) == [200.0, 250.0]
+    # the first round's evidence is the records' own, summed (diagnose.combine_diagnoses)
+    from hhra_phys.diagnose import analyse
+    from hhra_phys.loop import _free_values
+
+    pr = res.base.problem
+    v = _free_values(pr, res.base)
+    own = [analyse(p, pr.record_values(v, k), candidates=["coulomb_friction"])
+           for k, (p, _) in enumerate(pr.blocks())]
+    energy = np.array([d.n * d.rmse ** 2 for d in own])
+    scores = np.array([d.evidence[0].score for d in own])
+    joint = next(e for e in res.diagnoses[0].evidence if e.name == "coulomb_friction")
+    assert joint.score == pytest.approx(float(scores @ energy / energy.sum()), rel=1e-9)
+    assert min(scores) - 1e-12 <= joint.score <= max(scores) + 1e-12
+    assert res.diagnoses[0].n == sum(d.n for d in own)
+    assert sorted(st.effect for st in res.steps) == ["coulomb_friction", "sensor_offset"]
 
 
 def test_whole_validation_records_are_the_test_part():
