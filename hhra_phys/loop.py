@@ -1049,11 +1049,13 @@ def _substeps(problem: Problem | MultiProblem) -> int | tuple[tuple[float, int],
 
 def _discovery_applies(cfg: _Settings, skipped: dict[str, str],
                        say: Callable[[str], None]) -> bool:
-    """Whether discovery can run; with several records it cannot (said and recorded)."""
+    """Whether discovery can run; with several records (or whole validation records) it
+    cannot (said and recorded in ``skipped["discovery"]``)."""
     if not isinstance(cfg.est, RecordSet):
         return True
     why = ("runs on one record only: discovery (hhra_phys.discover) fits its sparse terms "
-           "to a single record, so it is skipped for several")
+           "to one record split the loop's way, so it is skipped with several records or "
+           "whole validation records")
     skipped["discovery"] = why
     say(f"discovery skipped: {why}")
     return False
