@@ -50,6 +50,8 @@ LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model
 RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
                 "tests/integration/test_bad_inputs.py")
 DISCOVER_TESTS = ("tests/integration/test_discover.py",)
+#: Its slow rate test comes last, so -x stops at the quick test that notices.
+MULTI_TEST = "tests/integration/test_multi_diagnose.py"
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
 
@@ -580,6 +582,36 @@ MUTATIONS: tuple[Mutation, ...] = (
         "v = (x if family == \"hinge+\" else -x) - knot",
         "v = (x if family == \"hinge+\" else -x) + knot",
         DISCOVER_TESTS,
+    ),
+    # -- several records: diagnosis and comparison --------------------------------------------
+    _m(
+        "multi-arx-rows-span-records",
+        "ARX regression rows of several records built from their samples joined, so rows span "
+        "two records",
+        "rows = [regression_matrix(uk, yk, na, nb, nk) for uk, yk in zip(u, y, strict=True)]",
+        "rows = [regression_matrix(np.concatenate(u), np.concatenate(y), na, nb, nk)]",
+        (MULTI_TEST,),
+    ),
+    _m(
+        "multi-evidence-unweighted",
+        "the evidence of several records averaged instead of weighted by residual energy",
+        "score = float(sum(e.score * en for e, en in zip(per, energy, strict=True)) / tot)",
+        "score = float(np.mean([e.score for e in per]))",
+        (MULTI_TEST,),
+    ),
+    _m(
+        "multi-compare-first-record-only",
+        "a comparison of several records reports the first record's scores as the pooled ones",
+        "pooled[label] = pooled_score(list(part), ys)",
+        "pooled[label] = per[0][label]",
+        (MULTI_TEST,),
+    ),
+    _m(
+        "multi-units-unchecked",
+        "records of different signals or units accepted together",
+        "a, b = getattr(first, attr), getattr(ds, attr)",
+        "a = b = getattr(first, attr)",
+        (MULTI_TEST,),
     ),
 )
 

@@ -575,8 +575,10 @@ def regression_matrix(
 
     Parameters
     ----------
-    u, y : array_like, shape (N,)
-        Measured input and output.
+    u, y : array_like, shape (N,), or lists of them
+        Measured input and output; lists of several records' signals give each
+        record's rows stacked (no row spans two records; :func:`fit_ls`,
+        :func:`fit_rls` and :func:`fit_ffrls` accept such lists too).
     na, nb, nk : int
         Structure.
     y_init, u_init : scalar or array_like, optional
@@ -592,6 +594,14 @@ def regression_matrix(
         ``y(k)``.
     """
     na, nb, nk = _orders(na, nb, nk)
+    if isinstance(u, (list, tuple)) and isinstance(y, (list, tuple)):
+        # Several records: each one's rows from its own samples, stacked, so that no
+        # row spans two records (each record's first rows are left out as above).
+        if y_init is not None or u_init is not None or len(u) != len(y) or not u:
+            raise ParameterError("several records: give as many inputs as outputs, and no "
+                                 "y_init/u_init (each record's past is its own)")
+        rows = [regression_matrix(uk, yk, na, nb, nk) for uk, yk in zip(u, y, strict=True)]
+        return np.vstack([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
     uu, yy = _pair(u, y)
     if (y_init is None) != (u_init is None):
         raise ParameterError("give both y_init and u_init, or neither")
@@ -960,8 +970,11 @@ def itae_cost(
 
     Parameters
     ----------
-    u, y : array_like, shape (N,)
-        Measured input and output.
+    u, y : array_like, shape (N,), or lists of them
+        Measured input and output; lists of several records' signals (and ``t`` a
+        list of their time axes) give the sum of the records' ITAEs, each record's
+        free run starting at rest at its own first output (:func:`fit_metaheuristic`
+        and :func:`fit_ffrls_hgwo` accept such lists too).
     t : array_like, shape (N,), optional
         Time axis [s] (ITAE in sample units without it).
     na, nb, nk : int
@@ -981,6 +994,16 @@ def itae_cost(
     from hhra_phys.metrics import itae
 
     na, nb, nk = _orders(na, nb, nk)
+    if isinstance(u, (list, tuple)) and isinstance(y, (list, tuple)):
+        # Several records: the sum of their ITAEs, each free run from its own start.
+        ts = list(t) if isinstance(t, (list, tuple)) else [None] * len(u)
+        if y_init is not None or u_init is not None or not (len(u) == len(y) == len(ts)) \
+                or not u:
+            raise ParameterError("several records: give as many inputs, outputs and time "
+                                 "axes, and no y_init/u_init (each record starts at rest)")
+        costs = [itae_cost(uk, yk, tk, na, nb, nk, max_pole_radius=max_pole_radius)
+                 for uk, yk, tk in zip(u, y, ts, strict=True)]
+        return lambda theta: np.sum([c(theta) for c in costs], axis=0)
     uu, yy = _pair(u, y)
     tt = None if t is None else np.asarray(t, dtype=float)
     y_hist = _history(yy[0] if y_init is None else y_init, na, "y_init")

@@ -55,6 +55,7 @@ __all__ = [
     "generic_regressors",
     "regressor_table",
     "analyse",
+    "combine_diagnoses",
     "linear_response",
     "nuisance_basis",
     "diagnose_fit",
@@ -416,8 +417,10 @@ def analyse(
 
     Parameters
     ----------
-    problem : Problem
-        The fitting problem (model and estimation data) of the fit.
+    problem : Problem or MultiProblem
+        The fitting problem (model and estimation data) of the fit; a stacked
+        problem of several records (:class:`~hhra_phys.multi.MultiProblem`) is
+        analysed record by record and the evidence summed (:func:`combine_diagnoses`).
     values : array, shape (n_free,)
         Fitted free values (physical units), in ``problem.free_names`` order.
     candidates : iterable of str, optional
@@ -430,6 +433,10 @@ def analyse(
     -------
     Diagnosis
     """
+    if hasattr(problem, "blocks"):  # several records
+        return combine_diagnoses([
+            analyse(pr, problem.record_values(values, k), candidates, effect_kw)
+            for k, (pr, _) in enumerate(problem.blocks())])
     data = problem.data
     values = np.asarray(values, dtype=float)
     P = problem.full(values)
@@ -540,6 +547,96 @@ def analyse(
         n=data.n, rmse=float(np.sqrt(np.mean(r ** 2))), noise=noise, whiteness=white,
         xcorr_input=xcorr, delay_samples=delay, regressors=table, spectrum=spectrum,
         evidence=evidence, residual=r, t=data.t, series=series,
+    )
+
+
+def combine_diagnoses(diags: Sequence[Diagnosis]) -> Diagnosis:
+    """One diagnosis of several records from each record's own (evidence summed).
+
+    Each record is analysed alone (:func:`analyse` on its one-record problem at the
+    joint fit, the model's parameters projected out on that record), and then:
+
+    * ``score``: the fraction of the records' residual variance, all together, the
+      effect explains to first order, ``sum_k score_k E_k / sum_k E_k`` with
+      ``E_k`` record ``k``'s residual sum of squares;
+    * ``detectability``: the RMS over all samples of each record's output change,
+      over the pooled noise level (``sqrt(sum_k n_k sigma_k^2 / N)``);
+      ``identifiable`` from it (:data:`DETECTABLE`);
+    * first-order ``estimate``s and regressor correlations: sample-weighted means;
+      a skip or a note of one record is kept, prefixed by the record's number;
+    * the residual, series, input cross-correlation and spectrum are those of the
+      records one after another (time continued across them), whiteness likewise
+      but with the Ljung-Box statistic and degrees of freedom summed over the
+      records (independent records), the output delay the sample-weighted mean.
+
+    Parameters
+    ----------
+    diags : sequence of Diagnosis
+        One per record, the same candidates in the same order.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    diags = list(diags)
+    if len(diags) == 1:
+        return diags[0]
+    n = np.array([d.n for d in diags], dtype=float)
+    w = n / n.sum()
+    energy = np.array([d.n * d.rmse ** 2 for d in diags])
+    noise = float(np.sqrt(np.sum(w * np.array([d.noise for d in diags]) ** 2)))
+    evidence = []
+    for per in zip(*(d.evidence for d in diags), strict=True):
+        first = per[0]
+        notes = [f"record {k}: {e.note}" for k, e in enumerate(per, start=1) if e.note]
+        skip = next((e.note for e in per if e.note.startswith("skipped")), "")
+        if skip:
+            evidence.append(EffectEvidence(first.name, 0.0, 0.0, {}, False, first.signature,
+                                           note=skip))
+            continue
+        tot = float(energy.sum()) or 1e-300
+        score = float(sum(e.score * en for e, en in zip(per, energy, strict=True)) / tot)
+        change2 = [(e.detectability * d.noise) ** 2 for e, d in zip(per, diags, strict=True)]
+        detect = (float(np.sqrt(np.nansum(w * np.array(change2)))) / noise
+                  if noise > 0 else float("inf"))
+        est = {k: float(sum(wk * e.estimate.get(k, 0.0) for wk, e in zip(w, per, strict=True)))
+               for k in dict.fromkeys(k for e in per for k in e.estimate)}
+        regs = {k: float(sum(wk * e.regressors.get(k, 0.0) for wk, e in zip(w, per, strict=True)))
+                for k in dict.fromkeys(k for e in per for k in e.regressors)}
+        evidence.append(EffectEvidence(first.name, score, detect, est, detect >= DETECTABLE,
+                                       first.signature, regs, "; ".join(notes)))
+    r = np.concatenate([d.residual for d in diags])
+    t_parts, offset = [], 0.0
+    for d in diags:
+        step = float(d.t[1] - d.t[0]) if d.t.size > 1 else 1.0
+        t_parts.append(d.t - d.t[0] + offset)
+        offset = float(t_parts[-1][-1]) + step
+    white = whiteness(r)
+    q = float(sum(d.whiteness["ljung_box_q"] for d in diags))
+    dof = int(sum(d.whiteness["lags"] for d in diags))
+    p = float(stats.chi2.sf(q, dof))
+    white.update(ljung_box_q=q, ljung_box_p=p, white=p > 0.05, lags=dof)
+    u = np.concatenate([d.series["u"] for d in diags])
+    max_lag = int(min(50, r.size // 10))
+    lags, xc = cross_correlation(r, u, max_lag)
+    ip = int(np.argmax(np.abs(xc)))
+    first = diags[0]
+    f, pxx = sps.welch(r - r.mean(), fs=1.0 / max(float(first.t[1] - first.t[0]), 1e-300),
+                       nperseg=min(256, max(16, r.size // 4)))
+    spectrum = dict(first.spectrum, f=f, pxx=pxx)
+    keys = set.intersection(*(set(d.series) for d in diags))
+    regs_all = {k: {kk: float(sum(wk * d.regressors[k][kk] for wk, d in zip(w, diags,
+                                                                           strict=True)))
+                    for kk in first.regressors[k]}
+                for k in first.regressors if all(k in d.regressors for d in diags)}
+    return Diagnosis(
+        n=int(n.sum()), rmse=float(np.sqrt(np.mean(r ** 2))), noise=noise, whiteness=white,
+        xcorr_input={"lags": lags.tolist(), "values": xc, "peak_lag": int(lags[ip]),
+                     "peak": float(xc[ip]), "band": 1.96 / math.sqrt(r.size)},
+        delay_samples=float(np.sum(w * np.array([d.delay_samples for d in diags]))),
+        regressors=regs_all, spectrum=spectrum, evidence=evidence, residual=r,
+        t=np.concatenate(t_parts),
+        series={k: np.concatenate([d.series[k] for d in diags]) for k in keys},
     )
 
 

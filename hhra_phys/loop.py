@@ -46,6 +46,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
@@ -54,6 +55,16 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
+from hhra_phys.multi import (
+    MultiProblem,
+    RecordSet,
+    fit_stacked,
+    per_record_params,
+    pooled_score,
+    record_name,
+    split_record_name,
+    split_records,
+)
 from hhra_phys.outputs import jsonable
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
@@ -87,7 +98,9 @@ def information_criterion(result: FitResult, kind: str = "bic") -> float:
 
     ``k`` counts the free parameters including the fitted initial state.
     """
-    n = int(result.settings["data"]["n_est"])
+    data = result.settings["data"]
+    # A fit of several records lists them (samples of each estimation part in "n").
+    n = int(sum(d["n"] for d in data) if isinstance(data, list) else data["n_est"])
     mse = float(result.metrics["est"]["mse"])
     k = len(result.free)
     if not (mse > 0 and math.isfinite(mse)):
@@ -217,6 +230,12 @@ class LoopResult:
                    for k in ("est", "val") if res.metrics.get(k)}
             if self.test_scores.get(key):
                 out["test"] = {m: self.test_scores[key].get(m) for m in METRIC_KEYS}
+            if res.records:  # several records: each one's scores ("sel": its selection part)
+                out["records"] = [
+                    {"name": r["name"], **{k: {m: r.get(src, {}).get(m) for m in METRIC_KEYS}
+                                           for k, src in (("est", "est"), ("sel", "val"),
+                                                          ("test", "test"))}}
+                    for r in res.records]
             return out
 
         final = part(self.final, "final")
@@ -285,7 +304,8 @@ class _Settings:
     seed: int
     ipopt_iter: int
     initial_state: str
-    substeps: int | None
+    #: Substeps of the base simulator; with several records ``((fs, substeps), ...)``.
+    substeps: int | tuple[tuple[float, int], ...] | None
     split: float
     criterion: str
 
@@ -296,8 +316,16 @@ class _Settings:
 CANDIDATE_BLOCK = 2
 
 
-def _simulator(cfg: _Settings, model: Model) -> Simulator:
-    """The simulator of a candidate (or accepted) model: base substeps, a short block."""
+def _simulator(cfg: _Settings, model: Model) -> Simulator | dict[float, Simulator]:
+    """The simulator of a candidate (or accepted) model: base substeps, a short block.
+
+    With several records (:mod:`hhra_phys.multi`) one per sample rate, ``{fs: Simulator}``.
+    """
+    if isinstance(cfg.est, RecordSet):
+        subs = dict(cfg.substeps or ())  # type: ignore[arg-type]
+        return {fs: Simulator(model, fs=fs, backend=cfg.backend, substeps=subs.get(fs, "auto"),
+                              block=CANDIDATE_BLOCK)
+                for fs in dict.fromkeys(float(ds.fs) for ds in cfg.est)}
     return Simulator(model, fs=cfg.est.fs, backend=cfg.backend,
                      substeps=cfg.substeps or "auto", block=CANDIDATE_BLOCK)
 
@@ -311,8 +339,11 @@ def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[s
     effect's nominal (a stiff friction sign can ask for 8x more) and the
     simulator's stability check already rejects candidates too stiff for them.
     One simulator serves every problem of one model (its compiled code is per
-    model structure, not per free set).
+    model structure, not per free set). With several records it is a stacked
+    :class:`~hhra_phys.multi.MultiProblem` (:func:`_records_problem`).
     """
+    if isinstance(cfg.est, RecordSet):
+        return _records_problem(cfg, model, free, fixed, start, simulator)
     sim = simulator or _simulator(cfg, model)
     bnd = {k: v for k, v in cfg.bounds.items() if k in free}
     st = {k: v for k, v in start.items() if k in model.params and k not in fixed}
@@ -325,26 +356,125 @@ def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[s
                    start=st)
 
 
+def _records_problem(cfg: _Settings, model: Model, free: Sequence[str],
+                     fixed: Mapping[str, float], start: Mapping[str, float],
+                     simulator: Any = None) -> MultiProblem:
+    """:func:`_problem` for several records: shared parameters, per-record initial states.
+
+    ``start`` may hold per-record values (``x0_theta_rec2``, ``p_offset_rec2``, from
+    :func:`_values`); a per-record parameter held in ``fixed`` is held at each record's
+    own value. ``simulator`` is ``{fs: Simulator}``, or one simulator (the base fit's,
+    default block) beside which the other rates get the same kind.
+    """
+    if simulator is None:
+        sims = _simulator(cfg, model)
+    elif isinstance(simulator, dict):
+        sims = simulator
+    else:
+        sims = {float(simulator.fs): simulator}
+        for ds in cfg.est:
+            sims.setdefault(float(ds.fs), Simulator(model, fs=ds.fs, backend=cfg.backend))
+    own = set(per_record_params(model))
+    held: dict[str, float] = {}
+    for name, value in fixed.items():
+        if name in own:  # each record keeps its own value
+            held.update({record_name(name, k): float(start.get(record_name(name, k), value))
+                         for k in range(1, len(cfg.est) + 1)})
+        else:
+            held[name] = float(value)
+    st = {k: v for k, v in start.items()
+          if (k in model.params or split_record_name(k)[1] is not None)
+          and k not in held and split_record_name(k)[0] not in fixed}
+    bnd = {k: v for k, v in cfg.bounds.items() if k in free}
+    return MultiProblem(model, list(cfg.est), free=list(free), fixed=held, bounds=bnd,
+                        initial_state=cfg.initial_state, start=st, simulators=sims,
+                        names=cfg.data.names)
+
+
+def _values(res: FitResult) -> dict[str, float]:
+    """A fit's values to warm-start the next: the model's, and each record's own.
+
+    One record: :attr:`FitResult.values`. Several: also ``<name>_rec<k>`` of every
+    per-record free parameter and initial state (:mod:`hhra_phys.multi`).
+    """
+    out = dict(res.values)
+    if res.records:
+        out.update({n: res.x0_param(n) for n in res.free
+                    if split_record_name(n)[1] is not None})
+    return out
+
+
 def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
          refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None) -> FitResult:
     # A warm start seeds the first population with the problem's start values
     # (the previous fit); the base fit is not seeded.
+    if isinstance(problem, MultiProblem):  # several records: each scored on its selection
+        return fit_stacked(problem, cfg.sel, optimizer=optimizer, refine=refine,
+                           pop_size=pop, max_iter=iters, seed=cfg.seed, seed_population=warm,
+                           refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter},
+                           split=cfg.split)
     return fit(cfg.data, problem=problem, validation=cfg.sel, split=cfg.split,
                optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
                seed=cfg.seed, seed_population=warm,
                refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter})
 
 
+def _base_fit(cfg: _Settings, problem: Problem | MultiProblem, pop: int, iters: int
+              ) -> FitResult:
+    """The base fit: a plain fit (H-GWO ``pop`` x ``iters`` + IPOPT at its own limit)."""
+    if isinstance(problem, MultiProblem):
+        return fit_stacked(problem, cfg.sel, pop_size=pop, max_iter=iters, seed=cfg.seed,
+                           split=cfg.split)
+    return fit(cfg.data, problem=problem, validation=cfg.sel, split=cfg.split,
+               optimizer="hgwo", pop_size=pop, max_iter=iters, seed=cfg.seed,
+               seed_population=False)
+
+
 def _test_score(problem: Problem, res: FitResult, test: Dataset | None) -> dict[str, float]:
-    """Free-run scores on the test part (initial state re-estimated on it, as for selection)."""
+    """Free-run scores on the test part (initial state re-estimated on it, as for selection).
+
+    Several records: pooled, and each record's written into ``res.records`` (``"test"``).
+    """
     if test is None:
         return {}
+    if isinstance(problem, MultiProblem):
+        return _records_test_score(problem, res, test)
     y = problem.simulate_values(_free_values(problem, res), data=test)
     return {k: float(v) for k, v in score(test.y, y, test.t).items()}
 
 
+def _records_test_score(problem: MultiProblem, res: FitResult,
+                        test: Sequence[Dataset]) -> dict[str, float]:
+    """Test scores of several records: pooled; per record in ``res.records[k]["test"]``.
+
+    Each record's test part is simulated with its own per-record values; whole
+    validation records (``test.whole``) with the first record's, as
+    :func:`~hhra_phys.multi.records_result` scores them, and are appended to
+    ``res.records`` (``n_est`` 0) with their name.
+    """
+    v = _free_values(problem, res)
+    entries = [dict(r) for r in res.records if r.get("n_est")]
+    ys = []
+    for k, ds in enumerate(test):
+        own = 0 if getattr(test, "whole", False) else k
+        y = problem.records[own].simulate_values(problem.record_values(v, own), data=ds)
+        ys.append(y)
+        sc = {kk: float(vv) for kk, vv in score(ds.y, y, ds.t).items()}
+        if getattr(test, "whole", False):
+            entries.append({"name": test.names[k], "source": ds.source, "fs": float(ds.fs),
+                            "n_est": 0, "n_val": 0, "n_test": ds.n, "est": {}, "val": {},
+                            "test": sc})
+        else:
+            entries[k]["test"] = sc
+            entries[k]["n_test"] = ds.n
+    res.records = entries
+    return pooled_score(list(test), ys)
+
+
 def _free_values(problem: Problem, res: FitResult) -> np.ndarray:
-    return np.array([res.values[n] if not n.startswith("x0_") else res.x0_param(n)
+    # Model parameters by name; fitted initial states (and, with several records,
+    # per-record parameters) from the result's own record of them.
+    return np.array([res.values[n] if n in res.values else res.x0_param(n)
                      for n in problem.free_names])
 
 
@@ -366,7 +496,19 @@ def _unidentified(res: FitResult, names: Sequence[str], model: Model) -> list[st
 
 
 def _output_range(problem: Problem, values: np.ndarray, data: Dataset) -> tuple[float, float]:
-    """Range of the simulated output on ``data`` (free run), output units."""
+    """Range of the simulated output on ``data`` (free run), output units.
+
+    Several records: ``data`` is a :class:`~hhra_phys.multi.RecordSet` of parts of
+    them (each simulated with its record's own values), or their estimation parts.
+    """
+    if isinstance(problem, MultiProblem):
+        if not isinstance(data, RecordSet):
+            y = problem.simulate_values(values)
+        else:
+            y = np.concatenate([pr.simulate_values(problem.record_values(values, k), data=ds)
+                                for k, (pr, ds) in enumerate(zip(problem.records, data,
+                                                                 strict=True))])
+        return float(np.nanmin(y)), float(np.nanmax(y))
     y = problem.simulate_values(values, data=data if data is not problem.data else None)
     return float(np.nanmin(y)), float(np.nanmax(y))
 
@@ -380,7 +522,13 @@ def selection_noise(problem: Problem, res: FitResult, sel: Dataset) -> dict[str,
         ``rmse`` (selection RMSE, output units), ``noise`` (its white-noise level,
         :func:`~hhra_phys.diagnose.noise_level`), ``ratio`` (``rmse/noise``),
         ``ljung_box_p`` and ``white`` (``p > 0.05``) of the selection residual.
+        Several records (``sel`` a :class:`~hhra_phys.multi.RecordSet`): RMSE over all
+        selection samples, the noise level the records' levels pooled by sample count,
+        and one Ljung-Box test of the records together (statistics and degrees of
+        freedom summed, records independent).
     """
+    if isinstance(problem, MultiProblem):
+        return _records_noise(problem, res, sel)
     y = problem.simulate_values(_free_values(problem, res), data=sel)
     r = sel.y - y
     if not np.isfinite(r).all():
@@ -391,6 +539,24 @@ def selection_noise(problem: Problem, res: FitResult, sel: Dataset) -> dict[str,
     w = whiteness(r)
     return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
             "ljung_box_p": float(w["ljung_box_p"]), "white": bool(w["white"])}
+
+
+def _records_noise(problem: MultiProblem, res: FitResult,
+                   sel: Sequence[Dataset]) -> dict[str, float | bool]:
+    """:func:`selection_noise` of several records (its docstring)."""
+    v = _free_values(problem, res)
+    rs = [ds.y - pr.simulate_values(problem.record_values(v, k), data=ds)
+          for k, (pr, ds) in enumerate(zip(problem.records, sel, strict=True))]
+    r = np.concatenate(rs)
+    if not np.isfinite(r).all():
+        return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
+                "white": False}
+    sigma = float(np.sqrt(sum(rk.size * noise_level(rk) ** 2 for rk in rs) / r.size))
+    rmse = float(np.sqrt(np.mean(r ** 2)))
+    tests = [whiteness(rk) for rk in rs]
+    p = float(chi2.sf(sum(w["ljung_box_q"] for w in tests), sum(w["lags"] for w in tests)))
+    return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
+            "ljung_box_p": p, "white": p > 0.05}
 
 
 @dataclass(frozen=True)
@@ -459,7 +625,8 @@ def refit_candidate(job: _Job) -> _Outcome:
         pop, iters = _search_size(len(new), job.cand_pop, job.cand_iter)
         p1 = _problem(cfg, model_c, new, fixed, job.values, job.x0)
         r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
-        p2 = _problem(cfg, model_c, all_free, {}, r1.values, r1.x0, simulator=p1.sim)
+        p2 = _problem(cfg, model_c, all_free, {}, _values(r1), r1.x0,
+                      simulator=getattr(p1, "simulators", p1.sim))
         r2 = _run(cfg, p2, "none", 0, 0)
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
         return _Outcome(None, error=f"its refit failed: {type(exc).__name__}: {exc}")
@@ -485,7 +652,7 @@ def refit_candidate(job: _Job) -> _Outcome:
                 f"{cfg.data.output_unit or ''}, outside the estimation range "
                 f"[{lo:.3g}, {hi:.3g}]: this position-dependent effect is extrapolated there")
     step.seconds = time.perf_counter() - ts
-    return _Outcome(step, dict(r2.values), dict(r2.x0), all_free)
+    return _Outcome(step, _values(r2), dict(r2.x0), all_free)
 
 
 def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
@@ -501,13 +668,16 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
     from hhra_phys.sensitivity import TrajectorySensitivity
 
     try:
-        sim = _simulator(cfg, model)
-        n = min(cfg.est.n, sim.chunk)
-        u, p = cfg.est.u[:n], model.nominal()
-        with np.errstate(all="ignore"):
-            sim.simulate_cost(u, np.tile(p, (n_pop, 1)), cfg.est.y[:n], np.ones(n), "abs")
-            sim.simulate(u, p)
-        TrajectorySensitivity.of(sim)
+        sims = _simulator(cfg, model)
+        for sim in (sims.values() if isinstance(sims, dict) else [sims]):
+            est = next(ds for ds in (cfg.est if isinstance(cfg.est, RecordSet) else [cfg.est])
+                       if float(ds.fs) == float(sim.fs))
+            n = min(est.n, sim.chunk)
+            u, p = est.u[:n], model.nominal()
+            with np.errstate(all="ignore"):
+                sim.simulate_cost(u, np.tile(p, (n_pop, 1)), est.y[:n], np.ones(n), "abs")
+                sim.simulate(u, p)
+            TrajectorySensitivity.of(sim)
     except Exception:  # noqa: BLE001, S110 - the refit reports its own failure
         pass
 
@@ -538,7 +708,7 @@ class _DiscoveryFits:
 
 
 def augment(
-    data: Dataset,
+    data: Dataset | Sequence[Dataset],
     model: Model | None = None,
     *,
     split: float = 0.5,
@@ -566,14 +736,22 @@ def augment(
     background: bool = True,
     discover: bool = True,
     discover_kw: Mapping[str, Any] | None = None,
+    validation: Dataset | Sequence[Dataset] | None = None,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
     Parameters
     ----------
-    data : Dataset
+    data : Dataset or sequence of Dataset
         The whole record, N samples, split in time order into estimation (the
         first ``split*N``), selection (the next) and test (the last ``test*N``).
+        Several records (:mod:`hhra_phys.multi`): each is split so; every fit
+        (base and candidates) is a multi-record fit with shared parameters (an
+        effect's new ones too) and per-record initial states; selection and test
+        scores are pooled over the records (per record in ``records`` of
+        ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is
+        summed over them (:func:`~hhra_phys.diagnose.analyse`). Discovery runs on
+        one record only and is skipped (``skipped["discovery"]``).
     model : Model, optional
         Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
         output if the record's output is pressure).
@@ -646,6 +824,10 @@ def augment(
     discover_kw : dict, optional
         Options of :func:`~hhra_phys.discover.discover_step` (``method``,
         ``n_entries``, ``max_terms``, ``entries``).
+    validation : Dataset or sequence of Dataset, optional
+        Whole records as the test part (then ``test`` is ignored and every record of
+        ``data`` splits into estimation and selection only); runs the several-record
+        loop, even for one record of ``data``.
 
     Returns
     -------
@@ -668,7 +850,9 @@ def augment(
     tol = NOISE_TOL if noise_tol is None else float(noise_tol)
     if not tol >= 0:
         raise ParameterError(f"noise_tol must be >= 0, got {noise_tol}")
-    est, sel, held = split_record(data, split, test)
+    est, sel, held = _loop_parts(data, split, test, validation, base)
+    if isinstance(est, RecordSet):
+        data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
     names = list(candidates) if candidates is not None else list(EFFECTS)
     for n in names:
         if n not in EFFECTS:
@@ -691,8 +875,7 @@ def augment(
         # `hhra-phys fit` of the same model through the cache.
         prob = _problem(cfg, model, base_free, {}, {},
                         simulator=Simulator(model, fs=est.fs, backend=backend))
-        cur = fit(data, problem=prob, validation=sel, split=split, optimizer="hgwo",
-                  pop_size=pop_size, max_iter=max_iter, seed=seed, seed_population=False)
+        cur = _base_fit(cfg, prob, pop_size, max_iter)
     else:
         base_free = [n for n in base.free if not n.startswith("x0_")]
         say(f"base fit given: {', '.join(base_free)}")
@@ -700,7 +883,7 @@ def augment(
                         simulator=Simulator(base.model, fs=est.fs, backend=backend))
         cur = _run(cfg, prob, "none", 0, 0, refine="none")
         model = prob.model
-    cfg = replace(cfg, substeps=prob.sim.substeps)
+    cfg = replace(cfg, substeps=_substeps(prob))
     base_res = cur
     cur_prob = prob
     cur_free = base_free
@@ -742,7 +925,7 @@ def augment(
             crit_cur = information_criterion(cur, criterion)
             rmse_cur = float(cur.metrics["val"]["rmse"])
             jobs = [_Job(cfg, rnd, ev.name, dict((effect_kw or {}).get(ev.name, {})),
-                         cur_prob.model, tuple(cur_free), dict(cur.values), dict(cur.x0),
+                         cur_prob.model, tuple(cur_free), _values(cur), dict(cur.x0),
                          ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range)
                      for ev in (ranked if top_k is None else ranked[:top_k])]
             if compiler is not None:
@@ -794,6 +977,7 @@ def augment(
             compiler.shutdown(wait=True, cancel_futures=True)
     # --- discovery: a term outside the library, the loop's last candidate -------------
     # (not where the selection residual is already at the noise level: nothing to find)
+    discover = discover and _discovery_applies(cfg, skipped, say)
     if discover and not stop.startswith("selection residual at the noise level"):
         from hhra_phys.discover import discover_step
 
@@ -834,6 +1018,47 @@ def augment(
                          "n_sel": sel.n, "n_test": held.n if held is not None else 0}}
     return LoopResult(base_res, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
                       skipped, test_scores)
+
+
+def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
+                validation: Dataset | Sequence[Dataset] | None, base: FitResult | None,
+                ) -> tuple[Any, Any, Any]:
+    """Estimation, selection and test parts: :func:`split_record`, or for several records
+    (or whole validation records) :func:`~hhra_phys.multi.split_records`."""
+    if isinstance(data, Dataset) and validation is None:
+        return split_record(data, split, test)
+    records = [data] if isinstance(data, Dataset) else list(data)
+    if not records:
+        raise ParameterError("augment needs at least one record")
+    for ds in records:
+        if not isinstance(ds, Dataset):
+            raise ParameterError(f"augment takes Dataset records, got {type(ds).__name__}")
+    if base is not None:
+        raise ParameterError("base: a given base fit is for one record; with several records "
+                             "(or validation records) the loop fits its own base")
+    whole = [validation] if isinstance(validation, Dataset) else list(validation or [])
+    return split_records(records, split, test, whole or None)
+
+
+def _substeps(problem: Problem | MultiProblem) -> int | tuple[tuple[float, int], ...]:
+    """The base fit's substeps, which candidates keep (per sample rate with several records)."""
+    if isinstance(problem, MultiProblem):
+        return tuple((float(fs), int(sim.substeps)) for fs, sim in problem.simulators.items())
+    return problem.sim.substeps
+
+
+def _discovery_applies(cfg: _Settings, skipped: dict[str, str],
+                       say: Callable[[str], None]) -> bool:
+    """Whether discovery can run; with several records (or whole validation records) it
+    cannot (said and recorded in ``skipped["discovery"]``)."""
+    if not isinstance(cfg.est, RecordSet):
+        return True
+    why = ("runs on one record only: discovery (hhra_phys.discover) fits its sparse terms "
+           "to one record split the loop's way, so it is skipped with several records or "
+           "whole validation records")
+    skipped["discovery"] = why
+    say(f"discovery skipped: {why}")
+    return False
 
 
 def base_model_for(data: Dataset) -> tuple[Model, dict[str, tuple[float, float]]]:

@@ -45,12 +45,16 @@ from hhra_phys.simulate import Simulator
 
 __all__ = [
     "MultiProblem",
+    "RecordSet",
+    "check_records",
     "fit_records",
+    "fit_stacked",
     "per_record_params",
     "pooled_score",
     "record_name",
     "records_result",
     "split_record_name",
+    "split_records",
 ]
 
 _REC = re.compile(r"^(?P<base>.+)_rec(?P<k>[1-9][0-9]*)$")
@@ -65,6 +69,22 @@ def split_record_name(name: str) -> tuple[str, int | None]:
     """``"x0_theta_rec2"`` -> ``("x0_theta", 2)``; a shared name -> ``(name, None)``."""
     m = _REC.match(name)
     return (m["base"], int(m["k"])) if m else (name, None)
+
+
+def _per_record_split(values: Mapping[str, float] | None, n: int, what: str
+                      ) -> tuple[dict[str, float], list[dict[str, float]]]:
+    """``{name or name_rec<k>: value}`` -> (shared values, one dict per record)."""
+    shared: dict[str, float] = {}
+    own: list[dict[str, float]] = [{} for _ in range(n)]
+    for name, value in (values or {}).items():
+        base, k = split_record_name(name)
+        if k is None:
+            shared[name] = float(value)
+        elif k > n:
+            raise ParameterError(f"{what} {name!r}: there are only {n} records")
+        else:
+            own[k - 1][base] = float(value)
+    return shared, own
 
 
 def per_record_params(model: Model) -> list[str]:
@@ -99,6 +119,14 @@ class MultiProblem:
         :func:`per_record_params` of the model that are free).
     names : sequence of str, optional
         Labels of the records in reports (default: their names or sources).
+    simulators : dict, optional
+        ``{fs: Simulator}``: simulators of ``model`` to reuse, by sample rate [Hz]
+        (the diagnosis loop's short-block candidate simulators); rates missing
+        here get one built as usual.
+
+    ``fixed`` may hold one record's value of a per-record parameter,
+    ``<name>_rec<k>`` (the loop holds each record's sensor zero while it searches
+    a candidate's new parameters); a shared name holds every record.
 
     Raises
     ------
@@ -122,6 +150,7 @@ class MultiProblem:
         start: Mapping[str, float] | None = None,
         per_record: Sequence[str] | None = None,
         names: Sequence[str] | None = None,
+        simulators: Mapping[float, Simulator] | None = None,
     ) -> None:
         records = list(records)
         if not records:
@@ -135,21 +164,14 @@ class MultiProblem:
         missing = sorted(set(per_record) - set(free))
         if missing:
             raise ParameterError(f"per-record parameters {missing} are not free ({free})")
-        shared_start: dict[str, float] = {}
-        own_start: list[dict[str, float]] = [{} for _ in records]
-        for name, value in (start or {}).items():
-            base, k = split_record_name(name)
-            if k is None:
-                shared_start[name] = float(value)
-            elif k > len(records):
-                raise ParameterError(f"start value {name!r}: there are only {len(records)} records")
-            else:
-                own_start[k - 1][base] = float(value)
-        sims: dict[float, Simulator] = {}
+        shared_start, own_start = _per_record_split(start, len(records), "start value")
+        shared_fixed, own_fixed = _per_record_split(fixed, len(records), "fixed value")
+        sims: dict[float, Simulator] = {float(k): v for k, v in (simulators or {}).items()}
         self.records: list[Problem] = []
         for i, ds in enumerate(records):
             sim = sims.get(float(ds.fs))
-            pr = Problem(model, ds, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
+            fixed_k = {**shared_fixed, **own_fixed[i]} or None
+            pr = Problem(model, ds, cost=cost, free=free, fixed=fixed_k,  # type: ignore[arg-type]
                          bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                          simulator=sim, substeps=substeps,
                          start={**shared_start, **own_start[i]})
@@ -409,3 +431,154 @@ def records_result(
         problem=problem,
         records=records,
     )
+
+
+def _label(ds: Dataset, k: int) -> str:
+    return ds.name or ds.source or f"record {k}"
+
+
+def check_records(records: Sequence[Dataset], what: str = "record") -> None:
+    """Several records of one plant must agree on their signals' names and units.
+
+    Raises
+    ------
+    DataError
+        A record whose input or output name or unit differs from the first
+        record's (the message names both records, by file where they came from one).
+    """
+    from hhra_phys.errors import DataError
+
+    records = list(records)
+    if not records:
+        return
+    first = records[0]
+
+    def where(ds: Dataset, k: int) -> str:  # the file, where the record came from one
+        return str(ds.source or ds.name or f"{what} {k}")
+
+    for k, ds in enumerate(records[1:], start=2):
+        for attr, label in (("output_unit", "output unit"), ("output_name", "output"),
+                            ("input_unit", "input unit"), ("input_name", "input")):
+            a, b = getattr(first, attr), getattr(ds, attr)
+            if a != b:
+                raise DataError(
+                    f"{where(ds, k)}: {label} {b!r}, but {where(first, 1)} has {a!r}: "
+                    f"{what}s fitted together must measure the same signals in the same "
+                    "units (convert the file, or fit them apart)")
+
+
+class RecordSet(tuple):  # type: ignore[type-arg]
+    """Several records (parts of records) that play the role of one in the loop.
+
+    A tuple of :class:`~hhra_phys.data.Dataset` with the few attributes the
+    diagnosis loop reads of a record: ``n`` (all samples), ``name``, the signals'
+    names and units (the records agree on them, :func:`check_records`), and, for
+    scaling an effect to the data (:func:`~hhra_phys.effects.make_effect`), ``u``
+    and ``y`` (the records' samples one after another; never simulated as one
+    record), ``dt`` (the largest sample period [s]: smoothing widths tied to it
+    stay integrable at every record's rate) and ``fs`` (the first record's).
+    """
+
+    #: Whole validation records (scored with the first record's per-record values),
+    #: not parts of the estimation records.
+    whole = False
+
+    @property
+    def n(self) -> int:
+        """Samples of all records."""
+        return int(sum(ds.n for ds in self))
+
+    @property
+    def name(self) -> str:
+        """The records' names joined by ``" + "``."""
+        return " + ".join(_label(ds, k) for k, ds in enumerate(self, start=1))
+
+    @property
+    def names(self) -> list[str]:
+        """One label per record."""
+        return [_label(ds, k) for k, ds in enumerate(self, start=1)]
+
+    @property
+    def u(self) -> np.ndarray:
+        """Inputs one after another, shape (n,)."""
+        return np.concatenate([ds.u for ds in self])
+
+    @property
+    def y(self) -> np.ndarray:
+        """Outputs one after another, shape (n,)."""
+        return np.concatenate([ds.y for ds in self])
+
+    @property
+    def dt(self) -> float:
+        """Largest sample period [s or samples]."""
+        return float(max(ds.dt for ds in self))
+
+    @property
+    def fs(self) -> float:
+        """Sample rate of the first record [Hz]."""
+        return float(self[0].fs)
+
+    def __getattr__(self, attr: str) -> Any:
+        # Signal names, units and the time unit are common (check_records).
+        if attr in ("output_unit", "output_name", "input_unit", "input_name", "time_unit"):
+            return getattr(self[0], attr)
+        raise AttributeError(attr)
+
+
+def split_records(
+    records: Sequence[Dataset], split: float, test: float,
+    validation: Sequence[Dataset] | None = None,
+) -> tuple[RecordSet, RecordSet, RecordSet | None]:
+    """The diagnosis loop's estimation, selection and test parts of several records.
+
+    Every record is split the loop's way (:func:`hhra_phys.loop.split_record`);
+    with ``validation`` the records split into estimation and selection only
+    (``test`` ignored) and the whole validation records are the test part.
+    """
+    from hhra_phys.loop import split_record
+
+    records = list(records)
+    check_records(records + list(validation or []))
+    parts = [split_record(ds, split, 0.0 if validation else test) for ds in records]
+    est = RecordSet(p[0] for p in parts)
+    sel = RecordSet(p[1] for p in parts)
+    if validation:
+        held_whole = RecordSet(validation)
+        held_whole.whole = True
+        return est, sel, held_whole
+    held = [p[2] for p in parts]
+    return est, sel, (RecordSet(held) if held[0] is not None else None)
+
+
+def fit_stacked(
+    problem: MultiProblem,
+    selection: Sequence[Dataset],
+    *,
+    optimizer: str = "hgwo",
+    refine: str = "ipopt",
+    pop_size: int = 100,
+    max_iter: int = 200,
+    seed: int | None = 0,
+    seed_population: bool = False,
+    refine_options: Mapping[str, Any] | None = None,
+    split: float = 0.5,
+) -> Any:
+    """Fit a ready :class:`MultiProblem` and score each record's own held-out part.
+
+    :func:`hhra_phys.fit.fit`'s search and refiners and :func:`records_result`,
+    with ``selection[k]`` the part held out of estimation record ``k`` (scored
+    with that record's own per-record parameters; ``val`` of its entry and,
+    pooled, of ``metrics``). The diagnosis loop's fits of several records.
+    """
+    import time
+
+    from hhra_phys.fit import _search_and_refine, _settings
+
+    t0 = time.perf_counter()
+    z, stages, history = _search_and_refine(
+        problem, optimizer, refine, pop_size, max_iter, seed, 1.0, None, refine_options,
+        None, seed_population, False, None)
+    settings = _settings(problem, optimizer, refine, pop_size, max_iter, 1.0, split,
+                         time.perf_counter() - t0)
+    return records_result(problem, z, stages, history, list(selection), [], settings, seed,
+                          None, "linear", t0)

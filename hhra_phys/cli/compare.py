@@ -62,7 +62,11 @@ def register(subparsers: Any) -> None:
             "or nothing / 'rig' (the simulated rig). Prints a Markdown table."
         ),
     )
-    p.add_argument("data", nargs="?", metavar="DATA", help="data file, 'public' or 'rig'")
+    p.add_argument("data", nargs="*", default=None, metavar="DATA",
+                   help="data file, 'public' or 'rig'; several files are compared on all "
+                        "records at once (each split by --split; physical rows fitted jointly, "
+                        "LS/RLS/FFRLS on the records' regression rows stacked, scores per "
+                        "record and pooled)")
     p.add_argument("--public", action="store_true", help="use the public actuator record")
     # The one data vocabulary of every command; --u/--y are compare's older spellings.
     add_record_arguments(p, input_aliases=("--u",), output_aliases=("--y",))
@@ -120,6 +124,19 @@ def register(subparsers: Any) -> None:
 
 
 def _load(args: argparse.Namespace) -> Any:
+    """The record (or records, a list, for several DATA files) and its default split."""
+    names = list(args.data or [])
+    if len(names) > 1:
+        from hhra_phys.multi import check_records
+
+        records = []
+        for name in names:
+            if is_builtin(name) or name.lower() in PUBLIC_WORDS:
+                raise ParameterError(f"DATA {name!r}: several records must all be files")
+            records.append(_load(argparse.Namespace(**{**vars(args), "data": [name]}))[0])
+        check_records(records)
+        return records, 0.5
+    args = argparse.Namespace(**{**vars(args), "data": names[0] if names else None})
     from hhra_phys.data import load_public_actuator
     from hhra_phys.models.hhra.defaults import PLAUSIBLE_FS
     from hhra_phys.models.hhra.rig import simulate_rig
@@ -168,7 +185,8 @@ def _physical_model(args: argparse.Namespace, dataset: Any) -> dict[str, Any]:
         return {}
     from hhra_phys.extensions import model_from_spec
 
-    return {"extra": {"physical": {"model": model_from_spec(args.model, dataset)}}}
+    first = dataset[0] if isinstance(dataset, list) else dataset
+    return {"extra": {"physical": {"model": model_from_spec(args.model, first)}}}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -185,9 +203,13 @@ def run(args: argparse.Namespace) -> int:
                 f"--methods: unknown {unknown}; registered: {', '.join(registered)}"
             )
         dataset, default_split = _load(args)
+        if isinstance(dataset, list) and args.plot:
+            raise ParameterError("--plot draws one record; with several DATA records use "
+                                 "--json/--report (scores per record)")
         split = default_split if args.split is None else args.split
         if say:
-            say(f"compare: {dataset!r}, split {split}")
+            what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
+            say(f"compare: {what}, split {split}")
         comp = C.run_comparison(
             dataset,
             split=split,

@@ -14,7 +14,7 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     check_outputs,
     fraction,
-    load_data,
+    load_records,
     model_for,
     nonnegative_int,
     population,
@@ -42,8 +42,11 @@ def register(subparsers: Any) -> None:
             "Writes a JSON summary and a Markdown report with residual plots before and after."
         ),
     )
-    add_data_arguments(p)
+    add_data_arguments(p, several=True)
     add_model_arguments(p, effects=True)
+    p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
+                   help="whole records as the test part (same column options); then every "
+                        "DATA record splits into estimation and selection only")
     p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
     p.add_argument("--report", metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
@@ -100,15 +103,22 @@ def run(args: argparse.Namespace) -> int:
         added = import_effects(args.effects_from)
         if added:
             print(f"registered effects: {', '.join(added)}", file=sys.stderr)
-        data = load_data(args)
-        data, data_warnings = record_for_model(args, data)
+        records, validation, data_warnings = _records(args)
+        data = records[0]
         model, bounds = model_for(args, data)
+        for other in records[1:] + (validation or []):  # the widest automatic box of all
+            for k, (lo, hi) in model_for(args, other)[1].items():
+                if k in bounds:
+                    bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
         split = args.split if args.split is not None else 0.5
-        print(f"diagnosing {data.name or data.source or 'record'} ({len(data)} samples, "
-              f"split {split})", file=sys.stderr)
+        several = len(records) > 1 or validation is not None
+        what = (f"{len(records)} records ({sum(len(d) for d in records)} samples" if several
+                else f"{data.name or data.source or 'record'} ({len(data)} samples")
+        print(f"diagnosing {what}, split {split})", file=sys.stderr)
         with executor(args.workers, args.dask) as ex:
             res = augment(
-                data, model, split=split, test=args.test, candidates=parse_names(args.effects),
+                records if several else data, model, validation=validation, split=split,
+                test=args.test, candidates=parse_names(args.effects),
                 max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
                 max_iter=args.iters, seed=args.seed, margin=args.margin,
                 noise_tol=args.noise_tol, bounds=bounds, executor=ex,
@@ -124,13 +134,19 @@ def run(args: argparse.Namespace) -> int:
                 continue
             print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
                   f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
+        for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
+                          strict=True):
+            print(f"record {rf['name']}: " + ", ".join(
+                f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
+                for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
         if args.json:
             atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
             print(f"wrote {args.json}")
         if args.report:
             from hhra_phys.diagnose import plot_loop_residuals
 
-            paths = list(plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite))
+            paths = (_records_figures(res, figs, data.output_unit, args.overwrite) if several else
+                     list(plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite)))
             found = [s for s in res.steps if getattr(s, "residuals", None)]
             if found:
                 from hhra_phys.discover import plot_discovery
@@ -141,6 +157,54 @@ def run(args: argparse.Namespace) -> int:
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0
+
+
+def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, list[str]]:
+    """DATA records and --validate records in the model's units, and their warnings.
+
+    Records of different signals or units are refused, naming the files
+    (:func:`~hhra_phys.multi.check_records`).
+    """
+    from hhra_phys.multi import check_records
+
+    warnings: list[str] = []
+    records, validation = [], None
+    for ds in load_records(args):
+        ds, warns = record_for_model(args, ds)
+        records.append(ds)
+        warnings += warns
+    if args.validate:
+        validation = []
+        for ds in load_records(args, args.validate):
+            ds, warns = record_for_model(args, ds)
+            validation.append(ds)
+            warnings += warns
+    check_records(records + (validation or []))
+    return records, validation, warnings
+
+
+def _records_figures(res: Any, figs: list[str | None], unit: str,
+                     overwrite: bool) -> list[str | None]:
+    """Before/after residual figures of a loop over several records.
+
+    The estimation residuals of the records one after another (time continued from
+    one record to the next; :func:`~hhra_phys.diagnose.combine_diagnoses`), without
+    the selection and test parts, which belong to each record.
+    """
+    from hhra_phys.diagnose import plot_residuals
+
+    first = res.diagnoses[0] if res.diagnoses else None
+    out: list[str | None] = [None, None]
+    names = " + ".join(r["name"] for r in res.final.records if r.get("n_est"))
+    if figs and first is not None:
+        out[0] = plot_residuals(first, figs[0], f"before: base model ({names}, estimation "
+                                "parts one after another)", overwrite, unit=unit)
+    if figs and res.final_diagnosis is not None:
+        title = (f"after: base model + {', '.join(res.chosen)}" if res.chosen
+                 else "after: no effect accepted (the base model)")
+        out[1] = plot_residuals(res.final_diagnosis, figs[1], f"{title} ({names})", overwrite,
+                                before=first, accepted=res.chosen, unit=unit)
+    return out
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -171,6 +235,16 @@ def markdown_report(res: Any, figures: list[str | None], report_path: str) -> st
             m = out[key].get(part, {})
             lines.append(f"| {part} | {label} | {_fmt(m.get('rmse'))} | {_fmt(m.get('vaf'))} | "
                          f"{_fmt(m.get('mse'))} | {_fmt(m.get('itae'))} |")
+    if out["final"].get("records"):
+        lines += ["", "Per record (the rows above pool all records' samples):", "",
+                  "| record | part | base RMSE | final RMSE |", "|---|---|---|---|"]
+        for rb, rf in zip(out["base"]["records"], out["final"]["records"], strict=True):
+            for part in ("est", "sel", "test"):
+                if rf[part].get("rmse") is not None:
+                    lines.append(f"| {rf['name']} | {part} | {_fmt(rb[part]['rmse'])} | "
+                                 f"{_fmt(rf[part]['rmse'])} |")
+    if res.skipped.get("discovery"):
+        lines += ["", f"Discovery skipped: {res.skipped['discovery']}."]
     lines += ["", "## Effects tried", "",
               "| round | effect | evidence score | detectability | val RMSE before -> after | "
               "accepted | notes |", "|---|---|---|---|---|---|---|"]

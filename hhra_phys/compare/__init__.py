@@ -38,6 +38,13 @@ JSON layout (outside checks read it; keys are only ever added)::
                         "convergence": {"best": [...], "nfev": [...]} | null, "paper": {...}}},
      "paper_table3": {...}}
 
+With several records (``compare([ds1, ds2])``, ``hhra-phys compare A.csv B.csv``) the
+top-level counts and every method's ``est``/``val`` pool the records (MSE, RMSE, VAF, fit,
+max over all samples; ITAE the sum of the records'), and two keys are added:
+``"records": [{"name", "source", "n", "fs", "n_est", "n_val"}]`` and per method
+``"records": [{"name", "est", "val"}]``. A method that fits one record only has ``error``
+set. One record: the layout above, unchanged.
+
 Non-finite numbers (a diverged simulation) and undefined ones (NOI of LS) are JSON ``null``.
 """
 

@@ -21,6 +21,7 @@ from typing import Any
 from hhra_phys import arx
 from hhra_phys.compare.registry import CompareSettings, MethodFn, MethodOutcome, register_method
 from hhra_phys.data import Dataset
+from hhra_phys.multi import RecordSet
 
 __all__ = ["ARX_METHODS", "arx_outcome"]
 
@@ -89,30 +90,50 @@ def _orders(s: CompareSettings) -> dict[str, int]:
     return {"na": s.na, "nb": s.nb, "nk": s.nk}
 
 
+def _signals(est: Any, time: bool = False) -> tuple[Any, ...]:
+    """Input and output (and time with ``time``) of the estimation part, or lists of them
+    for several records (:class:`~hhra_phys.multi.RecordSet`: regression rows stacked
+    per record, ITAEs summed over the records)."""
+    if isinstance(est, RecordSet):
+        out = ([d.u for d in est], [d.y for d in est], [d.t for d in est])
+    else:
+        out = (est.u, est.y, est.t)
+    return out if time else out[:2]
+
+
+def _outcome(fit: arx.ARXFit, est: Any, val: Any) -> MethodOutcome:
+    """:func:`arx_outcome`, or for several records one output per record."""
+    if not isinstance(est, RecordSet):
+        return arx_outcome(fit, est, val)
+    outs = [arx_outcome(fit, e, v) for e, v in zip(est, val, strict=True)]
+    first = outs[0]
+    first.y_est, first.y_val = [o.y_est for o in outs], [o.y_val for o in outs]
+    first.info["initial_condition"] += " (each record's own)"
+    return first
+
+
 def _method_ls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", arx.ConditioningWarning)
-        fit = arx.fit_ls(est.u, est.y, **_orders(s))
-    out = arx_outcome(fit, est, val)
+        fit = arx.fit_ls(*_signals(est), **_orders(s))
+    out = _outcome(fit, est, val)
     if caught:
         out.info["warnings"] = [str(w.message) for w in caught]
     return out
 
 
 def _method_rls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return arx_outcome(arx.fit_rls(est.u, est.y, **_orders(s)), est, val)
+    return _outcome(arx.fit_rls(*_signals(est), **_orders(s)), est, val)
 
 
 def _method_ffrls(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
-    return arx_outcome(arx.fit_ffrls(est.u, est.y, **_orders(s)), est, val)
+    return _outcome(arx.fit_ffrls(*_signals(est), **_orders(s)), est, val)
 
 
 def _metaheuristic(method: str) -> MethodFn:
     def run(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
         fit = arx.fit_metaheuristic(
-            est.u,
-            est.y,
-            est.t,
+            *_signals(est, time=True),
             method=method,
             bounds=s.bounds,
             pop_size=s.pop_size,
@@ -122,8 +143,9 @@ def _metaheuristic(method: str) -> MethodFn:
             progress=s.progress,
             **_orders(s),
         )
-        return arx_outcome(fit, est, val)
+        return _outcome(fit, est, val)
 
+    run.several_records = True  # type: ignore[attr-defined]
     run.__name__ = f"_method_{method}"
     run.__doc__ = f"ARX coefficients by {_LABELS[method]} minimising the free-run ITAE."
     return run
@@ -131,9 +153,7 @@ def _metaheuristic(method: str) -> MethodFn:
 
 def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> MethodOutcome:
     fit = arx.fit_ffrls_hgwo(
-        est.u,
-        est.y,
-        est.t,
+        *_signals(est, time=True),
         zeta_s=s.zeta_s,
         pop_size=s.pop_size,
         max_iter=s.max_iter,
@@ -142,7 +162,13 @@ def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> Method
         progress=s.progress,
         **_orders(s),
     )
-    return arx_outcome(fit, est, val)
+    return _outcome(fit, est, val)
+
+
+# Every built-in row takes several records: the equation-error estimators on their
+# regression rows stacked per record, the metaheuristics on the sum of their ITAEs.
+for _fn in (_method_ls, _method_rls, _method_ffrls, _method_ffrls_hgwo):
+    _fn.several_records = True  # type: ignore[attr-defined]
 
 
 register_method("ls", _method_ls, label=_LABELS["ls"])

@@ -25,6 +25,7 @@ import time
 from hhra_phys.compare.registry import CompareSettings, MethodFn, MethodOutcome, register_method
 from hhra_phys.data import Dataset
 from hhra_phys.fit import fit
+from hhra_phys.multi import RecordSet
 
 __all__ = ["ROWS", "register"]
 
@@ -43,14 +44,20 @@ def _method(optimizer: str, refine: str | None) -> MethodFn:
         extra = dict(s.extra.get("physical", {})) if s.extra else {}
         # No model given: fit.default_model (pressure output, per-sample time scale).
         model = extra.pop("model", None)
-        res = fit(est, model, validation=val, optimizer=optimizer, refine=refine or "none",
+        several = isinstance(est, RecordSet)
+        # Several records: one joint fit of their estimation parts (shared parameters,
+        # an initial state per record), each part then predicted as one record's.
+        res = fit(list(est) if several else est, model,
+                  validation=None if several else val, split=1.0 if several else 0.5,
+                  optimizer=optimizer, refine=refine or "none",
                   pop_size=s.pop_size, max_iter=s.max_iter, seed=s.seed,
                   progress=s.progress, **extra)
         seconds = time.perf_counter() - t0
         glob = next((st for st in res.stages if st["name"] == optimizer), None)
         nfev = sum(int(st["nfev"]) for st in res.stages)
         return MethodOutcome(
-            y_est=res.predict(est), y_val=res.predict(val),
+            y_est=[res.predict(d) for d in est] if several else res.predict(est),
+            y_val=[res.predict(d) for d in val] if several else res.predict(val),
             noi=(glob or {}).get("info", {}).get("noi"),
             nfev=nfev, seconds=seconds,
             history=res.history or None,
@@ -60,6 +67,7 @@ def _method(optimizer: str, refine: str | None) -> MethodFn:
                   "stages": res.stages, "warnings": res.warnings},
         )
 
+    run.several_records = True  # type: ignore[attr-defined]
     return run
 
 

@@ -118,7 +118,26 @@ def markdown_table(report: Mapping[str, Any], paper: bool = True) -> str:
     )
     if paper:
         note += " Paper: Table 3 of the reference paper, on its own (non-public) rig data."
-    return "\n".join(lines) + "\n" + note + "\n"
+    return "\n".join(lines) + "\n" + note + "\n" + _records_table(report)
+
+
+def _records_table(report: Mapping[str, Any]) -> str:
+    """Per-record validation scores of a comparison of several records ("" for one)."""
+    recs = report.get("records")
+    if not recs:
+        return ""
+    names = [r["name"] for r in recs]
+    head = ["method"] + [f"{n}: val RMSE" for n in names] + [f"{n}: val VAF %" for n in names]
+    lines = ["", f"{len(recs)} records, each split by {report.get('split')}; the table above "
+             "pools their samples (ITAE: the sum of the records'). Per record:", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, m in report["methods"].items():
+        if m.get("error") or not m.get("records"):
+            continue
+        row = [method_label(name)] + [_fmt(r["val"]["rmse"]) for r in m["records"]] + [
+            _fmt(r["val"]["vaf"]) for r in m["records"]]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def aggregate(reports: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

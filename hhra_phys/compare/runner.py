@@ -27,6 +27,7 @@ from hhra_phys.compare.report import PAPER_TABLE3
 from hhra_phys.data import Dataset
 from hhra_phys.errors import DataError, HHRAError, ParameterError
 from hhra_phys.metrics import KEYS, score
+from hhra_phys.multi import RecordSet, check_records, pooled_score
 from hhra_phys.outputs import jsonable
 
 __all__ = ["Comparison", "MethodResult", "compare", "run_comparison"]
@@ -42,6 +43,8 @@ class MethodResult:
     val: dict[str, float]
     seconds: float
     error: str | None = None
+    #: Several records: ``[{"name", "est", "val"}]`` per record (``est``/``val`` pooled).
+    records: list[dict[str, Any]] | None = None
 
     @property
     def diverged(self) -> bool:
@@ -63,6 +66,8 @@ class MethodResult:
             "convergence": None,
             "paper": PAPER_TABLE3.get(self.name),
         }
+        if self.records is not None:
+            entry["records"] = self.records
         if o is not None and o.history is not None:
             entry["convergence"] = {
                 "fitness": o.fitness,
@@ -86,7 +91,9 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         """The JSON report (layout: :mod:`hhra_phys.compare`)."""
         ds = self.dataset
-        return jsonable(
+        several = isinstance(ds, RecordSet)
+        first = ds[0] if several else ds
+        out = jsonable(
             {
                 "dataset": ds.name or ds.source or "dataset",
                 "split": self.split,
@@ -96,14 +103,14 @@ class Comparison:
                 "time_unit": ds.time_unit,
                 "settings": self.settings.to_dict(),
                 "data": {
-                    "source": ds.source,
+                    "source": first.source,
                     "n": ds.n,
                     "dt": ds.dt,
                     "input": f"{ds.input_name} [{ds.input_unit}]",
                     "output": f"{ds.output_name} [{ds.output_unit}]",
                     "std_y_est": float(np.std(self.est.y)),
                     "std_y_val": float(np.std(self.val.y)),
-                    "metadata_seed": ds.metadata.get("seed"),
+                    "metadata_seed": first.metadata.get("seed"),
                 },
                 "scoring": {
                     "simulation": "free run from the measured input (never one-step prediction)",
@@ -118,6 +125,12 @@ class Comparison:
             },
             default=str,
         )
+        if several:  # per record; the top-level counts and scores are pooled
+            out["records"] = [{"name": name, "source": d.source, "n": d.n, "fs": float(d.fs),
+                               "n_est": e.n, "n_val": v.n}
+                              for name, d, e, v in zip(ds.names, ds, self.est, self.val,
+                                                       strict=True)]
+        return out
 
 
 def _split(dataset: Dataset, split: Any) -> tuple[Dataset, Dataset]:
@@ -142,7 +155,7 @@ def _reporter(progress: bool | Callable[[str], None]) -> Callable[[str], None] |
 
 
 def run_comparison(
-    dataset: Dataset,
+    dataset: Dataset | Sequence[Dataset],
     split: float | int = 0.5,
     methods: Sequence[str] | None = None,
     seed: int = 0,
@@ -157,8 +170,14 @@ def run_comparison(
 
     Parameters
     ----------
-    dataset : Dataset
-        The record; split into estimation (first) and validation parts.
+    dataset : Dataset or sequence of Dataset
+        The record; split into estimation (first) and validation parts. Several
+        records (one plant, the same signals and units): each is split by the
+        fraction ``split``; methods that fit several records (``several_records``
+        attribute: the physical rows jointly, LS/RLS/FFRLS on their regression rows
+        stacked) return one output per record, scored per record and pooled
+        (:func:`hhra_phys.multi.pooled_score`); the others are reported with
+        ``error`` "fits one record only". One record behaves as before.
     split : float or int
         Fraction of samples for estimation (strictly between 0 and 1), or the sample index of
         the split (e.g. 512 for the public record).
@@ -190,8 +209,12 @@ def run_comparison(
     A method that raises an :class:`~hhra_phys.errors.HHRAError` (e.g. no stable candidate
     found) is reported with ``error`` set and null scores; other exceptions propagate.
     """
-    if not isinstance(dataset, Dataset):
-        raise ParameterError(f"dataset must be a hhra_phys.data.Dataset, got {type(dataset)}")
+    records = list(dataset) if isinstance(dataset, (list, tuple)) else [dataset]
+    if not records or not all(isinstance(d, Dataset) for d in records):
+        raise ParameterError(f"dataset must be a hhra_phys.data.Dataset or a list of them, "
+                             f"got {type(dataset)}")
+    check_records(records)
+    dataset = records[0] if len(records) == 1 else RecordSet(records)
     base = settings or CompareSettings()
     fields = {**asdict(base), "seed": seed, "pop_size": pop_size, "max_iter": max_iter}
     unknown = sorted(set(overrides) - set(fields))
@@ -210,13 +233,26 @@ def run_comparison(
         raise ParameterError(
             f"methods: unknown or repeated {bad or names}; registered: {', '.join(registered)}"
         )
-    est, val = _split(dataset, split)
+    if isinstance(dataset, RecordSet):
+        if not isinstance(split, float):
+            raise ParameterError(f"split: several records are each split by a fraction in "
+                                 f"(0, 1), got {split!r}")
+        parts = [_split(d, split) for d in dataset]
+        est, val = RecordSet(p[0] for p in parts), RecordSet(p[1] for p in parts)
+    else:
+        est, val = _split(dataset, split)
     say = _reporter(progress)
     results: dict[str, MethodResult] = {}
     for i, name in enumerate(names, 1):
         if say:
             say(f"[{i}/{len(names)}] {name} ...")
         start = time.perf_counter()
+        if isinstance(est, RecordSet) and not getattr(METHODS[name], "several_records", False):
+            results[name] = MethodResult(name, None, {}, {}, 0.0,
+                                         "this method fits one record only")
+            if say:
+                say(f"[{i}/{len(names)}] {name}: skipped: fits one record only")
+            continue
         try:
             outcome = METHODS[name](est, val, s)
         except HHRAError as exc:
@@ -242,6 +278,19 @@ def _scored(
         raise ParameterError(
             f"method {name!r} returned {type(outcome).__name__}, not MethodOutcome"
         )
+    seconds = elapsed if outcome.seconds is None else float(outcome.seconds)
+    if isinstance(est, RecordSet):  # one output per record: each scored, then pooled
+        per: list[dict[str, Any]] = [{"name": n} for n in est.names]
+        pooled = {}
+        for label, part, ys in (("est", est, outcome.y_est), ("val", val, outcome.y_val)):
+            ys = [np.asarray(y, dtype=float) for y in ys]
+            for k, (d, y) in enumerate(zip(part, ys, strict=True)):
+                if y.shape != d.y.shape:
+                    raise DataError(f"method {name!r}: y_{label} of record {k + 1} has shape "
+                                    f"{y.shape}, its {label} part has {d.y.shape}")
+                per[k][label] = {kk: float(v) for kk, v in score(d.y, y, d.t).items()}
+            pooled[label] = pooled_score(list(part), ys)
+        return MethodResult(name, outcome, pooled["est"], pooled["val"], seconds, records=per)
     parts = {}
     for label, part, y in (("est", est, outcome.y_est), ("val", val, outcome.y_val)):
         yy = np.asarray(y, dtype=float)
@@ -251,12 +300,11 @@ def _scored(
                 f"{part.y.shape}"
             )
         parts[label] = {k: float(v) for k, v in score(part.y, yy, part.t).items()}
-    seconds = elapsed if outcome.seconds is None else float(outcome.seconds)
     return MethodResult(name, outcome, parts["est"], parts["val"], seconds)
 
 
 def compare(
-    dataset: Dataset,
+    dataset: Dataset | Sequence[Dataset],
     split: float | int = 0.5,
     methods: Sequence[str] | None = None,
     seed: int = 0,
@@ -265,7 +313,10 @@ def compare(
     progress: bool | Callable[[str], None] = False,
     **kw: Any,
 ) -> dict[str, Any]:
-    """Run :func:`run_comparison` and return its JSON report (layout: :mod:`hhra_phys.compare`)."""
+    """Run :func:`run_comparison` and return its JSON report (layout: :mod:`hhra_phys.compare`).
+
+    ``dataset`` may be several records (:func:`run_comparison`).
+    """
     return run_comparison(
         dataset, split, methods, seed, pop_size, max_iter, progress, **kw
     ).to_dict()
