@@ -17,8 +17,12 @@ error of the rig far below its noise while ``|lambda| * h <= 0.25``
 eigenvalue of ``-level/width``, tens of thousands per second): it is integrated
 with ROS4, a fourth-order Rosenbrock method that is A-stable and damps a stiff
 real mode by a factor of 3 per step whatever its speed, so only the remaining
-modes (oscillatory, or slower than the sample) set the substeps.
-:attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
+modes (oscillatory, or slower than the sample) set the substeps. A part whose
+stiffness does not show at rest (a backlash carried at its contact relaxes at
+``|omega|/width``) names the states where it is stiffest with a method
+``stiff_states(values) -> [{state name: value}, ...]``
+(:meth:`hhra_phys.effects.Backlash.stiff_states`); their Jacobians count as
+rest's. :attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
 chosen and why.
 
 Single parameter vectors follow their parameters. A simulation of one
