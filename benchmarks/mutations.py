@@ -490,8 +490,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "effect-backlash-contact-side",
         "backlash moving forward stops at the rear contact (the play passes through)",
-        "ca.fmax(w, 0) * ca.tanh((half - gap) / width)",
-        "ca.fmax(w, 0) * ca.tanh((half + gap) / width)",
+        "ca.fmax(w, 0) * _contact((half - gap) / width)",
+        "ca.fmax(w, 0) * _contact((half + gap) / width)",
         EDGE_TESTS,
     ),
     _m(

@@ -281,6 +281,11 @@ def corner_relu(v: Any, w: float) -> Any:
     return r * r / (4 * w) + fmax(v - w, 0)
 
 
+def _contact(z: Any) -> Any:
+    """``min(z, 1)`` with a quadratic corner over ``0.5 < z < 1.5`` (backlash contact)."""
+    return z - corner_relu(z - 1, 0.5)
+
+
 class _InputCorner:
     """Corner width of an input-stage switch: ``width*u_scale``, or the legacy ``eps``."""
 
@@ -565,16 +570,19 @@ class Backlash(Effect):
     State ``gap`` [rad] = shaft angle minus encoder angle, starting at 0 (centred in
     the play of total ``play`` [deg], half ``h = play/2``)::
 
-        dgap/dt = max(omega, 0)*tanh((h - gap)/w) + min(omega, 0)*tanh((h + gap)/w)
+        dgap/dt = max(omega, 0)*f((h - gap)/w) + min(omega, 0)*f((h + gap)/w)
 
-    Inside the play the gap follows the shaft (the encoder rests); at contact
-    (``gap = +-h`` in the direction of motion) it stops and the encoder is carried
-    along. ``w`` [deg] is the contact width: the gap reaches the contact
-    exponentially, within ``w*exp(-s/w)`` after ``s`` of carried motion, and never
-    passes it, so the effective play is ``play`` whatever the length of the motion
-    (the ideal play operator as ``w -> 0``). The direction is read exactly
-    (``max``/``min`` of ``omega``): nothing moves at rest. Output ``y -= gap`` in
-    degrees.
+    with ``f(z) = min(z, 1)`` given a quadratic corner over ``0.5 < z < 1.5``
+    (:func:`corner_relu`): ``f = 1`` farther than ``1.5 w`` from the contact, so the
+    gap follows the shaft exactly there (the encoder rests); ``f = z`` within
+    ``0.5 w`` of it, so the gap reaches the contact (``gap = +-h`` in the direction
+    of motion) exponentially, within ``0.5 w*exp(-s/w)`` after ``s`` of carried
+    motion, and is pushed back if beyond: the encoder is carried along and the
+    effective play is ``play`` whatever the length of the motion (the ideal play
+    operator as ``w -> 0``; about ``0.5 w`` behind it at each new contact). ``w``
+    [deg] is the contact width. The direction is read exactly (``max``/``min`` of
+    ``omega``): nothing moves at rest. Only ``min``, ``max`` and products: vector
+    instructions in the simulator's SIMD code. Output ``y -= gap`` in degrees.
 
     The width is physics, not numerics: ``width`` (default :data:`BACKLASH_WIDTH`,
     0.01 deg), or the fitted parameter ``w_contact`` with ``fit_width=True``.
@@ -662,8 +670,8 @@ class Backlash(Effect):
             width = (ctx.p["w_contact"] if self.fit_width else self.width) / RAD2DEG
             # The exact direction (max/min): a smooth sign would let the gap creep at
             # rest and, at speeds within its width, drag it past the contact.
-            rate = (ca.fmax(w, 0) * ca.tanh((half - gap) / width)
-                    + ca.fmin(w, 0) * ca.tanh((half + gap) / width))
+            rate = (ca.fmax(w, 0) * _contact((half - gap) / width)
+                    + ca.fmin(w, 0) * _contact((half + gap) / width))
         ctx.add_rate("gap", rate)
         ctx.signals["y"] = ctx.signal("y", self.name) - RAD2DEG * gap
 

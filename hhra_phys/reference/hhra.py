@@ -56,8 +56,9 @@ package are used, so that a comparison with it can be tight:
 ``(v + w)^2/(4w)`` for ``|v| < w`` and exact beyond, ``w = width*u_scale`` (or, with
 the legacy ``eps``, ``(v + sqrt(v^2 + (eps*u_scale)^2))/2``); friction width ``width`` (0.005 rad/s
 unless given, or ``v_switch``; the legacy ``eps + level*dt/2`` when ``eps`` is given);
-backlash ``dgap/dt = max(omega, 0)*tanh((h - gap)/w) + min(omega, 0)*tanh((h + gap)/w)``
-with ``h = play/2`` and the contact width ``w`` (``width``, 0.01 deg unless given, or
+backlash ``dgap/dt = max(omega, 0)*f((h - gap)/w) + min(omega, 0)*f((h + gap)/w)``
+with ``h = play/2``, ``f(z) = z`` up to 0.5, ``z - (z - 0.5)^2/2`` up to 1.5, then 1,
+and the contact width ``w`` (``width``, 0.01 deg unless given, or
 ``w_contact``), or with the legacy ``eps_omega`` the soft contact
 ``omega*(1 - sigma((sgn(omega)*gap - h)/e + 3))``, ``e = 0.1*play + 0.03`` deg. With
 ``smooth=False`` every switch is exact (``sign``, ``sqrt``, ``clip``, ``max``, an ideal
@@ -182,6 +183,13 @@ def _corner_relu(v: float, w: float, smooth: bool) -> float:
     if v <= -w:
         return 0.0
     return (v + w) ** 2 / (4.0 * w) if v < w else v
+
+
+def _contact(z: float) -> float:
+    """``min(z, 1)`` with the quadratic corner ``z - (z - 0.5)^2/2`` over ``(0.5, 1.5)``."""
+    if z <= 0.5:
+        return z
+    return 1.0 if z >= 1.5 else z - 0.5 * (z - 0.5) ** 2
 
 
 def _input_relu(v: float, settings: Mapping[str, float], smooth: bool) -> float:
@@ -371,8 +379,8 @@ def _rates(
             rates["gap"] = w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
         else:
             wid = v.get("w_contact", v["width"]) / RAD2DEG
-            rates["gap"] = (max(w, 0.0) * math.tanh((half - gap) / wid)
-                            + min(w, 0.0) * math.tanh((half + gap) / wid))
+            rates["gap"] = (max(w, 0.0) * _contact((half - gap) / wid)
+                            + min(w, 0.0) * _contact((half + gap) / wid))
     return rates
 
 

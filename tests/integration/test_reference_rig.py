@@ -391,8 +391,8 @@ TRAJ_EFFECTS: dict[str, dict[str, float]] = {
 #: Substeps of the comparison where 8 are not enough for 1e-4 deg: the sharp
 #: friction's reversals are resolved to first order only (about 3e-4 deg with 8
 #: ROS4 substeps, 5e-5 with 16; docs/performance.md); the backlash's contacts
-#: within its 0.01 deg width likewise (2e-3 deg with 8, 2e-5 with 16).
-TRAJ_SUBSTEPS = {"coulomb_friction": 24, "backlash": 16}
+#: within its 0.01 deg width likewise (4e-4 deg with 8, 6e-5 with 16, 9e-6 with 32).
+TRAJ_SUBSTEPS = {"coulomb_friction": 24, "backlash": 32}
 
 
 @pytest.mark.parametrize("name", sorted(TRAJ_EFFECTS))
