@@ -12,12 +12,22 @@ Measures, side by side in one run on this machine:
     switching within 0.005 rad/s (the library's default width; about 2400 1/s
     at rest),
 
-  and, for the friction model, the error against the *exact* stick-slip friction
-  of :func:`hhra_phys.reference.simulate_reference` (``smooth=False``): the
-  modelling error of a smooth switch of that width, next to the integration error;
+  - ``backlash``: the rig's HHRA with a backlash of 1.5 deg play whose contact is
+    0.01 deg wide (the library's default; about 2900 1/s while carried at 0.5 rad/s),
+
+  and, for the friction and backlash models, the error against the *exact*
+  stick-slip friction and ideal play operator of
+  :func:`hhra_phys.reference.simulate_reference` (``smooth=False``): the
+  modelling error of a smooth switch of that width, next to the integration error
+  (with the reference's wall time);
+* edges: dead zone (``i_dead`` 0.15 and 0.3 mA) and saturation (``i_sat`` 0.3 and
+  0.5 mA) of the package (automatic method) against the reference's exact ``clip``
+  and dead band, with the default quadratic corners and with the earlier
+  square-root corners (``eps=0.01``);
 * cost: time per population (100 members over the record, vector code when
   available) of each method at the substeps ``Simulator(method="auto")`` chooses,
-  and at equal substeps, timed alternately.
+  and at equal substeps, timed alternately; for a stiff model also RK4 at 2 and 4
+  times the substeps.
 
 Run::
 
@@ -44,6 +54,9 @@ from hhra_phys.simulate import Simulator
 
 FS = 250.0
 G_COULOMB = 12.0
+PLAY = 1.5
+EDGES = [("valve_deadzone", {"i_dead": 0.15}), ("valve_deadzone", {"i_dead": 0.3}),
+         ("valve_saturation", {"i_sat": 0.3}), ("valve_saturation", {"i_sat": 0.5})]
 
 
 def _stiff() -> dict[str, float]:
@@ -57,11 +70,26 @@ def _stiff() -> dict[str, float]:
 def _cases() -> dict[str, tuple[HHRAModel, dict[str, float]]]:
     base = HHRAModel()
     fric = HHRAModel(effects=[make_effect("coulomb_friction")])
+    back = HHRAModel(effects=[make_effect("backlash")])
     return {
         "nominal": (base, dict(NOMINAL_GROUPS)),
         "stiff42": (base, _stiff()),
         "friction": (fric, dict(NOMINAL_GROUPS, g_coulomb=G_COULOMB)),
+        "backlash": (back, dict(NOMINAL_GROUPS, play=PLAY)),
     }
+
+
+#: The exact (smooth=False) reference effect of each case with a sharp switch, and the
+#: reference's integrator (stick-slip friction is stiff; exact backlash leaves the
+#: shaft's equations as they are, the play operator is applied afterwards).
+EXACT = {"friction": ({"coulomb_friction": {"g_coulomb": G_COULOMB}}, "Radau"),
+         "backlash": ({"backlash": {"play": PLAY}}, "LSODA")}
+
+
+def _x0(model: HHRAModel) -> np.ndarray:
+    x0 = model.x0().astype(float)
+    x0[0] = 0.1
+    return x0
 
 
 def _vector(model: HHRAModel, values: dict[str, float]) -> np.ndarray:
@@ -88,14 +116,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.seconds <= 0 or args.pop < 1 or args.repeats < 1:
         ap.error("--seconds, --pop and --repeats must be positive")
     u = default_input(args.seconds, FS, seed=args.seed)
-    x0 = np.array([0.1, 0.0, 0.0])
     lines = [f"machine: {platform.machine()}, python {platform.python_version()}; "
              f"record {args.seconds:g} s at {FS:g} Hz ({u.size} samples), seed {args.seed}"]
     lines.append("accuracy: max |simulator - CVODES| [deg] (same equations, rtol 1e-10)")
-    grid = {"rk4": (2, 4, 8, 16), "ros4": (2, 4, 8, 16), "ros2": (2, 8, 32)}
+    grid = {"rk4": (2, 4, 8, 16, 32), "ros4": (2, 4, 8, 16), "ros2": (2, 8, 32)}
     auto: dict[str, Simulator] = {}
     for name, (model, values) in _cases().items():
         p = _vector(model, values)
+        x0 = _x0(model)
         ref_sim = Simulator(model, FS, substeps=2, method="rk4", backend="casadi")
         y_ref = ref_sim.reference(u, p, x0=x0)
         sim_auto = Simulator(model, FS)
@@ -113,17 +141,27 @@ def main(argv: list[str] | None = None) -> int:
                             else f"{n}: unstable")
             row.append(f"    {method:<5} substeps " + ", ".join(errs))
         lines += row
-        if name == "friction":
-            exact = simulate_reference(u, FS, values, x0=x0, smooth=False, method="Radau",
-                                       effects={"coulomb_friction": {"g_coulomb": G_COULOMB}})
-            lines.append(f"    smooth switch (width 0.005 rad/s) vs exact stick-slip friction: "
-                         f"{np.max(np.abs(y_ref - exact)):.2e} deg max, "
-                         f"{np.sqrt(np.mean((y_ref - exact) ** 2)):.2e} deg RMS")
+        if name in EXACT:
+            t0 = time.perf_counter()
+            effects, method = EXACT[name]
+            exact = simulate_reference(u, FS, values, x0=x0, smooth=False, method=method,
+                                       effects=effects)
+            t_exact = time.perf_counter() - t0
+            what = ("smooth switch (width 0.005 rad/s) vs exact stick-slip friction"
+                    if name == "friction" else
+                    "contact 0.01 deg wide vs the exact play operator")
+            what += f" ({method})"
+            lines.append(f"    {what}: {np.max(np.abs(y_ref - exact)):.2e} deg max, "
+                         f"{np.sqrt(np.mean((y_ref - exact) ** 2)):.2e} deg RMS; auto vs exact "
+                         f"{np.max(np.abs(y_auto - exact)):.2e} deg max (exact reference "
+                         f"{t_exact:.1f} s)")
+    lines += _edges(u)
     lines.append(f"cost: ms per population of {args.pop} (minimum of {args.repeats}, "
                  "alternating)")
     for name, (model, values) in _cases().items():
         rng = np.random.default_rng(0)
         P = _vector(model, values)[None, :] * np.exp(0.1 * rng.standard_normal((args.pop, 1)))
+        x0 = _x0(model)
         chosen = auto[name]
         sims = {f"auto ({chosen.method} x {chosen.substeps})": chosen}
         sims[f"rk4 x {chosen.substeps}"] = Simulator(model, FS, substeps=chosen.substeps,
@@ -131,12 +169,16 @@ def main(argv: list[str] | None = None) -> int:
         for method in ("ros4", "ros2"):
             sims[f"{method} x {chosen.substeps}"] = Simulator(
                 model, FS, substeps=chosen.substeps, method=method)
+        if chosen.method != "rk4":  # what RK4 needs to approach ROS4's accuracy
+            for k in (2, 4):
+                n = k * chosen.substeps
+                sims[f"rk4 x {n}"] = Simulator(model, FS, substeps=n, method="rk4")
         for s in sims.values():
             s.simulate(u, P, x0=x0)  # build and compile outside the timing
         times = {k: math.inf for k in sims}
         for _ in range(args.repeats):
             for k, s in sims.items():
-                times[k] = min(times[k], _time(lambda s=s, P=P: s.simulate(u, P, x0=x0), 1))
+                times[k] = min(times[k], _time(lambda s=s, P=P, x0=x0: s.simulate(u, P, x0=x0), 1))
         width = next(iter(sims.values())).vector_width(args.pop)
         timed = ", ".join(f"{k}: {1e3 * v:.1f}" for k, v in times.items())
         lines.append(f"  {name:<9} {timed}  (SIMD width {width})")
@@ -144,6 +186,24 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         write_report(args.write, lines, argv)
     return 0
+
+
+def _edges(u: np.ndarray) -> list[str]:
+    """Dead zone and saturation (automatic method) against the exact reference."""
+    lines = ["edges: max |package - exact clip/dead band| [deg] (reference smooth=False); "
+             "input levels " + ", ".join(f"{v:.3g}" for v in np.unique(np.abs(u))) + " mA"]
+    for name, size in EDGES:
+        row = []
+        for label, settings in (("quadratic corners (default)", {}),
+                                ("square-root corners (eps=0.01)", {"eps": 0.01})):
+            model = HHRAModel(effects=[make_effect(name, **settings)])
+            values = dict(NOMINAL_GROUPS, **size)
+            x0 = _x0(model)
+            exact = simulate_reference(u, FS, values, x0=x0, smooth=False, effects={name: size})
+            y = Simulator(model, FS).simulate(u, _vector(model, values), x0=x0)
+            row.append(f"{label} {np.max(np.abs(y - exact)):.2e}")
+        lines.append(f"  {name} {size}: " + ", ".join(row))
+    return lines
 
 
 def write_report(path: Path, lines: list[str], argv: list[str] | None) -> None:

@@ -45,6 +45,7 @@ METRICS_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py"
 MODEL_TESTS = ("tests/unit/test_model.py", "tests/unit/test_simulate.py",
                "tests/integration/test_reference_rig.py")
 EFFECT_TESTS = ("tests/unit/test_effects.py", "tests/integration/test_reference_rig.py")
+EDGE_TESTS = ("tests/integration/test_sharp_edges.py", "tests/unit/test_effect_signatures.py")
 LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model.py",
               "tests/integration/test_diagnose.py")
 RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
@@ -484,9 +485,23 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "effect-deadzone-even",
         "dead zone output even in the input (both sides add)",
-        "ctx.u = smooth_relu(c - d, e) - smooth_relu(-c - d, e)",
-        "ctx.u = smooth_relu(c - d, e) + smooth_relu(-c - d, e)",
+        "ctx.u = self._relu(c - d) - self._relu(-c - d)",
+        "ctx.u = self._relu(c - d) + self._relu(-c - d)",
         EFFECT_TESTS,
+    ),
+    _m(
+        "effect-backlash-contact-side",
+        "backlash moving forward stops at the rear contact (the play passes through)",
+        "ca.fmax(w, 0) * _contact((half - gap) / width)",
+        "ca.fmax(w, 0) * _contact((half + gap) / width)",
+        EDGE_TESTS,
+    ),
+    _m(
+        "effect-corner-offset",
+        "dead-zone and saturation corner shifted by its width (not exact beyond it)",
+        "return r * r / (4 * w) + fmax(v - w, 0)",
+        "return r * r / (4 * w) + fmax(v - 2 * w, 0)",
+        EDGE_TESTS,
     ),
     _m(
         "effect-offset-sign",

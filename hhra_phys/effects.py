@@ -61,7 +61,8 @@ from hhra_phys.parts import (
 )
 
 __all__ = ["EFFECTS", "LIBRARY", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL",
-           "FRICTION_WIDTH", "output_offsets", "output_slope"]
+           "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu",
+           "output_offsets", "output_slope"]
 
 RAD2DEG = 180.0 / math.pi
 
@@ -255,21 +256,81 @@ class GravityLoad(Effect):
 # --- input stage ------------------------------------------------------------------
 
 
+#: Default corner width of the dead zone and the saturation, relative to ``u_scale``.
+CORNER_WIDTH = 0.01
+
+
+def corner_relu(v: Any, w: float) -> Any:
+    """``max(v, 0)`` with a quadratic corner: exact for ``|v| >= w``, C1 everywhere.
+
+    ``(v + w)^2/(4w)`` for ``|v| < w`` (value ``w/4`` at 0, slope from 0 to 1).
+    Unlike ``(v + sqrt(v^2 + w^2))/2`` it leaves no residual away from the corner:
+    a command held a little off a dead-zone or saturation edge is passed exactly,
+    where the square-root form's error ``w^2/(4|v|)``, integrated by the angle,
+    drifts (``docs/model.md``, numerical choices). Works on CasADi and NumPy values.
+
+    Parameters
+    ----------
+    v : SX or ndarray
+        Argument (input units).
+    w : float
+        Half width of the corner (input units), > 0.
+    """
+    fmin, fmax = (ca.fmin, ca.fmax) if isinstance(v, (ca.SX, ca.MX)) else (np.minimum, np.maximum)
+    r = fmin(fmax(v + w, 0), 2 * w)
+    return r * r / (4 * w) + fmax(v - w, 0)
+
+
+def _contact(z: Any) -> Any:
+    """``min(z, 1)`` with a quadratic corner over ``0.5 < z < 1.5`` (backlash contact)."""
+    return z - corner_relu(z - 1, 0.5)
+
+
+class _InputCorner:
+    """Corner width of an input-stage switch: ``width*u_scale``, or the legacy ``eps``."""
+
+    u_scale: float
+    eps: float | None
+    width: float
+
+    def _check(self) -> None:
+        for key in ("u_scale", "width"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"{self.name} {key} must be > 0, got {v!r}")  # type: ignore[attr-defined]
+        if self.eps is not None and not (math.isfinite(self.eps) and self.eps > 0):
+            raise ParameterError(f"{self.name} eps must be > 0, got {self.eps!r}")  # type: ignore[attr-defined]
+
+    def _relu(self, v: Any) -> Any:
+        if self.eps is not None:  # earlier versions' square-root corner
+            return smooth_relu(v, self.eps * self.u_scale)
+        return corner_relu(v, self.width * self.u_scale)
+
+
 @register_effect
 @dataclass(frozen=True)
-class ValveDeadzone(Effect):
-    """No flow for ``|command| < i_dead``: ``c -> relu(c - d) - relu(-c - d)`` (smooth).
+class ValveDeadzone(_InputCorner, Effect):
+    """No flow for ``|command| < i_dead``: ``c -> relu(c - d) - relu(-c - d)``.
+
+    ``relu`` is :func:`corner_relu`: exact beyond ``width*u_scale`` of the edges,
+    a quadratic (C1) corner within.
 
     Parameters
     ----------
     u_scale : float
         Typical input magnitude (input units; 1 mA on the rig); sets the bounds.
-    eps : float
-        Smoothing width relative to ``u_scale``.
+    width : float
+        Half width of the corners relative to ``u_scale`` (default
+        :data:`CORNER_WIDTH`, 0.01).
+    eps : float, optional
+        Earlier versions' smoothing ``(v + sqrt(v^2 + (eps*u_scale)^2))/2``, kept so
+        that saved models and scripts that set it behave as before. ``None``
+        (default): the corner of ``width``.
     """
 
     u_scale: float = 1.0
-    eps: float = 0.01
+    eps: float | None = None
+    width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_deadzone"
     entry: ClassVar[str] = "command"
@@ -278,6 +339,9 @@ class ValveDeadzone(Effect):
         "apparent gain depends on the input level"
     )
     regressors: ClassVar[tuple[str, ...]] = ("small_input", "input_level")
+
+    def __post_init__(self) -> None:
+        self._check()
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -288,8 +352,7 @@ class ValveDeadzone(Effect):
     def apply(self, ctx: Context) -> None:
         c = ctx.u
         d = ctx.p["i_dead"]
-        e = self.eps * self.u_scale
-        ctx.u = smooth_relu(c - d, e) - smooth_relu(-c - d, e)
+        ctx.u = self._relu(c - d) - self._relu(-c - d)
 
     def first_order(self, sig: Signals) -> np.ndarray:
         d = self.probe()["i_dead"]
@@ -298,11 +361,16 @@ class ValveDeadzone(Effect):
 
 @register_effect
 @dataclass(frozen=True)
-class ValveSaturation(Effect):
-    """Spool or current limit: ``c -> clip(c, -i_sat, i_sat)`` (smooth corners)."""
+class ValveSaturation(_InputCorner, Effect):
+    """Spool or current limit: ``c -> clip(c, -i_sat, i_sat)``.
+
+    Written ``c - relu(c - s) + relu(-c - s)`` with :func:`corner_relu`: exact
+    beyond ``width*u_scale`` of the limits. Parameters as :class:`ValveDeadzone`.
+    """
 
     u_scale: float = 1.0
-    eps: float = 0.01
+    eps: float | None = None
+    width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_saturation"
     entry: ClassVar[str] = "command"
@@ -311,6 +379,9 @@ class ValveSaturation(Effect):
         "level at its extremes only)"
     )
     regressors: ClassVar[tuple[str, ...]] = ("input_level",)
+
+    def __post_init__(self) -> None:
+        self._check()
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -321,8 +392,7 @@ class ValveSaturation(Effect):
     def apply(self, ctx: Context) -> None:
         c = ctx.u
         s = ctx.p["i_sat"]
-        e = self.eps * self.u_scale
-        ctx.u = c - smooth_relu(c - s, e) + smooth_relu(-c - s, e)
+        ctx.u = c - self._relu(c - s) + self._relu(-c - s)
 
     def first_order(self, sig: Signals) -> np.ndarray:
         s = 0.8 * float(np.max(np.abs(sig.u)))
@@ -481,27 +551,68 @@ class AsymmetricValve(Effect):
 # --- output stage -------------------------------------------------------------------
 
 
+#: Default contact width of the backlash [deg]: the angle over which the carried
+#: side takes up the load at contact (tooth and spline compliance), far below the
+#: encoder noise of the rig (0.05 deg). The stiffness it adds while carried,
+#: ``|omega|/width``, is what the simulator's ROS4 integrator is for.
+BACKLASH_WIDTH = 0.01
+
+#: Shaft speed [rad/s] at which the backlash's stiffness is judged by default
+#: (:meth:`Backlash.stiff_states`): of the order of the rig's speed at 1 mA.
+BACKLASH_SPEED = 0.5
+
+
 @register_effect
 @dataclass(frozen=True)
 class Backlash(Effect):
     """Play between piston and shaft as seen by the encoder.
 
     State ``gap`` [rad] = shaft angle minus encoder angle, starting at 0 (centred in
-    the play). ``dgap/dt = omega * (1 - sigma((sgn(omega)*gap - play/2)/e + 3))``
-    with the logistic ``sigma``: the gap follows the motion freely inside the play and
-    stops growing at contact, so the encoder is carried along. ``e = 0.1*play +
-    0.03 deg`` is the width of the contact transition: it bounds the stiffness
-    ``|omega|/(4e)`` for the integrator; the offset 3 puts 95 % contact at the play.
-    Output ``y -= gap`` in degrees.
+    the play of total ``play`` [deg], half ``h = play/2``)::
 
-    Notes
-    -----
-    The smooth contact makes the effective play grow slowly (logarithmically) during
-    long motions by a few ``e``; fits recover ``play`` of this model, not of an ideal
-    dead-band operator.
+        dgap/dt = max(omega, 0)*f((h - gap)/w) + min(omega, 0)*f((h + gap)/w)
+
+    with ``f(z) = min(z, 1)`` given a quadratic corner over ``0.5 < z < 1.5``
+    (:func:`corner_relu`): ``f = 1`` farther than ``1.5 w`` from the contact, so the
+    gap follows the shaft exactly there (the encoder rests); ``f = z`` within
+    ``0.5 w`` of it, so the gap reaches the contact (``gap = +-h`` in the direction
+    of motion) exponentially, within ``0.5 w*exp(-s/w)`` after ``s`` of carried
+    motion, and is pushed back if beyond: the encoder is carried along and the
+    effective play is ``play`` whatever the length of the motion (the ideal play
+    operator as ``w -> 0``; about ``0.5 w`` behind it at each new contact). ``w``
+    [deg] is the contact width. The direction is read exactly (``max``/``min`` of
+    ``omega``): nothing moves at rest. Only ``min``, ``max`` and products: vector
+    instructions in the simulator's SIMD code. Output ``y -= gap`` in degrees.
+
+    The width is physics, not numerics: ``width`` (default :data:`BACKLASH_WIDTH`,
+    0.01 deg), or the fitted parameter ``w_contact`` with ``fit_width=True``.
+    While carried the gap relaxes at ``|omega|/w`` per second (about 3000 1/s at
+    0.5 rad/s): a stiff model, which :class:`~hhra_phys.simulate.Simulator` sees
+    through :meth:`stiff_states` and integrates with ROS4.
+
+    Parameters
+    ----------
+    width : float
+        Contact width [deg] (when not fitted).
+    fit_width : bool
+        Fit the contact width as parameter ``w_contact`` [deg] (log scale, 0.001 to
+        0.5 deg, nominal ``width``).
+    speed : float
+        Shaft speed [rad/s] at which :meth:`stiff_states` puts the contact (the
+        stiffness check only; the dynamics do not use it).
+    eps_omega : float, optional
+        Earlier versions' smoothing, kept so that saved models and scripts that set
+        it behave as before: ``dgap/dt = omega*(1 - sigma((sgn(omega)*gap - h)/e +
+        3))`` with the logistic ``sigma``, the smooth sign ``omega/sqrt(omega^2 +
+        eps_omega^2)`` [rad/s] and ``e = 0.1*play + 0.03`` deg, a soft contact whose
+        effective play grows slowly (logarithmically) during long motions.
+        ``None`` (default): the contact of width ``width``.
     """
 
-    eps_omega: float = 0.01
+    eps_omega: float | None = None
+    width: float = BACKLASH_WIDTH
+    fit_width: bool = False
+    speed: float = BACKLASH_SPEED
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "backlash"
     reads: ClassVar[tuple[str, ...]] = ("omega", "theta")
@@ -513,10 +624,25 @@ class Backlash(Effect):
     )
     regressors: ClassVar[tuple[str, ...]] = ("sign_velocity", "reversals")
 
+    def __post_init__(self) -> None:
+        for field_name in ("width", "speed"):
+            v = getattr(self, field_name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"backlash {field_name} must be > 0, got {v!r}")
+        if self.eps_omega is not None and not (math.isfinite(self.eps_omega)
+                                               and self.eps_omega > 0):
+            raise ParameterError(f"backlash eps_omega must be > 0 rad/s, got {self.eps_omega!r}")
+        if self.eps_omega is not None and self.fit_width:
+            raise ParameterError("backlash: fit_width and the legacy eps_omega exclude each other")
+
     @property
     def parameters(self) -> Sequence[Parameter]:
-        return (Parameter("play", "deg", 0.5, 0.02, 10.0, "log",
-                          "total play between piston and shaft"),)
+        out = [Parameter("play", "deg", 0.5, 0.02, 10.0, "log",
+                         "total play between piston and shaft")]
+        if self.fit_width:
+            out.append(Parameter("w_contact", "deg", self.width, 1e-3, 0.5, "log",
+                                 "contact width of the backlash"))
+        return tuple(out)
 
     @property
     def states(self) -> Sequence[State]:
@@ -536,11 +662,35 @@ class Backlash(Effect):
     def apply(self, ctx: Context) -> None:
         w, gap = ctx.x["omega"], ctx.x["gap"]
         half = 0.5 * ctx.p["play"] / RAD2DEG
-        e = (0.1 * ctx.p["play"] + 0.03) / RAD2DEG
-        x = (smooth_sign(w, self.eps_omega) * gap - half) / e + 3.0
-        contact = 1 / (1 + ca.exp(-x))
-        ctx.add_rate("gap", w * (1 - contact))
+        if self.eps_omega is not None:
+            e = (0.1 * ctx.p["play"] + 0.03) / RAD2DEG
+            x = (smooth_sign(w, self.eps_omega) * gap - half) / e + 3.0
+            rate = w * (1 - 1 / (1 + ca.exp(-x)))
+        else:
+            width = (ctx.p["w_contact"] if self.fit_width else self.width) / RAD2DEG
+            # The exact direction (max/min): a smooth sign would let the gap creep at
+            # rest and, at speeds within its width, drag it past the contact.
+            rate = (ca.fmax(w, 0) * _contact((half - gap) / width)
+                    + ca.fmin(w, 0) * _contact((half + gap) / width))
+        ctx.add_rate("gap", rate)
         ctx.signals["y"] = ctx.signal("y", self.name) - RAD2DEG * gap
+
+    def stiff_states(self, values: Mapping[str, float]) -> list[dict[str, float]]:
+        """States at which the backlash is stiffest, for the simulator's method choice.
+
+        Parameters
+        ----------
+        values : mapping
+            Parameter values by name (``play`` [deg], ``w_contact`` [deg] if fitted).
+
+        Returns
+        -------
+        list of dict
+            Carried at contact on either side at :attr:`speed`: ``{"omega": +-speed,
+            "gap": +-play/2}`` (rad/s, rad), where the gap relaxes at ``speed/width``.
+        """
+        half = 0.5 * float(values["play"]) / RAD2DEG
+        return [{"omega": s * self.speed, "gap": s * half} for s in (1.0, -1.0)]
 
     def probe(self) -> dict[str, float]:
         return {"play": 0.5}
@@ -548,7 +698,9 @@ class Backlash(Effect):
     def first_order(self, sig: Signals) -> np.ndarray:
         if sig.omega is None:
             raise ModelError("backlash needs the simulated velocity")
-        return -0.25 * _smooth_np(sig.omega, self.eps_omega)[:, None]
+        # Half the probe play against the motion; the direction's sign smoothed over
+        # 0.01 rad/s so that a velocity crossing zero between samples is not a jump.
+        return -0.25 * _smooth_np(sig.omega, self.eps_omega or 0.01)[:, None]
 
 
 @register_effect

@@ -17,8 +17,12 @@ error of the rig far below its noise while ``|lambda| * h <= 0.25``
 eigenvalue of ``-level/width``, tens of thousands per second): it is integrated
 with ROS4, a fourth-order Rosenbrock method that is A-stable and damps a stiff
 real mode by a factor of 3 per step whatever its speed, so only the remaining
-modes (oscillatory, or slower than the sample) set the substeps.
-:attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
+modes (oscillatory, or slower than the sample) set the substeps. A part whose
+stiffness does not show at rest (a backlash carried at its contact relaxes at
+``|omega|/width``) names the states where it is stiffest with a method
+``stiff_states(values) -> [{state name: value}, ...]``
+(:meth:`hhra_phys.effects.Backlash.stiff_states`); their Jacobians count as
+rest's. :attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
 chosen and why.
 
 Single parameter vectors follow their parameters. A simulation of one
@@ -325,12 +329,34 @@ class Simulator:
             xs, us = self.model.x0()[None, :], np.zeros(1)
         else:
             xs, us = self._check_points(float(umax))
+        # The parts' own stiffest states count as rest: a stiffness that only shows
+        # in motion (a sharp backlash carried at contact) must set the method too.
+        extra = self._part_stiff_states(p)
         out = []
-        for x, u in zip(xs, us, strict=True):
+        for x, u in zip([*extra, *xs], [0.0] * len(extra) + list(us), strict=True):
             jac = np.array(fn(x, np.full(nl, u), p), dtype=float)
             out.append(np.linalg.eigvals(jac) if jac.size and np.isfinite(jac).all()
                        else np.array([np.inf]))
-        return out[0], np.concatenate(out)
+        return np.concatenate(out[: len(extra) + 1]), np.concatenate(out)
+
+    def _part_stiff_states(self, p: np.ndarray) -> list[np.ndarray]:
+        """State vectors from the parts' ``stiff_states(values)`` (rest elsewhere).
+
+        A part may define ``stiff_states(values) -> list of {state name: value}``:
+        operating points where it is stiffest that rest does not show (the
+        backlash's contact in motion, :meth:`hhra_phys.effects.Backlash.stiff_states`).
+        """
+        m = self.model
+        values = dict(zip(m.params.names, np.asarray(p, dtype=float).tolist(), strict=True))
+        out = []
+        for part in m.parts:
+            points = getattr(part, "stiff_states", None)
+            for named in (points(values) if points is not None else ()):
+                x = m.x0().astype(float)
+                for name, v in named.items():
+                    x[m.state_names.index(name)] = v
+                out.append(x)
+        return out
 
     def plan(self, p: np.ndarray, umax: float | None = None,
              method: str | None = None) -> tuple[str, int, str]:

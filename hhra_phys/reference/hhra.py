@@ -36,12 +36,15 @@ values and optional settings; parameter values not given there are taken from
                       level = g_coulomb [+ g_stribeck*exp(-(omega/v_stribeck)^2)]
                       (Stribeck term when g_stribeck is given); settings width [rad/s]
                       (or the parameter v_switch), or the legacy eps [rad/s] with dt [s]
-    valve_deadzone    c -> max(c - i_dead, 0) - max(-c - i_dead, 0); settings u_scale, eps
-    valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, eps
+    valve_deadzone    c -> max(c - i_dead, 0) - max(-c - i_dead, 0); settings u_scale,
+                      width (or the legacy eps)
+    valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, width (or eps)
     input_delay       c from u(t - delay*dt): (1-f)*u[n-k] + f*u[n-k-1], delay = k + f [samples]
     valve_dynamics    tau_spool*dx_spool/dt = c - x_spool, c -> x_spool
     gravity_load      domega/dt -= g_grav_cos*cos(theta) + g_grav_sin*sin(theta)
-    backlash          dgap/dt = omega*(1 - contact), y -= gap [deg]; play [deg]; setting eps_omega
+    backlash          gap [rad] = shaft minus encoder angle, |gap| <= play/2 [deg], y -= gap;
+                      settings width [deg] (or the parameter w_contact), or the legacy
+                      eps_omega [rad/s]
     sensor_offset     y += y_offset
     asymmetric_valve  q *= 1 + asym*sgn(c); settings u_scale, eps
 
@@ -49,21 +52,35 @@ Smoothing. With ``smooth=True`` (default) the documented smoothings of the
 package are used, so that a comparison with it can be tight:
 ``sgn(v) ~ v/sqrt(v^2 + eps^2)``; the orifice's signed root
 ``sign(z)*(sqrt(|z| + delta) - sqrt(delta))/(sqrt(1 + delta) - sqrt(delta))``;
-``max(v, 0) ~ (v + sqrt(v^2 + eps^2))/2``; friction width ``width`` (0.005 rad/s
+``max(v, 0)`` of the dead zone and saturation with a quadratic corner,
+``(v + w)^2/(4w)`` for ``|v| < w`` and exact beyond, ``w = width*u_scale`` (or, with
+the legacy ``eps``, ``(v + sqrt(v^2 + (eps*u_scale)^2))/2``); friction width ``width`` (0.005 rad/s
 unless given, or ``v_switch``; the legacy ``eps + level*dt/2`` when ``eps`` is given);
-backlash contact ``sigma((sgn(omega)*gap - play/2)/e + 3)`` with
-``e = 0.1*play + 0.03`` deg. With ``smooth=False`` every switch is exact
-(``sign``, ``sqrt``, ``clip``, ``max``, an ideal play operator, and Coulomb
-friction that sticks: within ``stick_band`` of zero velocity the friction cancels
-the rest of the acceleration up to its level, Karnopp's model, so that the
-integrator does not chatter across ``omega = 0``).
+backlash ``dgap/dt = max(omega, 0)*f((h - gap)/w) + min(omega, 0)*f((h + gap)/w)``
+with ``h = play/2``, ``f(z) = z`` up to 0.5, ``z - (z - 0.5)^2/2`` up to 1.5, then 1,
+and the contact width ``w`` (``width``, 0.01 deg unless given, or
+``w_contact``), or with the legacy ``eps_omega`` the soft contact
+``omega*(1 - sigma((sgn(omega)*gap - h)/e + 3))``, ``e = 0.1*play + 0.03`` deg. With
+``smooth=False`` every switch is exact (``sign``, ``sqrt``, ``clip``, ``max``, an ideal
+play operator, and Coulomb friction that sticks: within ``stick_band`` of zero velocity
+the friction cancels the rest of the acceleration up to its level, Karnopp's model, so
+that the integrator does not chatter across ``omega = 0``).
+
+Exact backlash (``smooth=False``). The encoder does not act back on the shaft, so
+the ideal play operator is applied to the integrated shaft angle after the
+integration rather than integrated as a discontinuous rate (which takes a stiff
+solver minutes per record). The operator is rate independent: on a monotone
+stretch of the angle the gap moves by the change of angle, clipped to ``+-h``
+(``gap <- clip(gap + dtheta, -h, h)``). So it is exact when applied to the angle at
+the sample instants and at every reversal in between; the reversals (``omega = 0``)
+are located by :func:`~scipy.integrate.solve_ivp` events to the integration tolerance.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -110,10 +127,10 @@ _INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dy
 #: Default smoothing settings of each effect (the package's documented defaults).
 _SETTINGS: dict[str, dict[str, float]] = {
     "coulomb_friction": {"width": 0.005},  # eps (legacy width eps + level*dt/2), dt if given
-    "valve_deadzone": {"u_scale": 1.0, "eps": 0.01},
-    "valve_saturation": {"u_scale": 1.0, "eps": 0.01},
+    "valve_deadzone": {"u_scale": 1.0, "width": 0.01},  # the legacy eps if given
+    "valve_saturation": {"u_scale": 1.0, "width": 0.01},
     "asymmetric_valve": {"u_scale": 1.0, "eps": 0.01},
-    "backlash": {"eps_omega": 0.01},
+    "backlash": {"width": 0.01},  # [deg]; the legacy eps_omega [rad/s] if given
     "input_delay": {},
     "valve_dynamics": {},
     "gravity_load": {},
@@ -137,6 +154,7 @@ _EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
 #: Optional parameters of an effect (taken from ``params`` too when given there).
 _OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {
     "coulomb_friction": ("g_stribeck", "v_stribeck", "g_viscous", "v_switch"),
+    "backlash": ("w_contact",),
 }
 
 #: Orifice smoothing of the package (``docs/model.md``, "Numerical choices").
@@ -157,6 +175,28 @@ def _relu(v: float, eps: float, smooth: bool) -> float:
     if smooth:
         return 0.5 * (v + math.sqrt(v * v + eps * eps))
     return max(v, 0.0)
+
+
+def _corner_relu(v: float, w: float, smooth: bool) -> float:
+    if not smooth:
+        return max(v, 0.0)
+    if v <= -w:
+        return 0.0
+    return (v + w) ** 2 / (4.0 * w) if v < w else v
+
+
+def _contact(z: float) -> float:
+    """``min(z, 1)`` with the quadratic corner ``z - (z - 0.5)^2/2`` over ``(0.5, 1.5)``."""
+    if z <= 0.5:
+        return z
+    return 1.0 if z >= 1.5 else z - 0.5 * (z - 0.5) ** 2
+
+
+def _input_relu(v: float, settings: Mapping[str, float], smooth: bool) -> float:
+    """The dead zone's and saturation's ``max(v, 0)``: corner ``width`` or legacy ``eps``."""
+    if "eps" in settings:
+        return _relu(v, settings["eps"] * settings["u_scale"], smooth)
+    return _corner_relu(v, settings["width"] * settings["u_scale"], smooth)
 
 
 def _signed_sqrt(z: float, delta: float, smooth: bool) -> float:
@@ -264,11 +304,11 @@ def _command(x: dict[str, float], u_lags: np.ndarray, s: _Spec, rates: dict[str,
     # the measured input, as documented).
     for name, v in e.items():
         if name == "valve_deadzone":
-            w = v["eps"] * v["u_scale"]
-            c = _relu(c - v["i_dead"], w, s.smooth) - _relu(-c - v["i_dead"], w, s.smooth)
+            d = v["i_dead"]
+            c = _input_relu(c - d, v, s.smooth) - _input_relu(-c - d, v, s.smooth)
         elif name == "valve_saturation":
-            w = v["eps"] * v["u_scale"]
-            c = c - _relu(c - v["i_sat"], w, s.smooth) + _relu(-c - v["i_sat"], w, s.smooth)
+            m = v["i_sat"]
+            c = c - _input_relu(c - m, v, s.smooth) + _input_relu(-c - m, v, s.smooth)
         elif name == "valve_dynamics":
             rates["x_spool"] = (c - x["x_spool"]) / v["tau_spool"]
             c = x["x_spool"]
@@ -330,13 +370,17 @@ def _rates(
         v = s.effects["backlash"]
         half = 0.5 * v["play"] / RAD2DEG
         gap = x["gap"]
-        if s.smooth:
+        if not s.smooth:
+            contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
+            rates["gap"] = w * (1.0 - contact)
+        elif "eps_omega" in v:  # the legacy soft contact
             e = (0.1 * v["play"] + 0.03) / RAD2DEG
             z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
-            contact = 1.0 / (1.0 + math.exp(-z))
+            rates["gap"] = w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
         else:
-            contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
-        rates["gap"] = w * (1.0 - contact)
+            wid = v.get("w_contact", v["width"]) / RAD2DEG
+            rates["gap"] = (max(w, 0.0) * _contact((half - gap) / wid)
+                            + min(w, 0.0) * _contact((half + gap) / wid))
     return rates
 
 
@@ -371,9 +415,12 @@ def _initial_mode(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
 
 def _segment(
     x: np.ndarray, u_lags: np.ndarray, s: _Spec, t_eval: np.ndarray, method: str,
-    rtol: float, atol: float,
+    rtol: float, atol: float, turns: list[tuple[float, float]] | None = None,
 ) -> np.ndarray:
     """States at ``t_eval`` (starting at 0) with the input held; shape (nx, len(t_eval)).
+
+    ``turns``: if given, ``(t, theta)`` of every point where ``omega`` reaches 0 in
+    ``(0, t_eval[-1])`` is appended to it (the shaft's reversals, for the play operator).
 
     With exact Coulomb friction the integration is hybrid: while sliding in
     direction ``d`` an event stops it where ``d*omega`` falls to 0; there the shaft
@@ -383,9 +430,13 @@ def _segment(
     """
     if not _sticky(s):
         sol = solve_ivp(lambda _t, xx: _xdot(xx, u_lags, s), (0.0, t_eval[-1]), x,
-                        method=method, t_eval=t_eval, rtol=rtol, atol=atol)
+                        method=method, t_eval=t_eval, rtol=rtol, atol=atol,
+                        events=None if turns is None else (lambda _t, xx: xx[1]))
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        if turns is not None and len(sol.t_events[0]):
+            turns.extend((float(t), float(xe[0]))
+                         for t, xe in zip(sol.t_events[0], sol.y_events[0], strict=True))
         return sol.y
     out = np.empty((x.size, t_eval.size))
     out[:, 0] = x
@@ -418,6 +469,8 @@ def _segment(
         if sol.status != 1:
             continue
         t0, x = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
+        if turns is not None:  # a stop (omega = 0) or a breakaway from rest
+            turns.append((t0, float(x[0])))
         if mode == 0:
             push, _ = _push_and_level(x, u_lags, s)
             mode = 1 if push > 0 else -1
@@ -635,21 +688,60 @@ def simulate_reference(
     x = np.zeros(len(s.state_names)) if x0 is None else np.asarray(x0, dtype=float).copy()
     if x.shape != (len(s.state_names),):
         raise ValueError(f"x0 must have shape ({len(s.state_names)},) for states {s.state_names}")
+    play_after = not s.smooth and "backlash" in s.effects
+    # Exact backlash: the shaft is integrated without the gap (the last state), the
+    # play operator is applied afterwards (module docstring).
+    core = replace(s, effects={k: v for k, v in s.effects.items() if k != "backlash"},
+                   state_names=s.state_names[:-1]) if play_after else s
+    nx = len(core.state_names)
     X = np.empty((u.size, x.size))
+    turns: list[tuple[float, float]] | None = [] if play_after else None
     change = np.flatnonzero(np.any(np.diff(lags, axis=0) != 0, axis=1)) + 1
     starts = np.concatenate([[0], change])
     stops = np.concatenate([change, [u.size]])
+    xc = x[:nx]
     for a, b in zip(starts, stops, strict=True):
         ul = lags[a]
         t_eval = np.arange(b - a + 1) * dt
+        seg: list[tuple[float, float]] | None = [] if play_after else None
         try:
-            Y = _segment(x, ul, s, t_eval, method, rtol, atol)
+            Y = _segment(xc, ul, core, t_eval, method, rtol, atol, seg)
         except RuntimeError as exc:
             raise RuntimeError(f"at sample {a}: {exc}") from exc
-        X[a:b] = Y[:, :-1].T
-        x = Y[:, -1]
+        X[a:b, :nx] = Y[:, :-1].T
+        xc = Y[:, -1]
+        if seg:
+            turns.extend((a + t / dt, th) for t, th in seg)  # time in samples
+    if play_after:
+        X[:, -1] = _play_operator(X[:, 0], float(x[-1]),
+                                  0.5 * s.effects["backlash"]["play"] / RAD2DEG, turns or [])
     y = np.array([_y(xk, s) for xk in X])
     return (y, X) if states else y
+
+
+def _play_operator(theta: np.ndarray, gap0: float, half: float,
+                   turns: list[tuple[float, float]]) -> np.ndarray:
+    """Gap [rad] of the ideal play operator at the samples of the shaft angle ``theta``.
+
+    ``turns``: ``(time in samples, theta)`` of the reversals between samples. The
+    gap follows every change of angle, clipped to ``[-half, half]``; exact for an
+    angle monotone between consecutive points (module docstring).
+    """
+    ts = np.concatenate([np.arange(theta.size, dtype=float), [t for t, _ in turns]])
+    th = np.concatenate([theta, [v for _, v in turns]])
+    is_sample = np.concatenate([np.ones(theta.size, bool), np.zeros(len(turns), bool)])
+    order = np.argsort(ts, kind="stable")  # a sample before a reversal at the same time
+    out = np.empty(theta.size)
+    gap = min(max(gap0, -half), half)
+    prev = th[order[0]]
+    k = 0
+    for i in order:
+        gap = min(max(gap + th[i] - prev, -half), half)
+        prev = th[i]
+        if is_sample[i]:
+            out[k] = gap
+            k += 1
+    return out
 
 
 # --- records ---------------------------------------------------------------------------------

@@ -200,6 +200,9 @@ EFFECT_CASES: dict[str, tuple[dict, dict, list[dict[str, float]]]] = {
                             [{"g_coulomb": 10.0}]),
     "valve_deadzone": ({}, {}, [{"i_dead": 0.01}, {"i_dead": 0.2}, {"i_dead": 0.7}]),
     "valve_deadzone@scale": ({"u_scale": 2.0}, {"u_scale": 2.0}, [{"i_dead": 0.3}]),
+    "valve_deadzone@width": ({"width": 0.05}, {"width": 0.05}, [{"i_dead": 0.28}]),
+    "valve_deadzone@legacy": ({"eps": 0.01}, {"eps": 0.01}, [{"i_dead": 0.3}]),
+    "valve_saturation@width": ({"width": 0.2}, {"width": 0.2}, [{"i_sat": 0.4}]),
     "valve_saturation": ({}, {}, [{"i_sat": 0.1}, {"i_sat": 0.4}, {"i_sat": 2.0}]),
     "valve_saturation@scale": ({"u_scale": 3.0, "eps": 0.02}, {"u_scale": 3.0, "eps": 0.02},
                                [{"i_sat": 0.5}]),
@@ -208,6 +211,9 @@ EFFECT_CASES: dict[str, tuple[dict, dict, list[dict[str, float]]]] = {
     "gravity_load": ({}, {}, [{"g_grav_cos": 20.0, "g_grav_sin": -10.0},
                               {"g_grav_cos": -3.0, "g_grav_sin": 40.0}]),
     "backlash": ({}, {}, [{"play": 0.1}, {"play": 2.0}, {"play": 8.0}]),
+    "backlash@width": ({"width": 0.003}, {"width": 0.003}, [{"play": 1.0}]),
+    "backlash+fit_width": ({"fit_width": True}, {}, [{"play": 1.0, "w_contact": 0.05}]),
+    "backlash@legacy": ({"eps_omega": 0.01}, {"eps_omega": 0.01}, [{"play": 0.1}, {"play": 2.0}]),
     "sensor_offset": ({}, {}, [{"y_offset": -1.5}, {"y_offset": 0.3}]),
     "asymmetric_valve": ({}, {}, [{"asym": -0.3}, {"asym": 0.2}, {"asym": 0.7}]),
     "asymmetric_valve@scale": ({"u_scale": 0.5}, {"u_scale": 0.5}, [{"asym": 0.4}]),
@@ -220,8 +226,8 @@ U_HISTORY = np.array([0.7, -0.4, 0.15, 1.0, -0.9, 0.05, 0.5, -0.25, 0.8, -0.6])
 def _extra_states(name: str) -> list[tuple[float, ...]]:
     if name == "valve_dynamics":
         return [(-0.6,), (0.3,)]
-    if name == "backlash":  # inside the play, at contact on each side (rad)
-        return [(0.0,), (0.012,), (-0.012,), (0.05,)]
+    if name == "backlash":  # inside the play, within the contact width, beyond (rad)
+        return [(0.0,), (0.012,), (-0.012,), (0.05,), (0.0174,), (-0.00872,)]
     return [()]
 
 
@@ -384,8 +390,9 @@ TRAJ_EFFECTS: dict[str, dict[str, float]] = {
 
 #: Substeps of the comparison where 8 are not enough for 1e-4 deg: the sharp
 #: friction's reversals are resolved to first order only (about 3e-4 deg with 8
-#: ROS4 substeps, 5e-5 with 16; docs/performance.md).
-TRAJ_SUBSTEPS = {"coulomb_friction": 24}
+#: ROS4 substeps, 5e-5 with 16; docs/performance.md); the backlash's contacts
+#: within its 0.01 deg width likewise (4e-4 deg with 8, 6e-5 with 16, 9e-6 with 32).
+TRAJ_SUBSTEPS = {"coulomb_friction": 24, "backlash": 32}
 
 
 @pytest.mark.parametrize("name", sorted(TRAJ_EFFECTS))
@@ -395,8 +402,9 @@ def test_effect_trajectory_matches_reference(name: str) -> None:
     values = dict(NOMINAL, **TRAJ_EFFECTS[name])
     sim = Simulator(model, FS, substeps=TRAJ_SUBSTEPS.get(name, 8), backend="casadi")
     y = sim.simulate(u, _vector(model, values))
-    # Friction switching within 0.005 rad/s makes the model stiff: integrated with ROS4.
-    assert sim.method == ("ros4" if name == "coulomb_friction" else "rk4")
+    # Friction switching within 0.005 rad/s and a backlash contact 0.01 deg wide make
+    # the model stiff: integrated with ROS4.
+    assert sim.method == ("ros4" if name in ("coulomb_friction", "backlash") else "rk4")
     eff = {name: TRAJ_EFFECTS[name]}
     yr = simulate_reference(u, FS, values, effects=eff)
     err = float(np.max(np.abs(y - yr)))

@@ -76,14 +76,21 @@ def test_deadzone_and_saturation_closed_forms_and_apply(seed):
     dz = make_effect("valve_deadzone")
     d = dz.probe()["i_dead"]
     np.testing.assert_allclose(dz.first_order(sig)[:, 0], -np.clip(sig.u, -d, d), atol=1e-12)
-    # apply: smooth corners of width eps*u_scale (0.01 mA): within that of the closed form
-    np.testing.assert_allclose(_apply(dz, sig, {"i_dead": d}, "u"), -np.clip(sig.u, -d, d),
-                               atol=0.01)
+    # apply: corners of half width width*u_scale (0.01 mA): within that of the closed
+    # form, and exact beyond the corners
+    got = _apply(dz, sig, {"i_dead": d}, "u")
+    np.testing.assert_allclose(got, -np.clip(sig.u, -d, d), atol=0.01)
+    away = np.abs(np.abs(sig.u) - d) >= 0.01
+    assert away.sum() > N // 2
+    np.testing.assert_allclose(got[away], -np.clip(sig.u, -d, d)[away], atol=1e-12)
     sat = make_effect("valve_saturation")
     s = 0.8 * float(np.max(np.abs(sig.u)))
     closed = np.clip(sig.u, -s, s) - sig.u
     np.testing.assert_allclose(sat.first_order(sig)[:, 0], closed, atol=1e-12)
-    np.testing.assert_allclose(_apply(sat, sig, {"i_sat": s}, "u"), closed, atol=0.01)
+    got = _apply(sat, sig, {"i_sat": s}, "u")
+    np.testing.assert_allclose(got, closed, atol=0.01)
+    away = np.abs(np.abs(sig.u) - s) >= 0.01
+    np.testing.assert_allclose(got[away], closed[away], atol=1e-12)
 
 
 def test_delay_closed_form_and_apply():

@@ -159,3 +159,46 @@ def test_first_order_signatures_have_the_record_length(name):
                   omega=np.sin(np.linspace(0, 9, u.size)))
     cols = make_effect(name).first_order(sig)
     assert cols.shape[0] == u.size and np.isfinite(cols).all()
+
+
+def test_legacy_smoothing_fields_load_and_keep_their_old_forms():
+    """Saved models from before the sharp edges set eps_omega / eps: they load and run as then.
+
+    The old forms are the soft backlash contact (not stiff: RK4) and the square-root
+    corners; the new defaults are the 0.01 deg contact (stiff: ROS4) and the
+    quadratic corners, which differ from them.
+    """
+    from hhra_phys.errors import ParameterError
+
+    new = HHRAModel(effects=[make_effect("backlash"), make_effect("valve_deadzone")])
+    spec = new.to_json()
+    for part in spec["parts"]:
+        if part["type"] == "Backlash":
+            part["args"] = {"eps_omega": 0.01}  # what earlier versions saved
+        elif part["type"] == "ValveDeadzone":
+            part["args"] = {"u_scale": 1.0, "eps": 0.01}
+    old = Model.from_json(spec)
+    u = _input()
+    values = {"play": 2.0, "i_dead": 0.2}
+    sim_old = Simulator(old.with_nominal(values), fs=250.0, backend="casadi")
+    sim_new = Simulator(new.with_nominal(values), fs=250.0, backend="casadi")
+    assert (sim_old.method, sim_new.method) == ("rk4", "ros4")
+    y_old = sim_old.simulate(u, old.with_nominal(values).nominal())
+    y_new = sim_new.simulate(u, new.with_nominal(values).nominal())
+    assert np.isfinite(y_old).all() and np.max(np.abs(y_old - y_new)) > 0.05
+    for name, bad in (("backlash", {"width": 0.0}), ("backlash", {"speed": -1.0}),
+                      ("valve_deadzone", {"width": -0.01}), ("valve_saturation", {"eps": 0.0}),
+                      ("backlash", {"eps_omega": 0.01, "fit_width": True})):
+        with pytest.raises(ParameterError, match=name):
+            make_effect(name, **bad)
+
+
+def test_backlash_width_can_be_fitted():
+    eff = make_effect("backlash", fit_width=True, width=0.02)
+    p = {q.name: q for q in eff.parameters}
+    assert p["w_contact"].nominal == 0.02 and p["w_contact"].unit == "deg"
+    u = _input()
+    model = HHRAModel(effects=[eff])
+    narrow = _sim(model, u, play=2.0, w_contact=0.005)
+    wide = _sim(model, u, play=2.0, w_contact=0.2)
+    assert 0.01 < np.max(np.abs(narrow - wide)) < 0.2
