@@ -55,6 +55,7 @@ from hhra_phys.parts import (
     Effect,
     Signals,
     State,
+    corner_relu,
     register_effect,
     smooth_relu,
     smooth_sign,
@@ -258,27 +259,6 @@ class GravityLoad(Effect):
 
 #: Default corner width of the dead zone and the saturation, relative to ``u_scale``.
 CORNER_WIDTH = 0.01
-
-
-def corner_relu(v: Any, w: float) -> Any:
-    """``max(v, 0)`` with a quadratic corner: exact for ``|v| >= w``, C1 everywhere.
-
-    ``(v + w)^2/(4w)`` for ``|v| < w`` (value ``w/4`` at 0, slope from 0 to 1).
-    Unlike ``(v + sqrt(v^2 + w^2))/2`` it leaves no residual away from the corner:
-    a command held a little off a dead-zone or saturation edge is passed exactly,
-    where the square-root form's error ``w^2/(4|v|)``, integrated by the angle,
-    drifts (``docs/model.md``, numerical choices). Works on CasADi and NumPy values.
-
-    Parameters
-    ----------
-    v : SX or ndarray
-        Argument (input units).
-    w : float
-        Half width of the corner (input units), > 0.
-    """
-    fmin, fmax = (ca.fmin, ca.fmax) if isinstance(v, (ca.SX, ca.MX)) else (np.minimum, np.maximum)
-    r = fmin(fmax(v + w, 0), 2 * w)
-    return r * r / (4 * w) + fmax(v - w, 0)
 
 
 def _contact(z: Any) -> Any:

@@ -59,6 +59,7 @@ __all__ = [
     "smooth_signed_sqrt",
     "smooth_abs",
     "smooth_relu",
+    "corner_relu",
 ]
 
 #: Stage whose effects act on the model's input, before every part of the model.
@@ -191,6 +192,26 @@ class Part:
     def apply(self, ctx: Context) -> None:  # pragma: no cover - abstract
         """Contribute rates and signals to ``ctx``."""
         raise NotImplementedError
+
+    def stiff_states(self, values: Mapping[str, float]) -> list[dict[str, float]]:
+        """Operating points where this part is stiffest and rest does not show it.
+
+        The simulator's method choice (:meth:`hhra_phys.simulate.Simulator.plan`)
+        evaluates the model's Jacobian at rest and at these points: a stiffness
+        that only appears in motion (a sharp backlash carried at contact) must set
+        the integrator too. Default: none.
+
+        Parameters
+        ----------
+        values : mapping
+            Parameter values by name (model units).
+
+        Returns
+        -------
+        list of dict
+            ``{state name: value}`` per point; states not named stay at rest.
+        """
+        return []
 
 
 #: Registry of part classes by class name, for JSON round trips.
@@ -414,3 +435,24 @@ def smooth_abs(v: ca.SX, eps: float) -> ca.SX:
 def smooth_relu(v: ca.SX, eps: float) -> ca.SX:
     """Smooth ``max(v, 0)`` as ``(v + sqrt(v^2 + eps^2)) / 2``."""
     return 0.5 * (v + ca.sqrt(v * v + eps * eps))
+
+
+def corner_relu(v: Any, w: float) -> Any:
+    """``max(v, 0)`` with a quadratic corner: exact for ``|v| >= w``, C1 everywhere.
+
+    ``(v + w)^2/(4w)`` for ``|v| < w`` (value ``w/4`` at 0, slope from 0 to 1).
+    Unlike ``(v + sqrt(v^2 + w^2))/2`` it leaves no residual away from the corner:
+    a command held a little off a dead-zone or saturation edge is passed exactly,
+    where the square-root form's error ``w^2/(4|v|)``, integrated by the angle,
+    drifts (``docs/model.md``, numerical choices). Works on CasADi and NumPy values.
+
+    Parameters
+    ----------
+    v : SX or ndarray
+        Argument (input units).
+    w : float
+        Half width of the corner (input units), > 0.
+    """
+    fmin, fmax = (ca.fmin, ca.fmax) if isinstance(v, (ca.SX, ca.MX)) else (np.minimum, np.maximum)
+    r = fmin(fmax(v + w, 0), 2 * w)
+    return r * r / (4 * w) + fmax(v - w, 0)

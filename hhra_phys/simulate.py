@@ -19,8 +19,8 @@ with ROS4, a fourth-order Rosenbrock method that is A-stable and damps a stiff
 real mode by a factor of 3 per step whatever its speed, so only the remaining
 modes (oscillatory, or slower than the sample) set the substeps. A part whose
 stiffness does not show at rest (a backlash carried at its contact relaxes at
-``|omega|/width``) names the states where it is stiffest with a method
-``stiff_states(values) -> [{state name: value}, ...]``
+``|omega|/width``) names the states where it is stiffest with
+:meth:`hhra_phys.parts.Part.stiff_states`
 (:meth:`hhra_phys.effects.Backlash.stiff_states`); their Jacobians count as
 rest's. :attr:`Simulator.method` and :attr:`Simulator.method_reason` say what was
 chosen and why.
@@ -342,16 +342,15 @@ class Simulator:
     def _part_stiff_states(self, p: np.ndarray) -> list[np.ndarray]:
         """State vectors from the parts' ``stiff_states(values)`` (rest elsewhere).
 
-        A part may define ``stiff_states(values) -> list of {state name: value}``:
-        operating points where it is stiffest that rest does not show (the
-        backlash's contact in motion, :meth:`hhra_phys.effects.Backlash.stiff_states`).
+        Each part's :meth:`~hhra_phys.parts.Part.stiff_states`: where it is
+        stiffest and rest does not show it (the backlash's contact in motion,
+        :meth:`hhra_phys.effects.Backlash.stiff_states`).
         """
         m = self.model
         values = dict(zip(m.params.names, np.asarray(p, dtype=float).tolist(), strict=True))
         out = []
         for part in m.parts:
-            points = getattr(part, "stiff_states", None)
-            for named in (points(values) if points is not None else ()):
+            for named in part.stiff_states(values):
                 x = m.x0().astype(float)
                 for name, v in named.items():
                     x[m.state_names.index(name)] = v
