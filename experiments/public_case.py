@@ -29,13 +29,18 @@ def main() -> None:
     ap.add_argument("--pop", type=int, default=60)
     ap.add_argument("--iters", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-effects", type=int, default=3,
+                    help="most library effects accepted before discovery (default 3)")
     ap.add_argument("--prefix", default="docs/figures/diagnosis_public")
     args = ap.parse_args()
+    if args.max_effects < 0:
+        ap.error(f"--max-effects must be >= 0, got {args.max_effects}")
     data = load_public_actuator()
     model, bounds = base_model_for(data)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment(data, model, split=512 / 1024, bounds=bounds, max_effects=3, top_k=4,
+        res = augment(data, model, split=512 / 1024, bounds=bounds,
+                      max_effects=args.max_effects, top_k=4,
                       pop_size=args.pop, max_iter=args.iters, cand_pop=20, cand_iter=30,
                       seed=args.seed, progress=print)
     out = res.to_json()

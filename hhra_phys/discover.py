@@ -678,9 +678,12 @@ MODE_ENTRIES: tuple[str, ...] = ("mode:output", "mode:input")
 MODE_PERIOD_RANGE: tuple[float, float] = (4.0, 300.0)
 #: Number of periods of the screening grid.
 MODE_N_PERIODS = 48
-#: Damping ratios screened (and the box of the fitted one).
-MODE_DAMPINGS: tuple[float, ...] = (0.03, 0.07, 0.15, 0.3, 0.6)
-MODE_DAMPING_BOX: tuple[float, float] = (0.005, 2.0)
+#: Damping ratios screened (and the box of the fitted one). A resonance has a peak in
+#: ``|H|``: damping below ``1/sqrt(2)``. A better-damped second-order filter is a lag,
+#: which the library's ``valve_dynamics`` and ``input_delay`` represent (without the cap
+#: such a filter stood in for a hidden delay on 3 of 3 reference records).
+MODE_DAMPINGS: tuple[float, ...] = (0.03, 0.07, 0.15, 0.3, 0.5)
+MODE_DAMPING_BOX: tuple[float, float] = (0.005, 0.7)
 #: Half width of the mix's box [-] (1: a pure second-order filter of the output).
 MODE_MIX_BOUND = 3.0
 #: Starts of the IPOPT refit: the best screened grid points with distinct periods.
@@ -1093,32 +1096,60 @@ def _mode_for(scr: ModeScreen, start: tuple[float, float, float, float], index: 
                           u_scale=float(np.max(np.abs(data.u))) or 1.0)
 
 
-def _own_resonances(problem: Problem, values: np.ndarray, scr: ModeScreen
-                    ) -> list[tuple[float, float]]:
-    """``(w, zeta)`` of the fitted model's own oscillatory modes within the screened
-    periods (linearised at +-half the largest input)."""
-    P = problem.full(np.asarray(values, dtype=float))
-    umax = float(np.max(np.abs(problem.data.u))) or 1.0
-    lo, hi = 2 * math.pi / float(scr.periods[-1]), 2 * math.pi / float(scr.periods[0])
+def _resonances(model: Model, P: np.ndarray, data: Dataset, dt: float, lo: float, hi: float
+                ) -> list[tuple[float, float]]:
+    """``(w, zeta)`` of ``model``'s own oscillatory modes with ``lo <= w <= hi``.
+
+    Linearised at +-half the largest input of ``data`` at parameters ``P``; modes
+    within 20 % of each other count once.
+    """
+    umax = float(np.max(np.abs(data.u))) or 1.0
     out: list[tuple[float, float]] = []
     for u in (0.5 * umax, -0.5 * umax):
         try:
-            A = problem.model.linearize(p=P, u=u, dt=problem.sim.dt)[0]
+            A = model.linearize(p=P, u=u, dt=dt)[0]
             ev = np.linalg.eigvals(A)
-        except Exception:  # noqa: BLE001 - no linearisation: no extra start
+        except Exception:  # noqa: BLE001 - no linearisation: no resonance known
             continue
         for lam in ev[ev.imag > 0]:
             w = float(abs(lam))
             if lo <= w <= hi and not any(abs(w / o[0] - 1) < 0.2 for o in out):
-                out.append((w, float(min(max(-lam.real / w, 0.01), 1.0))))
+                out.append((w, float(min(max(-lam.real / w, 0.01), 0.5))))
     return out
+
+
+def _mode_rejected(f: _Fitted, base: Model, data: Dataset, dt: float) -> str:
+    """Why a refitted mode is not a resolved new resonance ("" if it is)."""
+    mode = f.term
+    assert isinstance(mode, DiscoveredMode)
+    if _t_values(f)[0] < T_DROP:
+        return "its mix is not significant (95 % CI contains 0)"
+    edge = _mode_at_edge(f)
+    if edge:
+        # A damping at its floor is an undamped oscillator the input keeps ringing (it
+        # stood in for a dead zone); at its ceiling the filter is a lag, not a resonance.
+        return f"its {' and '.join(edge)} ended at its box bound"
+    # A mode on top of one of the model's own resonances reshapes that mode instead of
+    # adding one (it stood in for a hidden input delay on 3 of 3 reference records).
+    full = f.problem.full(np.array([f.result.values[n] if not n.startswith("x0_")
+                                    else f.result.x0_param(n) for n in f.problem.free_names]))
+    names = list(f.problem.model.params.names)
+    P = np.array([full[names.index(n)] for n in base.params.names])
+    w = float(f.result.values[mode.pname["w"]])
+    for w_own, _ in _resonances(base, P, data, dt, 0.0, math.inf):
+        if abs(w / w_own - 1) < 0.2:
+            return (f"it sits on the model's own resonance (period "
+                    f"{mode.period(w_own):.3g} {mode.time_unit}): it reshapes that mode")
+    return ""
 
 
 def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob: Problem,
               values: np.ndarray, cur_free: list[str], criterion: str,
               say: Callable[[str], None]) -> tuple[_Fitted | None, list[str]]:
-    """IPOPT from each screened start; the best by the criterion (estimation) if its mix
-    is significant (95 % CI excludes 0), else None."""
+    """IPOPT from each start (screened, and the model's own resonances); the best by the
+    criterion (estimation) among the refits that are a resolved new resonance
+    (:func:`_mode_rejected`: significant mix, frequency and damping inside their box,
+    away from the model's own resonances), else None."""
     log: list[str] = []
     best: _Fitted | None = None
     starts = list(scr.starts)
@@ -1126,11 +1157,14 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
     # its own as the residual's oscillation (seen on reference records): then the
     # screened start ends in that swapped optimum. A start of the mode at each of the
     # model's own resonances lets the refit move the model back.
-    for w_own, z_own in _own_resonances(cur_prob, values, scr):
+    d, dt = fitter.data, 1.0 / fitter.data.fs
+    own = _resonances(cur_prob.model, cur_prob.full(values), d, dt,
+                      2 * math.pi / float(scr.periods[-1]), 2 * math.pi / float(scr.periods[0]))
+    for w_own, z_own in own:
         if not any(abs(w_own / s[0] - 1) < 0.2 for s in starts):
             starts.append((w_own, z_own, 1.0, math.nan))
     for st in starts:
-        mode = _mode_for(scr, st, index, fitter.data)
+        mode = _mode_for(scr, st, index, d)
         model_c = cur_prob.model.with_parts(mode)
         new = [p.name for p in mode.parameters]
         start = {**cur.values, **{p.name: p.nominal for p in mode.parameters}}
@@ -1146,17 +1180,28 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
             log.append(f"mode from period {mode.period(st[0]):.3g}: not finite")
             continue
         f = _Fitted(mode, res, prob, cur_free + new, information_criterion(res, criterion), vr)
+        why = _mode_rejected(f, cur_prob.model, d, dt)
         log.append(f"mode from period {mode.period(st[0]):.3g} {mode.time_unit}: "
                    f"{mode.expression(res.values)}; |k|/sd {_t_values(f)[0]:.1f}, "
-                   f"{criterion.upper()} {f.crit:.1f}, val RMSE {vr:.4g}")
+                   f"{criterion.upper()} {f.crit:.1f}, val RMSE {vr:.4g}"
+                   + (f"; dropped: {why}" if why else ""))
         say("    " + log[-1])
-        if best is None or f.crit < best.crit:
+        if not why and (best is None or f.crit < best.crit):
             best = f
-    if best is not None and _t_values(best)[0] < T_DROP:
-        log.append("the best mode's mix is not significant (95 % CI contains 0): dropped")
-        say("    " + log[-1])
-        return None, log
     return best, log
+
+
+def _mode_at_edge(fitted: _Fitted) -> list[str]:
+    """Names of the mode's frequency and damping that end within 1 % of a box bound."""
+    out = []
+    mode = fitted.term
+    assert isinstance(mode, DiscoveredMode)
+    for role, label in (("w", "frequency"), ("z", "damping")):
+        par = next(p for p in mode.parameters if p.name == mode.pname[role])
+        v = fitted.result.values[par.name]
+        if v <= par.lower * 1.01 or v >= par.upper / 1.01:
+            out.append(label)
+    return out
 
 
 def _t_values(fitted: _Fitted) -> np.ndarray:
