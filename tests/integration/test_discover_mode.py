@@ -21,6 +21,7 @@ from hhra_phys.errors import ModelError
 from hhra_phys.fit import fit
 from hhra_phys.loop import augment
 from hhra_phys.models.hhra import HHRAModel
+from hhra_phys.reference.hhra import reference_record
 from hhra_phys.reference.outside import outside_record
 from hhra_phys.reference.resonant import resonant_record
 from hhra_phys.result import FitResult
@@ -126,3 +127,22 @@ def test_hidden_resonance_is_found_with_its_frequency_in_the_ci():
             assert acc[0]["expression"].startswith("y += ") and "period" in acc[0]["expression"]
             assert res.chosen == [acc[0]["effect"]]
     assert sum(hits) >= 2, hits
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed,make", [
+    (2, lambda: outside_record("none", 0.0, seed=2, noise_deg=NOISE)),
+    (1, lambda: reference_record(seed=1, duration=6.0, noise_deg=NOISE, levels=4,
+                                 effects={"valve_deadzone": {"i_dead": 0.2}})),
+], ids=["clean-seed2", "deadzone-seed1"])
+def test_no_mode_without_a_resonance(seed, make):
+    """Modes only, library rounds off: records without a resonance get no mode.
+
+    Measured (docs/diagnosis.md): no mode accepted on the clean records and the large
+    dead zone, seeds 1-3 each (a mode was refitted and rejected on these two); the
+    large input delay got one on 1 of 3 seeds (not tested here: in the loop the library's
+    delay comes first and the loop stops at the noise level).
+    """
+    res = _run(make(), seed, MODE_ENTRIES)
+    assert not any(s["accepted"] for s in _mode_steps(res))
+    assert res.chosen == []
