@@ -49,6 +49,16 @@ How (sparse fit through the simulator)
 
     ``experiments/discover.py`` compares them (``docs/diagnosis.md``).
 
+A new state (:class:`DiscoveredMode`, entries ``mode:output`` and ``mode:input``)
+    After the terms, a resonant mode ``H(s) = w^2/(s^2 + 2 z w s + w^2)`` mixed
+    into the output or the input (two new states, parameters ``w``, ``z``, mix
+    ``k``): what no function of the present states can make. Screened over a grid
+    of periods and dampings (:func:`screen_mode`), refitted from the best grid
+    points and from the model's own resonances, and claimed only as a resolved new
+    resonance (significant mix, frequency and damping inside their box, damping
+    below 0.7, at least a factor :data:`MODE_SEPARATION` from the model's own
+    resonances); then judged by the same rule as a term.
+
 Result
     The term is accepted by the loop's rule (:func:`hhra_phys.loop.acceptance`:
     validation gain margin and information criterion). It is a registered part
@@ -107,6 +117,7 @@ __all__ = [
     "DiscoveredMode",
     "ModeScreen",
     "MODE_ENTRIES",
+    "MODE_SEPARATION",
     "mode_column",
     "screen_mode",
 ]
@@ -1133,9 +1144,9 @@ def _mode_rejected(f: _Fitted, base: Model, data: Dataset, dt: float) -> str:
         # stood in for a dead zone); at its ceiling the filter is a lag, not a resonance.
         return f"its {' and '.join(edge)} ended at its box bound"
     # A mode near one of the model's own resonances cannot be told from a reshaped
-    # version of that mode: on reference records without a resonance such modes (at
-    # 0.83-0.95 times the HHRA's own frequency) stood in for a hidden delay and a
-    # Coulomb friction. Hidden resonances are claimed only beyond MODE_SEPARATION.
+    # version of that mode: on reference records without a resonance such modes (periods
+    # 0.82-0.94 times the HHRA's own) stood in for a hidden delay and a Coulomb
+    # friction. Hidden resonances are claimed only beyond MODE_SEPARATION.
     full = f.problem.full(np.array([f.result.values[n] if not n.startswith("x0_")
                                     else f.result.x0_param(n) for n in f.problem.free_names]))
     names = list(f.problem.model.params.names)
