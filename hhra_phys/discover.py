@@ -74,6 +74,7 @@ from __future__ import annotations
 
 import math
 import re
+import textwrap
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -1162,13 +1163,16 @@ def _mode_rejected(f: _Fitted, base: Model, data: Dataset, dt: float) -> str:
 
 def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob: Problem,
               values: np.ndarray, cur_free: list[str], criterion: str,
-              say: Callable[[str], None]) -> tuple[_Fitted | None, list[str]]:
+              say: Callable[[str], None]
+              ) -> tuple[_Fitted | None, list[str], tuple[_Fitted, str] | None]:
     """IPOPT from each start (screened, and the model's own resonances); the best by the
     criterion (estimation) among the refits that are a resolved new resonance
     (:func:`_mode_rejected`: significant mix, frequency and damping inside their box,
-    away from the model's own resonances), else None."""
+    away from the model's own resonances), else None; the log; and the best dropped
+    refit with the reason it was dropped (reported as a rejected step), or None."""
     log: list[str] = []
     best: _Fitted | None = None
+    dropped: tuple[_Fitted, str] | None = None
     starts = list(scr.starts)
     # The fitted model may have moved its own resonance onto the hidden one and left
     # its own as the residual's oscillation (seen on reference records): then the
@@ -1205,7 +1209,9 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
         say("    " + log[-1])
         if not why and (best is None or f.crit < best.crit):
             best = f
-    return best, log
+        if why and (dropped is None or f.crit < dropped[0].crit):
+            dropped = (f, why)
+    return best, log, dropped
 
 
 def _mode_at_edge(fitted: _Fitted) -> list[str]:
@@ -1352,7 +1358,9 @@ def plot_discovery(steps: Sequence[DiscoveredStep], path: str, overwrite: bool =
                         f"{' (accepted)' if s.accepted else ''}",
                   xlabel="sample", ylabel="residual")
             a.legend(fontsize=8, loc="upper right")
-        ax[i, 0].text(0.01, 0.02, s.expression, transform=ax[i, 0].transAxes, fontsize=8)
+        # Wrapped: a long expression would squeeze the panel in tight_layout.
+        ax[i, 0].text(0.01, 0.02, textwrap.fill(s.expression, 75),
+                      transform=ax[i, 0].transAxes, fontsize=8)
     fig.tight_layout()
     with atomic_path(target) as tmp:
         fig.savefig(tmp, dpi=90)
@@ -1471,12 +1479,15 @@ def discover_step(
     ok: list[tuple[DiscoveredStep, _Fitted]] = []
 
     def judge(fitted: _Fitted, scr: EntryScreen | ModeScreen, log: list[str],
-              ts: float) -> None:
-        """The step of a refitted candidate, accepted or not by the loop's rule."""
+              ts: float, veto: str = "") -> None:
+        """The step of a refitted candidate, accepted or not by the loop's rule (never
+        with a ``veto``: the reason a mode is not claimed)."""
         res, term = fitted.result, fitted.term
         new = [p.name for p in term.parameters]
         accepted, reason = acceptance(rmse_cur, fitted.val_rmse, crit_cur, fitted.crit,
                                       margin, criterion, sel_noise, noise_tol)
+        if veto:
+            accepted, reason = False, f"dropped: {veto} ({reason})"
         expr = term.expression(res.values)
         step = DiscoveredStep(
             round_no, term.name, {"score": scr.score, "detectability": float("nan"),
@@ -1541,12 +1552,14 @@ def discover_step(
         mscr = screen_mode(cur_prob, values, target=entry.split(":", 1)[1])
         say(f"  entry {entry}: screened periods " + ", ".join(
             f"{2 * math.pi / w:.3g} (z {z:g}, {e:.2f})" for w, z, _, e in mscr.starts))
-        fitted, log = _fit_mode(fitter, mscr, m_index, cur, cur_prob, values, cur_free,
-                                criterion, say)
-        if fitted is None:
-            say(f"  entry {entry}: no mode survived")
-        else:
+        fitted, log, dropped = _fit_mode(fitter, mscr, m_index, cur, cur_prob, values,
+                                         cur_free, criterion, say)
+        if fitted is not None:
             judge(fitted, mscr, log, ts)
+        elif dropped is not None:  # reported, so the JSON shows what was tried and why not
+            judge(dropped[0], mscr, log, ts, veto=dropped[1])
+        else:
+            say(f"  entry {entry}: no mode refit")
     if not ok:
         return steps, None
     step, fitted = min(ok, key=lambda t: t[1].val_rmse)
