@@ -1,9 +1,13 @@
 """Discovery of outside-library terms: families x sizes x seeds x sparsity rules.
 
 Records come from the independent reference model with one term the effect
-library has no part for (:mod:`hhra_phys.reference.outside`), and clean records
-(false discoveries). Every record runs the loop with ``max_effects=0`` (library
-rounds off, so the discovery step alone is scored) for each sparsity rule.
+library has no part for (:mod:`hhra_phys.reference.outside`), or read through a
+resonant sensor (``resonance:<period s>``, :mod:`hhra_phys.reference.resonant`, the
+truth of the discovered mode), or with one library effect at its large size of
+``experiments/closed_loop.py`` (``<effect>:large``: a mode or term accepted there is
+a stand-in), and clean records (false discoveries). Every record runs the loop
+with ``max_effects=0`` (library rounds off, so the discovery step alone is
+scored) for each sparsity rule.
 Reported per run: base and final validation RMSE, whether a term was accepted,
 whether it uses the true term's variable, its expression against the truth, the
 extrapolation flag and the wall time of the discovery step.
@@ -12,7 +16,10 @@ Usage::
 
     python experiments/discover.py [--seeds 3,5] [--duration 6] [--out results.json]
         [--families quadratic_drag:400,pressure_leak:100,cubic_spring:1000,none:0]
-        [--methods threshold,l1]
+        [--methods threshold,l1] [--damping 0.1] [--entries mode:output,mode:input]
+
+``--entries`` restricts the discovery to those entry points (``mode:output`` and
+``mode:input`` alone score the resonant mode by itself).
 """
 
 from __future__ import annotations
@@ -23,31 +30,62 @@ import sys
 import time
 import warnings
 
+from closed_loop import SIZES, make_record
+
 from hhra_phys.loop import augment
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference.outside import OUTSIDE, outside_record
+from hhra_phys.reference.resonant import resonant_record
 
 #: The variable each truth term depends on.
 TRUE_SIGNAL = {"quadratic_drag": "omega", "cubic_spring": "theta", "pressure_leak": "p"}
 TRUTH_TEXT = {"quadratic_drag": "d omega/dt += -{s:g}*omega*|omega|",
               "cubic_spring": "d omega/dt += -{s:g}*theta^3",
-              "pressure_leak": "d p/dt += -{s:g}*p*|p|", "none": "nothing"}
+              "pressure_leak": "d p/dt += -{s:g}*p*|p|", "none": "nothing",
+              "resonance": "y_s = H y, period {s:g} s, z {z:g}"}
+
+
+def record(family: str, size: float, seed: int, duration: float, noise: float,
+           damping: float):
+    """The study's record of ``family`` (module docstring)."""
+    if family == "resonance":
+        return resonant_record(size, damping, seed=seed, duration=duration, noise_deg=noise)
+    if family in SIZES:
+        return make_record({family: SIZES[family][1]}, seed, duration)
+    return outside_record(family, size, seed=seed, duration=duration, noise_deg=noise)
 
 
 def run(family: str, size: float, seed: int, method: str, duration: float,
-        noise: float) -> dict:
+        noise: float, damping: float = 0.1, entries: list[str] | None = None) -> dict:
     """One record, one sparsity rule: the row of the study."""
-    ds = outside_record(family, size, seed=seed, duration=duration, noise_deg=noise)
+    ds = record(family, size, seed, duration, noise, damping)
     t0 = time.perf_counter()
+    kw: dict = {"method": method}
+    if entries:
+        kw["entries"] = entries
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         res = augment(ds, max_effects=0, pop_size=20, max_iter=30, seed=seed,
-                      discover_kw={"method": method})
+                      discover_kw=kw)
     found = [s.to_json() for s in res.steps if s.to_json().get("discovered")]
     acc = [s for s in found if s["accepted"]]
+    modes = [s for s in found if "period" in s["screening"]]
+    mode = next((s for s in modes if s["accepted"]), modes[0] if modes else None)
+    truth_w = ds.metadata.get("truth", {}).get("w") if family == "resonance" else None
+    w_ci = next((v for k, v in mode["ci95"].items() if k.endswith("_w")), None) if mode else None
     return {
         "family": family, "size": size, "seed": seed, "method": method,
-        "truth": TRUTH_TEXT[family].format(s=size),
+        "truth": (f"{family} {SIZES[family][1]}" if family in SIZES
+                  else TRUTH_TEXT[family].format(s=size, z=damping)),
+        "mode_tried": mode["expression"] if mode else None,
+        "mode_accepted": bool(mode and mode["accepted"]),
+        "mode_val_rmse": mode["val"]["rmse"] if mode else None,
+        "mode_period": mode["screening"]["period"] if mode else None,
+        "mode_period_ci95": mode["screening"]["period_ci95"] if mode else None,
+        "truth_w_in_ci": (bool(w_ci[0] <= truth_w <= w_ci[1])
+                          if truth_w is not None and w_ci else None),
+        "test_before": res.test_scores.get("base", {}).get("rmse"),
+        "test_after": res.test_scores.get("final", {}).get("rmse"),
         "val_before": res.base.metrics["val"]["rmse"],
         "val_after": res.final.metrics["val"]["rmse"],
         "accepted": acc[0]["expression"] if acc else None,
@@ -72,13 +110,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise", type=float, default=0.05)
     ap.add_argument("--out", default=None, help="write the rows as JSON here")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--damping", type=float, default=0.1,
+                    help="damping ratio of the resonance family")
+    ap.add_argument("--entries", default=None,
+                    help="comma-separated entry points of the discovery (default: all)")
     args = ap.parse_args(argv)
     fams = []
+    known = [*OUTSIDE, "resonance", "none", *(f"{e}:large" for e in SIZES)]
     for item in args.families.split(","):
         name, _, size = item.partition(":")
-        if name != "none" and name not in OUTSIDE:
-            ap.error(f"--families: unknown family {name!r} (known: {', '.join(OUTSIDE)}, none)")
-        fams.append((name, float(size or 0)))
+        if name not in OUTSIDE and name not in ("none", "resonance") and not (
+                name in SIZES and size == "large"):
+            ap.error(f"--families: unknown family {item!r} (known: {', '.join(known)})")
+        try:
+            fams.append((name, 0.0 if name in SIZES else float(size or 0)))
+        except ValueError:
+            ap.error(f"--families: size of {name!r} must be a number, got {size!r}")
+        if name == "resonance" and not fams[-1][1] > 0:
+            ap.error("--families: resonance needs its period in seconds, e.g. resonance:0.25")
+    if not args.damping > 0:
+        ap.error(f"--damping must be > 0, got {args.damping}")
+    entries = args.entries.split(",") if args.entries else None
     methods = args.methods.split(",")
     for m in methods:
         if m not in ("threshold", "l1"):
@@ -88,17 +140,24 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     rows = []
     print("| family | size | seed | method | val RMSE before -> after | accepted term | "
-          "right signal | extrapolated | discovery [s] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "right signal | extrapolated | mode period [95 % CI] (truth w in CI) | "
+          "discovery [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for fam, size in fams:
         for seed in seeds:
             for m in methods:
-                r = run(fam, size, seed, m, args.duration, args.noise)
+                r = run(fam, size, seed, m, args.duration, args.noise, args.damping, entries)
                 rows.append(r)
+                mode = "-"
+                if r["mode_period"] is not None:
+                    lo, hi = r["mode_period_ci95"]
+                    inside = {None: "", True: " (yes)", False: " (no)"}[r["truth_w_in_ci"]]
+                    mode = (f"{r['mode_period']:.4g} [{lo:.4g}, {hi:.4g}]"
+                            f"{' accepted' if r['mode_accepted'] else ''}{inside}")
                 print(f"| {fam} | {size:g} | {seed} | {m} | {r['val_before']:.3f} -> "
                       f"{r['val_after']:.3f} | `{r['accepted'] or '-'}` | "
                       f"{'yes' if r['right_signal'] else 'no'} | "
-                      f"{', '.join(r['extrapolated']) or '-'} | "
+                      f"{', '.join(r['extrapolated']) or '-'} | {mode} | "
                       f"{r['discovery_seconds']:.0f} |", flush=True)
     if args.out:
         atomic_write_text(args.out, json.dumps(jsonable(rows), indent=1))

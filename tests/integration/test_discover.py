@@ -126,20 +126,35 @@ def test_discovered_terms_face_the_library_rule():
 # --- discovery in the loop ----------------------------------------------------------------
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("term,size,signal", [("quadratic_drag", 400.0, "omega"),
-                                              ("cubic_spring", 1000.0, "theta")])
-def test_outside_library_term_is_discovered_by_the_cli(term, size, signal, tmp_path, capsys):
+def _found(js, signal):
+    """Whether a loop's JSON passes the discovery claim: one accepted term, using the true
+    variable, with the validation RMSE 3x lower or at 1.5x the noise."""
+    accepted = [s for s in js["steps"] if s["effect"].startswith("discovered_")
+                and s["accepted"]]
+    base, final = js["base"]["val"]["rmse"], js["final"]["val"]["rmse"]
+    return (len(accepted) == 1 and signal in accepted[0]["uses"]
+            and (final <= base / 3 or final <= 1.5 * NOISE))
+
+
+def _cli(tmp_path, term, size, seed):
+    """``hhra-phys diagnose --max-effects 0`` on an outside-term record (record and search
+    seed ``seed``, as in experiments/discover.py): the JSON and the report's paths."""
     from hhra_phys.cli import main
     from hhra_phys.data import save
 
-    # Record and search seed 3, as in experiments/discover.py (docs/diagnosis.md).
-    data = tmp_path / "rec.csv"
-    save(outside_record(term, size, seed=3, noise_deg=NOISE), data)
-    out, rep = tmp_path / "d.json", tmp_path / "d.md"
+    data = tmp_path / f"rec{seed}.csv"
+    save(outside_record(term, size, seed=seed, noise_deg=NOISE), data)
+    out, rep = tmp_path / f"d{seed}.json", tmp_path / f"d{seed}.md"
     assert main(["diagnose", str(data), "--json", str(out), "--report", str(rep),
-                 "--max-effects", "0", "--pop", "20", "--iters", "30", "--seed", "3"]) == 0
-    js = json.loads(out.read_text())
+                 "--max-effects", "0", "--pop", "20", "--iters", "30",
+                 "--seed", str(seed)]) == 0
+    return json.loads(out.read_text()), rep
+
+
+@pytest.mark.slow
+def test_outside_library_term_is_discovered_by_the_cli(tmp_path):
+    """The CLI's contract on the drag record, seed 3 (the claim held on 5 of 5 seeds)."""
+    js, rep = _cli(tmp_path, "quadratic_drag", 400.0, 3)
     found = [s for s in js["steps"] if s["effect"].startswith("discovered_")]
     accepted = [s for s in found if s["accepted"]]
     assert len(accepted) == 1, [s["reason"] for s in found]
@@ -147,13 +162,22 @@ def test_outside_library_term_is_discovered_by_the_cli(term, size, signal, tmp_p
     # The contract outside checks use.
     assert isinstance(step["expression"], str) and step["expression"].startswith(
         ("d ", "u +=", "y +="))
-    assert signal in step["uses"] and isinstance(step["val"]["rmse"], float)
+    assert isinstance(step["val"]["rmse"], float)
     assert js["chosen"] == [step["effect"]]
-    base, final = js["base"]["val"]["rmse"], js["final"]["val"]["rmse"]
-    assert final <= base / 3 or final <= 1.5 * NOISE, (base, final)
+    assert _found(js, "omega"), (js["base"]["val"], js["final"]["val"])
     text = rep.read_text()
     assert "Discovered terms" in text and step["expression"] in text and "95 % CI" in text
-    assert (tmp_path / "d_discovery.png").exists()
+    assert (tmp_path / "d3_discovery.png").exists()
+
+
+@pytest.mark.slow
+def test_cubic_spring_is_discovered_over_seeds(tmp_path):
+    """Measured through the CLI at this size on seeds 1-5 (docs/diagnosis.md): the claim
+    held on 4 of 5 (on seed 2 the base model had absorbed the spring: base at the noise,
+    nothing to find); with the drag, 9 of 10. Asserted: 2 of seeds 3-5."""
+    ok = [_found(_cli(tmp_path, "cubic_spring", 1000.0, seed)[0], "theta")
+          for seed in (3, 4, 5)]
+    assert sum(ok) >= 2, ok
 
 
 @pytest.mark.slow
@@ -205,10 +229,15 @@ def _tank_record(seed: int, k_over: float) -> Dataset:
 
 @pytest.mark.slow
 def test_user_model_outside_term_uses_the_unmeasured_level():
-    res = _run(_tank_record(0, 0.2), two_tank.make_model())
-    found = [s.to_json() for s in _discovered(res) if s.accepted]
-    assert len(found) == 1
-    assert "h1" in found[0]["uses"]
-    base, final = res.base.metrics["val"]["rmse"], res.final.metrics["val"]["rmse"]
-    assert final <= base / 3 or final <= 1.5 * NOISE, (base, final)
-    assert not math.isnan(final)
+    """Measured on record/search seeds 0-4 (docs/diagnosis.md): a term using ``h1``
+    accepted, validation 3x lower or at 1.5x the noise, on 4 of 5 (seed 2: a term in
+    ``u`` and ``h2`` instead); asserted: 2 of seeds 0-2."""
+    ok = []
+    for seed in (0, 1, 2):
+        res = _run(_tank_record(seed, 0.2), two_tank.make_model(), seed=seed)
+        found = [s.to_json() for s in _discovered(res) if s.accepted]
+        base, final = res.base.metrics["val"]["rmse"], res.final.metrics["val"]["rmse"]
+        assert not math.isnan(final)
+        ok.append(len(found) == 1 and "h1" in found[0]["uses"]
+                  and (final <= base / 3 or final <= 1.5 * NOISE))
+    assert sum(ok) >= 2, ok

@@ -1,0 +1,148 @@
+"""The discovered resonant mode (hhra_phys.discover.DiscoveredMode): a candidate with new states.
+
+The part is checked against SciPy's filter of the package's own simulation (the
+mode's equations), its save/load round trip and screening; the loop's use of it
+against records of the independent reference model read through a resonant
+sensor (:mod:`hhra_phys.reference.resonant`) and records without a resonance.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+from scipy import signal as sps
+
+from hhra_phys import Simulator
+from hhra_phys.discover import MODE_ENTRIES, DiscoveredMode, mode_column
+from hhra_phys.errors import ModelError
+from hhra_phys.fit import fit
+from hhra_phys.loop import augment
+from hhra_phys.models.hhra import HHRAModel
+from hhra_phys.reference.hhra import reference_record
+from hhra_phys.reference.outside import outside_record
+from hhra_phys.reference.resonant import resonant_record
+from hhra_phys.result import FitResult
+
+NOISE = 0.05
+LOOP = {"max_effects": 0, "pop_size": 20, "max_iter": 30}
+
+
+def _nominal(model):
+    return np.array([q.nominal for q in model.params])
+
+
+def test_output_mode_is_the_second_order_filter_of_the_output():
+    rec = outside_record("none", 0.0, seed=1, duration=2.0, noise_deg=0.0)
+    base = HHRAModel()
+    w, z = 2 * math.pi / 0.1, 0.1
+    for k in (1.0, 0.4):
+        mode = DiscoveredMode(index=1, w=w, zeta=z, mix=k, w_min=1.0, w_max=1e3, unit="deg")
+        m = base.with_parts(mode)
+        assert m.state_names[-2:] == ["mode1_a", "mode1_b"] and np.all(m.x0()[-2:] == 0)
+        y0 = Simulator(base, fs=rec.fs, substeps=4).simulate(rec.u, _nominal(base))
+        y1 = Simulator(m, fs=rec.fs, substeps=4).simulate(rec.u, _nominal(m))
+        t = np.arange(rec.n) / rec.fs
+        _, yf, _ = sps.lsim(([w * w], [1, 2 * z * w, w * w]), y0 - y0[0], t)
+        want = y0 + k * (yf + y0[0] - y0)
+        # lsim interpolates the sampled output linearly: agreement to 1 % of the change
+        assert np.max(np.abs(y1 - want)) < 0.01 * np.ptp(y0), k
+        assert np.max(np.abs(y1 - y0)) > 0.1 * np.ptp(y0) * k  # the mode does act
+    # The first-order column is the same filter (bilinear, at mix 1).
+    col = mode_column(y0, 1 / rec.fs, w, z)
+    assert np.max(np.abs(y0 + col - (yf + y0[0]))) < 0.01 * np.ptp(y0)
+
+
+def test_input_mode_filters_the_input():
+    base = HHRAModel()
+    u = np.r_[np.zeros(50), np.ones(250)] * 0.5
+    w, z = 2 * math.pi / 0.2, 0.2
+    mode = DiscoveredMode(target="input", index=2, w=w, zeta=z, mix=1.0, w_min=1.0,
+                          w_max=1e3, unit="mA")
+    m = base.with_parts(mode)
+    assert mode.name == "discovered_mode_input_2" and mode.stage == "input"
+    assert [s.fit_initial for s in mode.states] == [True, False]
+    # The HHRA's angle integrates the command: compare the rate of the two models.
+    y_filtered = Simulator(m, fs=250.0, substeps=4).simulate(u, _nominal(m))
+    t = np.arange(u.size) / 250.0
+    _, uf, _ = sps.lsim(([w * w], [1, 2 * z * w, w * w]), u, t, interp=False)
+    y_ref = Simulator(base, fs=250.0, substeps=4).simulate(uf, _nominal(base))
+    # sampled filter input (held) against the exact in-sample filter: a small lag only
+    assert np.max(np.abs(y_filtered - y_ref)) < 0.03 * np.ptp(y_ref)
+
+
+def test_mode_validates_its_fields_and_round_trips(tmp_path):
+    with pytest.raises(ModelError, match="output or the input"):
+        DiscoveredMode(target="rate:p")
+    with pytest.raises(ModelError, match="w_min"):
+        DiscoveredMode(w_min=2.0, w_max=1.0)
+    assert set(MODE_ENTRIES) == {"mode:output", "mode:input"}
+    mode = DiscoveredMode(index=1, w=60.0, zeta=0.1, mix=1.0, w_min=10.0, w_max=300.0,
+                          unit="deg")
+    assert mode.applicable(HHRAModel()) is None
+    assert "period 0.105 s" in mode.expression({})
+    rec = resonant_record(0.1, 0.1, seed=1, duration=2.0)
+    res = fit(rec, HHRAModel().with_parts(mode), optimizer="none", refine="none",
+              free=["g_valve", "mode1_w"], split=0.7)
+    back = FitResult.load(res.save(tmp_path / "fit.json"))
+    assert back.model.part_names() == res.model.part_names()
+    assert np.allclose(back.simulate(rec.u, x0=res.x0), res.simulate(rec.u, x0=res.x0),
+                       atol=1e-9)
+
+
+def _run(ds, seed, entries=None):
+    kw = {"entries": list(entries)} if entries else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return augment(ds, seed=seed, discover_kw=kw, **LOOP)
+
+
+def _mode_steps(res):
+    return [s.to_json() for s in res.steps if s.to_json().get("discovered")
+            and "period" in s.to_json()["screening"]]
+
+
+#: Hidden resonance of the tests: period 0.25 s, damping 0.1 (docs/diagnosis.md).
+PERIOD, DAMPING = 0.25, 0.1
+
+
+@pytest.mark.slow
+def test_hidden_resonance_is_found_with_its_frequency_in_the_ci():
+    """Reference records read through a resonant sensor, modes only (library rounds off).
+
+    Measured on seeds 1-3 (``experiments/discover.py``, docs/diagnosis.md): the output
+    mode accepted with the true frequency inside its 95 % CI on 3 of 3; asserted 2 of 3.
+    """
+    hits = []
+    for seed in (1, 2, 3):
+        ds = resonant_record(PERIOD, DAMPING, seed=seed, noise_deg=NOISE)
+        res = _run(ds, seed, MODE_ENTRIES)
+        acc = [s for s in _mode_steps(res) if s["accepted"]]
+        if acc:
+            w_lo, w_hi = next(v for k, v in acc[0]["ci95"].items() if k.endswith("_w"))
+            p_lo, p_hi = acc[0]["screening"]["period_ci95"]
+            hits.append(w_lo <= ds.metadata["truth"]["w"] <= w_hi and p_lo <= PERIOD <= p_hi)
+            assert acc[0]["expression"].startswith("y += ") and "period" in acc[0]["expression"]
+            assert res.chosen == [acc[0]["effect"]]
+    assert sum(hits) >= 2, hits
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed,make", [
+    (2, lambda: outside_record("none", 0.0, seed=2, noise_deg=NOISE)),
+    (1, lambda: reference_record(seed=1, duration=6.0, noise_deg=NOISE, levels=4,
+                                 effects={"valve_deadzone": {"i_dead": 0.2}})),
+], ids=["clean-seed2", "deadzone-seed1"])
+def test_no_mode_without_a_resonance(seed, make):
+    """Modes only, library rounds off: records without a resonance get no mode.
+
+    Measured (docs/diagnosis.md): no mode accepted on the clean records and the large
+    dead zone, seeds 1-3 each (a mode was refitted and rejected on these two); the
+    large input delay got one on 1 of 3 seeds (not tested here: in the loop the library's
+    delay comes first and the loop stops at the noise level).
+    """
+    res = _run(make(), seed, MODE_ENTRIES)
+    assert not any(s["accepted"] for s in _mode_steps(res))
+    assert res.chosen == []
