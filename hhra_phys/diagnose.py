@@ -69,8 +69,9 @@ __all__ = [
 #: reported as not identifiable from the record.
 DETECTABLE = 1.0
 
-#: Old names of entry points: the HHRA's valve command is its input; its
-#: acceleration is the rate of its velocity state.
+#: Old names of entry points, kept for effects written against earlier versions
+#: (the library itself declares ``"input"`` and ``"rate:omega"``): the HHRA's valve
+#: command is its input; its acceleration is the rate of its velocity state.
 ENTRY_ALIASES: dict[str, str] = {"command": "input", "accel": "rate:omega"}
 
 

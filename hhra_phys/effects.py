@@ -29,8 +29,9 @@ magnitude, default 1 mA), of motion effects to ``accel_scale`` (the model's
 the rig (mA, deg, 250 Hz) and on records in raw units and sample time.
 
 First-order signature. :meth:`Effect.first_order` returns, for a probe size of
-the effect, the change it makes at its entry point (``"command"``: the valve
-command, ``"accel"``: the angular acceleration, ``"output"``: the output) given the
+the effect, the change it makes at its entry point (``"input"``: the model's input,
+the valve command; ``"rate:omega"``: the rate of the velocity state, the angular
+acceleration; ``"output"``: the output) given the
 signals of a simulation without it. Propagated through the linearised model this
 is the direction in which the effect moves the output, which the diagnosis
 compares with the residual.
@@ -138,7 +139,7 @@ class CoulombFriction(Effect):
     name: ClassVar[str] = "coulomb_friction"
     reads: ClassVar[tuple[str, ...]] = ("omega",)
     writes: ClassVar[tuple[str, ...]] = ("omega",)
-    entry: ClassVar[str] = "accel"
+    entry: ClassVar[str] = "rate:omega"
     signature: ClassVar[str] = (
         "residual follows the sign of the simulated velocity; the error grows after "
         "each direction reversal and is largest at small inputs"
@@ -221,7 +222,7 @@ class GravityLoad(Effect):
     name: ClassVar[str] = "gravity_load"
     reads: ClassVar[tuple[str, ...]] = ("theta",)
     writes: ClassVar[tuple[str, ...]] = ("omega",)
-    entry: ClassVar[str] = "accel"
+    entry: ClassVar[str] = "rate:omega"
     signature: ClassVar[str] = (
         "residual drifts with the simulated angle (sin/cos of theta); it is absent "
         "where the shaft rests and may extrapolate badly outside the angles seen"
@@ -313,7 +314,7 @@ class ValveDeadzone(_InputCorner, Effect):
     width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_deadzone"
-    entry: ClassVar[str] = "command"
+    entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "residual grows during small inputs (no motion where the model moves) and the "
         "apparent gain depends on the input level"
@@ -353,7 +354,7 @@ class ValveSaturation(_InputCorner, Effect):
     width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_saturation"
-    entry: ClassVar[str] = "command"
+    entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "the apparent gain falls at the largest inputs (the residual follows the input "
         "level at its extremes only)"
@@ -398,7 +399,7 @@ class InputDelay(Effect):
     max_delay: int = 8
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "input_delay"
-    entry: ClassVar[str] = "command"
+    entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "the measured response lags the simulated one: the cross-correlation of measured "
         "and simulated output changes peaks at a positive lag; residual follows the "
@@ -454,7 +455,7 @@ class ValveDynamics(Effect):
     dt: float = 0.004
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_dynamics"
-    entry: ClassVar[str] = "command"
+    entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "the response to each input step starts late and rounded; high-frequency residual "
         "after input changes (an integrating output hides it)"
@@ -504,7 +505,7 @@ class AsymmetricValve(Effect):
     name: ClassVar[str] = "asymmetric_valve"
     reads: ClassVar[tuple[str, ...]] = ("command", "flow")
     writes: ClassVar[tuple[str, ...]] = ("flow",)
-    entry: ClassVar[str] = "command"
+    entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "residual drifts in proportion to the integral of |input| (time-growing drift "
         "whatever the direction)"
