@@ -6,8 +6,8 @@ The record is split in time order into three parts (default 50/25/25 %):
 
     fit the base model on estimation (as a plain fit: H-GWO 100 x 200 + IPOPT), or reuse one
     repeat:
-        stop if the selection residual is at the noise level
-            (RMSE <= (1 + noise_tol) * noise level, or white by Ljung-Box)
+        stop if the selection residual and the estimation residual are both at the
+            noise level (RMSE <= (1 + noise_tol) * noise level, or white by Ljung-Box)
         rank the effects not yet in the model (hhra_phys.diagnose.analyse)
         for the (top-ranked) candidates, anywhere (an Executor) or here:
             add the effect; global search over its new parameters only, the
@@ -68,6 +68,9 @@ __all__ = [
     "base_model_for",
     "split_record",
     "selection_noise",
+    "at_noise_level",
+    "noise_stop",
+    "stops_at_noise",
     "refit_candidate",
     "NOISE_TOL",
 ]
@@ -371,18 +374,29 @@ def _output_range(problem: Problem, values: np.ndarray, data: Dataset) -> tuple[
     return float(np.nanmin(y)), float(np.nanmax(y))
 
 
-def selection_noise(problem: Problem, res: FitResult, sel: Dataset) -> dict[str, float | bool]:
-    """Where the selection residual stands against the noise.
+def selection_noise(problem: Problem, res: FitResult, sel: Dataset | None) -> dict[str, Any]:
+    """Where a part's residual stands against the noise.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fitted model's problem (on the estimation part).
+    res : FitResult
+        Its fit.
+    sel : Dataset or None
+        The part to look at: the selection part (free run, initial state
+        re-estimated on it), or ``None`` for the estimation part itself (the
+        fit's residual, fitted initial state).
 
     Returns
     -------
     dict
-        ``rmse`` (selection RMSE, output units), ``noise`` (its white-noise level,
+        ``rmse`` (RMSE of the part, output units), ``noise`` (its white-noise level,
         :func:`~hhra_phys.diagnose.noise_level`), ``ratio`` (``rmse/noise``),
-        ``ljung_box_p`` and ``white`` (``p > 0.05``) of the selection residual.
+        ``ljung_box_p`` and ``white`` (``p > 0.05``) of the residual.
     """
     y = problem.simulate_values(_free_values(problem, res), data=sel)
-    r = sel.y - y
+    r = (problem.data if sel is None else sel).y - y
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
@@ -391,6 +405,65 @@ def selection_noise(problem: Problem, res: FitResult, sel: Dataset) -> dict[str,
     w = whiteness(r)
     return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
             "ljung_box_p": float(w["ljung_box_p"]), "white": bool(w["white"])}
+
+
+def at_noise_level(level: Mapping[str, Any], noise_tol: float) -> bool:
+    """Whether a residual (a :func:`selection_noise` dictionary) leaves nothing to model.
+
+    At the noise level: ``rmse <= (1 + noise_tol) * noise`` or white by Ljung-Box.
+    """
+    return bool(level["ratio"] <= 1 + noise_tol or level["white"])
+
+
+def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
+               parts: str = "both") -> tuple[dict[str, Any], bool]:
+    """The loop's noise-level stop: both non-test parts must be at the noise level.
+
+    The selection part alone is a quarter of the record; a weak effect that it
+    does not excite (a friction with few reversals in it) can leave it at the noise
+    level while the estimation part, twice as long, still shows the effect. A
+    round is therefore run when *either* part is above the noise level; the test
+    part is never looked at. Whether a candidate is then accepted is still decided
+    on selection by :func:`acceptance`, so a round that runs on the estimation
+    part's evidence cannot add an effect the selection part does not confirm.
+
+    Parameters
+    ----------
+    problem, res : Problem, FitResult
+        The current model's problem and fit.
+    sel : Dataset
+        The selection part.
+    noise_tol : float
+        Structural-mismatch allowance (fraction of the noise level).
+    parts : {"both", "selection"}
+        ``"both"`` (the rule above) or ``"selection"``: the earlier rule, which
+        stopped on the selection part alone (kept to measure the two side by side).
+
+    Returns
+    -------
+    level : dict
+        :func:`selection_noise` of the selection part, with the estimation part's
+        under ``"estimation"``.
+    stop : bool
+        Both parts (or the selection part) at the noise level (:func:`at_noise_level`).
+    """
+    level = selection_noise(problem, res, sel)
+    level["estimation"] = selection_noise(problem, res, None)
+    return level, stops_at_noise(level, noise_tol, parts)
+
+
+def stops_at_noise(level: Mapping[str, Any], noise_tol: float, parts: str = "both") -> bool:
+    """The decision of :func:`noise_stop` from its ``level`` dictionary.
+
+    ``"both"``: the selection part and ``level["estimation"]`` are at the noise
+    level (:func:`at_noise_level`); ``"selection"``: the selection part is.
+    """
+    if parts not in ("both", "selection"):
+        raise ParameterError(f"stop_on must be 'both' or 'selection', got {parts!r}")
+    stop = at_noise_level(level, noise_tol)
+    if parts == "both":
+        stop = stop and at_noise_level(level["estimation"], noise_tol)
+    return stop
 
 
 @dataclass(frozen=True)
@@ -566,6 +639,7 @@ def augment(
     background: bool = True,
     discover: bool = True,
     discover_kw: Mapping[str, Any] | None = None,
+    stop_on: str = "both",
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -646,6 +720,10 @@ def augment(
     discover_kw : dict, optional
         Options of :func:`~hhra_phys.discover.discover_step` (``method``,
         ``n_entries``, ``max_terms``, ``entries``).
+    stop_on : {"both", "selection"}
+        Noise-level stop (:func:`noise_stop`): stop when the estimation *and*
+        selection residuals are at the noise level (default), or, the earlier rule,
+        the selection residual alone. The test part is never looked at.
 
     Returns
     -------
@@ -657,8 +735,9 @@ def augment(
     least ``margin``, the information criterion on estimation falls, and the
     selection variance it removes exceeds the noise allowance above; the best
     such candidate of a round is added. The loop stops when a round accepts
-    nothing, ``max_effects`` are in, or the selection residual is at the noise
-    level (``rmse <= (1 + noise_tol) * noise`` or white by Ljung-Box).
+    nothing, ``max_effects`` are in, or the estimation and selection residuals are
+    both at the noise level (``rmse <= (1 + noise_tol) * noise`` or white by
+    Ljung-Box, each with its own noise level).
     """
     say = progress or (lambda s: None)
     if criterion not in ("bic", "aic"):
@@ -668,6 +747,8 @@ def augment(
     tol = NOISE_TOL if noise_tol is None else float(noise_tol)
     if not tol >= 0:
         raise ParameterError(f"noise_tol must be >= 0, got {noise_tol}")
+    if stop_on not in ("both", "selection"):
+        raise ParameterError(f"stop_on must be 'both' or 'selection', got {stop_on!r}")
     est, sel, held = split_record(data, split, test)
     names = list(candidates) if candidates is not None else list(EFFECTS)
     for n in names:
@@ -722,12 +803,16 @@ def augment(
             if not remaining:
                 stop = "no candidates left"
                 break
-            level = selection_noise(cur_prob, cur, sel)
+            level, at_noise = noise_stop(cur_prob, cur, sel, tol, stop_on)
             levels.append(level)
-            if level["ratio"] <= 1 + tol or level["white"]:
+            if at_noise:
+                e = level["estimation"]
                 stop = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
                         f"{level['ratio']:.3f} x noise {level['noise']:.3g}, Ljung-Box p "
                         f"{level['ljung_box_p']:.2g})")
+                if stop_on == "both":
+                    stop += (f", estimation residual too (RMSE {e['rmse']:.4g} = "
+                             f"{e['ratio']:.3f} x noise, Ljung-Box p {e['ljung_box_p']:.2g})")
                 say(f"round {rnd}: {stop}; stop")
                 break
             diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
@@ -808,7 +893,7 @@ def augment(
             chosen.append(term_name)
             say(f"discovery: accepted {term_name}")
     # ------------------------------------------------------------------------------------
-    final_level = selection_noise(cur_prob, cur, sel)
+    final_level, _ = noise_stop(cur_prob, cur, sel, tol)
     final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
         n for n in names if n not in chosen]) if names else None
     lo, hi = est_range
@@ -825,7 +910,7 @@ def augment(
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
                 "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
                 "noise_tol": tol, "criterion": criterion, "backend": backend,
-                "discover": discover,
+                "discover": discover, "stop_on": stop_on,
                 "executor": type(executor).__name__ if executor is not None else None,
                 "base_given": base is not None, "stop": stop,
                 "noise_levels": levels + [final_level],
