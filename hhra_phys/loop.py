@@ -484,6 +484,9 @@ class _Job:
     crit_cur: float
     rmse_cur: float
     est_range: tuple[float, float]
+    #: Parameters of the effects accepted in earlier rounds, searched again with the
+    #: new ones (``augment(joint_search=True)``); empty: held at the previous fit.
+    previous: tuple[str, ...] = ()
 
 
 @dataclass
@@ -517,7 +520,8 @@ def _candidate_model(job: _Job) -> tuple[Model, list[str], Any]:
 def refit_candidate(job: _Job) -> _Outcome:
     """Add one effect to the current model, refit and score it on the selection part.
 
-    Global search over the effect's new parameters with the previous fit held (and
+    Global search over the effect's new parameters (and those of the effects
+    accepted earlier, ``job.previous``) with the rest of the previous fit held (and
     seeded), then IPOPT over all free parameters. Runs anywhere: the argument and
     the result are plain picklable data, so :func:`augment` may send it to any
     :class:`concurrent.futures.Executor` (processes, a Dask cluster); the result
@@ -527,10 +531,15 @@ def refit_candidate(job: _Job) -> _Outcome:
     cfg = job.cfg
     try:
         model_c, new, eff = _candidate_model(job)
-        fixed = {n: job.values[n] for n in job.free}
+        # An effect accepted earlier may have absorbed part of this one (a dead zone
+        # fitted alone grows to mimic a sharp friction beside it); IPOPT from the held
+        # value then stays in that local minimum, so those parameters are searched
+        # again with the new ones (seeded at their previous values).
+        searched = new + [n for n in job.previous if n in job.free]
+        fixed = {n: job.values[n] for n in job.free if n not in searched}
         all_free = list(job.free) + new
-        pop, iters = _search_size(len(new), job.cand_pop, job.cand_iter)
-        p1 = _problem(cfg, model_c, new, fixed, job.values, job.x0)
+        pop, iters = _search_size(len(searched), job.cand_pop, job.cand_iter)
+        p1 = _problem(cfg, model_c, searched, fixed, job.values, job.x0)
         r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
         p2 = _problem(cfg, model_c, all_free, {}, r1.values, r1.x0, simulator=p1.sim)
         r2 = _run(cfg, p2, "none", 0, 0)
@@ -640,6 +649,7 @@ def augment(
     discover: bool = True,
     discover_kw: Mapping[str, Any] | None = None,
     stop_on: str = "both",
+    joint_search: bool = True,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -724,6 +734,12 @@ def augment(
         Noise-level stop (:func:`noise_stop`): stop when the estimation *and*
         selection residuals are at the noise level (default), or, the earlier rule,
         the selection residual alone. The test part is never looked at.
+    joint_search : bool
+        A candidate's global search also covers the parameters of the effects
+        accepted in earlier rounds (default), instead of holding them at the
+        previous fit: an effect fitted alone can absorb part of the next one (a dead
+        zone grown to mimic a sharp friction) and hold the refit in that local
+        minimum (docs/diagnosis.md, "Simulated study").
 
     Returns
     -------
@@ -828,7 +844,9 @@ def augment(
             rmse_cur = float(cur.metrics["val"]["rmse"])
             jobs = [_Job(cfg, rnd, ev.name, dict((effect_kw or {}).get(ev.name, {})),
                          cur_prob.model, tuple(cur_free), dict(cur.values), dict(cur.x0),
-                         ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range)
+                         ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range,
+                         tuple(n for n in cur_free if n not in base_free)
+                         if joint_search else ())
                      for ev in (ranked if top_k is None else ranked[:top_k])]
             if compiler is not None:
                 for job in jobs:
@@ -836,8 +854,8 @@ def augment(
                         m_c, new, _ = _candidate_model(job)
                     except Exception:  # noqa: BLE001 - the refit reports it
                         continue
-                    compiler.submit(_warm_compile, cfg, m_c,
-                                    2 * _search_size(len(new), cand_pop, cand_iter)[0])
+                    compiler.submit(_warm_compile, cfg, m_c, 2 * _search_size(
+                        len(new) + len(job.previous), cand_pop, cand_iter)[0])
             outcomes = (executor.map(refit_candidate, jobs) if executor is not None
                         else map(refit_candidate, jobs))
             tried: list[tuple[Step, _Outcome]] = []
@@ -910,7 +928,7 @@ def augment(
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
                 "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
                 "noise_tol": tol, "criterion": criterion, "backend": backend,
-                "discover": discover, "stop_on": stop_on,
+                "discover": discover, "stop_on": stop_on, "joint_search": joint_search,
                 "executor": type(executor).__name__ if executor is not None else None,
                 "base_given": base is not None, "stop": stop,
                 "noise_levels": levels + [final_level],
