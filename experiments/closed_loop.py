@@ -21,7 +21,7 @@ docs/diagnosis.md).
     python experiments/closed_loop.py [--seeds 2 | --seeds 4,5] [--duration 8] [--out FILE.json]
         [--source reference|rig] [--sharp EFFECTS] [--sizes large|small|both] [--discover]
         [--pairs A+B,C+D] [--max-effects 2] [--top K] [--stop-on both|selection]
-        [--no-joint-search]
+        [--joint-search]
 
 With ``--sharp``, a record hiding one of those effects is generated with every
 switch exact (``smooth=False`` for the whole reference plant: a dead zone beside a
@@ -139,9 +139,9 @@ def main() -> None:
     ap.add_argument("--max-effects", type=int, default=2, help="the loop's max_effects")
     ap.add_argument("--stop-on", choices=("both", "selection"), default="both",
                     help="the loop's noise-level stop (augment's stop_on)")
-    ap.add_argument("--no-joint-search", action="store_true",
-                    help="hold earlier effects' parameters in a candidate's global search "
-                         "(augment's joint_search=False, the earlier loop)")
+    ap.add_argument("--joint-search", action=argparse.BooleanOptionalAction, default=False,
+                    help="search earlier effects' parameters again in a candidate's global "
+                         "search (augment's joint_search; default: held)")
     ap.add_argument("--discover", action="store_true",
                     help="let the loop look for a term outside the library (off: library "
                          "effects only)")
@@ -170,7 +170,7 @@ def main() -> None:
     out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
     loop_kw = {"max_effects": args.max_effects, "top_k": args.top, "pop_size": 20,
                "max_iter": 30, "discover": args.discover, "stop_on": args.stop_on,
-               "joint_search": not args.no_joint_search}
+               "joint_search": args.joint_search}
     load_start = os.getloadavg()
     pick = {"small": [0], "large": [1], "both": [0, 1]}[args.sizes]
     kinds = set(args.cases.split(","))
