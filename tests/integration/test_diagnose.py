@@ -138,8 +138,9 @@ def test_two_hidden_effects_are_both_found():
     Every candidate refitted: with the two best-ranked only, delay ranked 5th of 8 after
     the dead zone and the measured rate was 0 of 5 (valve_dynamics accepted in its place on
     2). Measured with every candidate (seeds 1-5,
-    ``docs/figures/diagnosis_reference_study_pair_dz_delay_joint.json``): both found on 4 of
-    5 (seed 5: valve_dynamics instead of the delay). Here seed 2, and the JSON layout.
+    ``docs/figures/diagnosis_reference_study_pair_dz_delay.json``): both found on 5 of 5,
+    truth in the CI on 5 of 5, no other effect. Here seed 2 (one pair loop keeps the CI
+    time in check), and the JSON layout.
     """
     truth = {"valve_deadzone": {"i_dead": 0.2}, "input_delay": {"delay": 4.0}}
     res = _run(_reference(truth, 2), seed=2, max_effects=2, top_k=None)
