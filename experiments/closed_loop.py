@@ -18,14 +18,21 @@ often the true parameter lies in the final 95 % CI, why the loop stopped and the
 time per record. Writes a JSON file and prints Markdown tables (pasted into
 docs/diagnosis.md).
 
-    python experiments/closed_loop.py [--seeds 2] [--duration 8] [--out FILE.json]
-        [--source reference|rig] [--sharp] [--sizes large|small|both] [--discover]
+    python experiments/closed_loop.py [--seeds 2 | --seeds 4,5] [--duration 8] [--out FILE.json]
+        [--source reference|rig] [--sharp EFFECTS] [--sizes large|small|both] [--discover]
+        [--pairs A+B,C+D] [--max-effects 2] [--top K] [--stop-on both|selection]
+        [--joint-search]
+
+With ``--sharp``, a record hiding one of those effects is generated with every
+switch exact (``smooth=False`` for the whole reference plant: a dead zone beside a
+sharp friction is exact too).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
@@ -52,7 +59,9 @@ SIZES: dict[str, list[dict[str, float]]] = {
     "sensor_offset": [{"y_offset": 0.5}, {"y_offset": 3.0}],
     "asymmetric_valve": [{"asym": 0.03}, {"asym": 0.15}],
 }
-PAIRS = [("valve_deadzone", "input_delay"), ("coulomb_friction", "gravity_load")]
+#: Pairs of hidden effects (large sizes), by name for ``--pairs``.
+PAIRS = [("valve_deadzone", "input_delay"), ("coulomb_friction", "gravity_load"),
+         ("valve_deadzone", "coulomb_friction")]
 
 
 def make_record(effects: dict[str, dict[str, float]], seed: int, duration: float,
@@ -104,7 +113,8 @@ def run_case(effects: dict[str, dict[str, float]], seed: int, duration: float,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--seeds", default="2",
+                    help="N (seeds 1..N) or a comma-separated list of seeds")
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--effects", default=",".join(EFFECTS))
     ap.add_argument("--out", default="docs/figures/diagnosis_closed_loop.json")
@@ -123,6 +133,15 @@ def main() -> None:
                     help="which effect sizes of SIZES to run")
     ap.add_argument("--clean", type=int, default=None,
                     help="number of clean records (default: 2 per seed)")
+    ap.add_argument("--pairs", default=None,
+                    help="pairs to run with --cases pairs, e.g. valve_deadzone+input_delay "
+                         "(comma-separated; default: all of PAIRS)")
+    ap.add_argument("--max-effects", type=int, default=2, help="the loop's max_effects")
+    ap.add_argument("--stop-on", choices=("both", "selection"), default="both",
+                    help="the loop's noise-level stop (augment's stop_on)")
+    ap.add_argument("--joint-search", action=argparse.BooleanOptionalAction, default=False,
+                    help="search earlier effects' parameters again in a candidate's global "
+                         "search (augment's joint_search; default: held)")
     ap.add_argument("--discover", action="store_true",
                     help="let the loop look for a term outside the library (off: library "
                          "effects only)")
@@ -132,13 +151,30 @@ def main() -> None:
         ap.error("--sharp needs --source reference")
     if sharp - set(SIZES):
         ap.error(f"--sharp: unknown effect(s) {', '.join(sorted(sharp - set(SIZES)))}")
+    try:
+        seeds = ([int(x) for x in args.seeds.split(",")] if "," in args.seeds
+                 else list(range(1, int(args.seeds) + 1)))
+    except ValueError:
+        ap.error(f"--seeds: expected N or a comma-separated list of integers, got {args.seeds!r}")
+    if not seeds:
+        ap.error("--seeds: no seed")
+    pairs = PAIRS
+    if args.pairs:
+        pairs = [tuple(p.split("+")) for p in args.pairs.split(",")]
+        for p in pairs:
+            if len(p) != 2 or set(p) - set(SIZES):
+                ap.error(f"--pairs: expected EFFECT+EFFECT of {', '.join(SIZES)}, got "
+                         f"{'+'.join(p)!r}")
+    if args.max_effects < 1:
+        ap.error("--max-effects must be >= 1")
     out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
-    loop_kw = {"max_effects": 2, "top_k": args.top, "pop_size": 20, "max_iter": 30,
-               "discover": args.discover}
+    loop_kw = {"max_effects": args.max_effects, "top_k": args.top, "pop_size": 20,
+               "max_iter": 30, "discover": args.discover, "stop_on": args.stop_on,
+               "joint_search": args.joint_search}
+    load_start = os.getloadavg()
     pick = {"small": [0], "large": [1], "both": [0, 1]}[args.sizes]
     kinds = set(args.cases.split(","))
     rows = []
-    seeds = list(range(1, args.seeds + 1))
     n_clean = 2 * len(seeds) if args.clean is None else args.clean
     cases: list[dict[str, dict[str, float]]] = [{}] * n_clean if "clean" in kinds else []
     if "single" in kinds:
@@ -147,7 +183,7 @@ def main() -> None:
                 ap.error(f"--effects: unknown effect {name!r}; known: {', '.join(SIZES)}")
             cases += [{name: SIZES[name][i]} for i in pick]
     if "pairs" in kinds:
-        cases += [{a: SIZES[a][1], b: SIZES[b][1]} for a, b in PAIRS]
+        cases += [{a: SIZES[a][1], b: SIZES[b][1]} for a, b in pairs]
     for i, eff in enumerate(cases):
         for seed in seeds if eff else [seeds[i % len(seeds)] + 10 * (i // len(seeds))]:
             row = run_case(eff, seed, args.duration, loop_kw, args.source,
@@ -162,6 +198,7 @@ def main() -> None:
             atomic_write_text(out, json.dumps(jsonable(
                 {"noise": NOISE, "duration": args.duration, "loop": loop_kw,
                  "source": args.source, "sharp": sorted(sharp),
+                 "loadavg_start": load_start, "loadavg_now": os.getloadavg(),
                  "command": "python " + " ".join(sys.argv), "rows": rows}), indent=1))
     print_tables(rows)
 

@@ -1,7 +1,12 @@
-"""Residual statistics, effect ranking and the closed loop on rig records with hidden effects.
+"""Residual statistics, effect ranking and the closed loop on records with hidden effects.
 
-Short records (6 s at 250 Hz, 4-level excitation), small populations: the CI
-version of experiments/closed_loop.py.
+Short records (6 s at 250 Hz, 4-level excitation, 0.05 deg noise), small populations,
+the two best-ranked candidates refitted per round: the CI version of
+experiments/closed_loop.py. The loop's claims are rates over seeds on records of the
+independent reference rig (:func:`hhra_phys.reference.reference_record`), with the
+counts asserted set from the study of the same settings in docs/diagnosis.md
+("Simulated study", raw rows ``docs/figures/diagnosis_reference_study_*.json``), not
+tuned to one seed.
 """
 
 from __future__ import annotations
@@ -16,30 +21,50 @@ import pytest
 from hhra_phys.diagnose import noise_level, output_delay, whiteness
 from hhra_phys.effects import make_effect
 from hhra_phys.loop import augment
+from hhra_phys.reference import reference_record
 from hhra_phys.rig import simulate_rig
 
 NOISE = 0.05
+#: The large sizes of experiments/closed_loop.py.
 HIDDEN = {
-    "coulomb_friction": {"g_coulomb": 25.0},
-    "valve_deadzone": {"i_dead": 0.15},
-    "input_delay": {"delay": 3.4},
+    "coulomb_friction": {"g_coulomb": 30.0},
+    "valve_deadzone": {"i_dead": 0.2},
+    "input_delay": {"delay": 4.0},
     "gravity_load": {"g_grav_cos": 10.0, "g_grav_sin": -15.0},
     "backlash": {"play": 1.5},
 }
+#: Seed of each effect's record in the rate test: effect i on seed i + 1, fixed before the
+#: run (the study ran every effect on seeds 1-5; five loops keep the CI time of the old test).
+SEEDS = {name: i + 1 for i, name in enumerate(HIDDEN)}
 # The library path; discovery (on by default) has its own tests (test_discover.py).
 LOOP = {"max_effects": 1, "top_k": 2, "pop_size": 20, "max_iter": 30, "discover": False}
 
 
 def _record(effects: dict[str, dict[str, float]], seed: int = 3):
+    """A record of the package's own rig (CLI and clean-record tests)."""
     return simulate_rig(seed=seed, duration=6.0, noise=NOISE, levels=4,
                         effects=[make_effect(n) for n in effects],
                         effect_params={k: v for p in effects.values() for k, v in p.items()})
+
+
+def _reference(effects: dict[str, dict[str, float]], seed: int, smooth: bool = True):
+    """A record of the independent reference rig (the rate tests)."""
+    return reference_record(seed=seed, duration=6.0, noise_deg=NOISE, levels=4,
+                            effects=effects, smooth=smooth)
 
 
 def _run(ds, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return augment(ds, **{**LOOP, **kw})
+
+
+def _found_in_ci(res, truth: dict[str, dict[str, float]]) -> bool:
+    """The loop chose exactly the hidden effects and every true value is in its 95 % CI."""
+    if sorted(res.chosen) != sorted(truth):
+        return False
+    return all(res.final.ci95[k][0] <= v <= res.final.ci95[k][1]
+               for p in truth.values() for k, v in p.items())
 
 
 def test_whiteness_tells_white_from_coloured():
@@ -78,34 +103,57 @@ def test_clean_record_adds_nothing():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", list(HIDDEN))
-def test_loop_finds_the_hidden_effect(name):
-    truth = HIDDEN[name]
-    res = _run(_record({name: truth}))
-    assert res.chosen == [name]
-    for pname, value in truth.items():
-        lo, hi = res.final.ci95[pname]
-        assert lo <= value <= hi, (pname, value, (lo, hi))
-    before = res.base.metrics["val"]["rmse"]
-    after = res.final.metrics["val"]["rmse"]
-    assert after <= before / 5 or after <= 1.5 * NOISE, (before, after)
-    step = next(s for s in res.steps if s.accepted)
-    # The accepted candidate is polished after its (capped) refit: same or better.
-    assert step.evidence["score"] > 0 and after <= step.val["rmse"] * 1.001
+def test_loop_finds_each_hidden_effect_at_the_measured_rate():
+    """Each library effect hidden alone: found, with the truth in the 95 % CI.
+
+    Measured (same settings, reference records, every effect on seeds 1-5,
+    ``docs/figures/diagnosis_reference_study_ci_single.json``): 24 of 25 found with the
+    truth in the 95 % CI (friction, dead zone, delay and angle load 5 of 5; backlash 4 of
+    5: on seed 4 the two best-ranked candidates did not include it), no wrong effect, test
+    RMSE after at most 1.10 x the noise. Here one seed per effect: at least 4 of the 5.
+    """
+    runs = {name: _run(_reference({name: HIDDEN[name]}, seed), seed=seed)
+            for name, seed in SEEDS.items()}
+    ok = {name: _found_in_ci(res, {name: HIDDEN[name]}) for name, res in runs.items()}
+    summary = {n: (r.chosen, {k: r.final.values.get(k) for k in HIDDEN[n]})
+               for n, r in runs.items()}
+    assert sum(ok.values()) >= 4, summary
+    assert not [c for n, r in runs.items() for c in r.chosen if c != n], summary
+    for name, res in runs.items():
+        if not res.chosen:
+            continue
+        before = res.base.metrics["val"]["rmse"]
+        after = res.final.metrics["val"]["rmse"]
+        assert after <= before / 5 or after <= 1.5 * NOISE, (name, before, after)
+        assert res.test["rmse"] <= 1.15 * NOISE, (name, res.test)
+        step = next(s for s in res.steps if s.accepted)
+        # The accepted candidate is polished after its (capped) refit: same or better.
+        assert step.evidence["score"] > 0 and after <= step.val["rmse"] * 1.001
 
 
 @pytest.mark.slow
 def test_two_hidden_effects_are_both_found():
-    truth = {"valve_deadzone": {"i_dead": 0.15}, "input_delay": {"delay": 3.4}}
-    res = _run(_record(truth, seed=5), max_effects=3, top_k=2)
-    assert sorted(res.chosen) == sorted(truth)
+    """Dead zone and input delay hidden together (reference record, smooth switching).
+
+    Every candidate refitted: with the two best-ranked only, delay ranked 5th of 8 after
+    the dead zone and the measured rate was 0 of 5 (valve_dynamics accepted in its place on
+    2). Measured with every candidate (seeds 1-5,
+    ``docs/figures/diagnosis_reference_study_pair_dz_delay.json``): both found on 5 of 5,
+    truth in the CI on 5 of 5, no other effect. Here seed 2 (one pair loop keeps the CI
+    time in check), and the JSON layout.
+    """
+    truth = {"valve_deadzone": {"i_dead": 0.2}, "input_delay": {"delay": 4.0}}
+    res = _run(_reference(truth, 2), seed=2, max_effects=2, top_k=None)
+    assert sorted(res.chosen) == sorted(truth), res.chosen
     assert res.final.metrics["val"]["rmse"] <= 1.5 * NOISE
     js = res.to_json()
     assert json.loads(json.dumps(js))["chosen"] == res.chosen
     for key in ("base", "final"):
-        for part in ("est", "val"):
+        for part in ("est", "val", "test"):
             assert math.isfinite(js[key][part]["rmse"]) and "vaf" in js[key][part]
     assert {"effect", "evidence", "params", "val", "accepted"} <= set(js["steps"][0])
+    level = js["settings"]["noise_levels"][0]
+    assert {"ratio", "white", "estimation"} <= set(level) and "ratio" in level["estimation"]
 
 
 @pytest.mark.slow

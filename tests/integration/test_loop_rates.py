@@ -1,12 +1,12 @@
 """Rates of the diagnosis loop on records of the independent reference rig.
 
 The loop (:func:`hhra_phys.loop.augment`, three-way split, library effects only,
-``discover=False``) runs on short records (8 s at 250 Hz, 0.05 deg noise) of
+``discover=False``) runs on short records (8 s at 250 Hz, the pair 6 s; 0.05 deg noise) of
 :func:`hhra_phys.reference.reference_record`, whose plant is written without the
 package's model, so the library model never matches it exactly. The rates asserted
 are those measured in the study of ``docs/diagnosis.md`` ("Simulated study",
 ``experiments/closed_loop.py``, raw rows in
-``docs/figures/diagnosis_reference_study.json``) on the same seeds and settings,
+``docs/figures/diagnosis_reference_study*.json``) on the same seeds and settings,
 set at or below the measured counts, not tuned.
 """
 
@@ -19,12 +19,14 @@ import pytest
 from hhra_phys.loop import augment
 from hhra_phys.reference import reference_record
 
-pytestmark = pytest.mark.slow  # three loops of about 10 s each
+pytestmark = pytest.mark.slow  # loops of about 10 s each (a pair: about 40 s)
 
 SEEDS = (1, 2, 3)
 #: The study's loop settings (experiments/closed_loop.py).
 LOOP_KW = {"max_effects": 2, "pop_size": 20, "max_iter": 30, "discover": False}
 NOISE = 0.05
+#: Dead zone + sharp friction found together on at least this many of seeds 1-2.
+PAIR_MIN = 2
 
 
 def _loop(seed: int, effects: dict[str, dict[str, float]], smooth: bool):
@@ -67,3 +69,30 @@ def test_clean_records_add_nothing():
     runs = [_loop(s, {}, smooth=True) for s in SEEDS]
     assert all(not r.chosen for r in runs), [r.chosen for r in runs]
     assert all(r.test["rmse"] < 1.15 * NOISE for r in runs), [r.test for r in runs]
+
+
+def test_dead_zone_and_sharp_friction_both_found():
+    """A dead zone and exact stick-slip friction hidden together (issue 16).
+
+    Reference records with every switch exact (``smooth=False``: the dead zone is a clip,
+    the friction sticks), 6 s, both at the study's large sizes; every candidate refitted
+    (with the two best-ranked only, the friction ranked 7th of 8 after the dead zone and a
+    backlash stand-in was accepted: 0 of 5). Measured with these settings (docs/diagnosis.md,
+    seeds 1-5, ``docs/figures/diagnosis_reference_study_pair_dz_friction.json``): both
+    found on 4 of 5 (seed 3: the friction alone), no other effect, selection RMSE
+    0.050-0.058 deg. Here on seeds 1-2: both found on both, no other effect, selection
+    RMSE within 20 % of the noise.
+    """
+    truth = {"valve_deadzone": {"i_dead": 0.2}, "coulomb_friction": {"g_coulomb": 30.0}}
+    runs = []
+    for seed in SEEDS[:2]:
+        ds = reference_record(seed=seed, duration=6.0, noise_deg=NOISE, levels=4,
+                              effects=truth, smooth=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            runs.append(augment(ds, seed=seed, **LOOP_KW))
+    found = [r for r in runs if sorted(r.chosen) == sorted(truth)]
+    assert len(found) >= PAIR_MIN, [r.chosen for r in runs]
+    assert not [c for r in runs for c in r.chosen if c not in truth], [r.chosen for r in runs]
+    for r in found:
+        assert r.final.metrics["val"]["rmse"] < 1.2 * NOISE, r.final.metrics["val"]

@@ -1,16 +1,19 @@
-"""The loop's acceptance rule, case by case (``hhra_phys.loop._decide``).
+"""The loop's acceptance rule and its noise-level stop, case by case.
 
-A candidate is accepted only when all three hold: the selection RMSE falls by the margin,
-the information criterion on estimation falls, and the variance it removes exceeds what
-noise and structural mismatch allow, ``((1 + noise_tol)^2 - 1) * noise^2``. Each case
-below breaks exactly one of them.
+A candidate (``hhra_phys.loop._decide``) is accepted only when all three hold: the
+selection RMSE falls by the margin, the information criterion on estimation falls, and the
+variance it removes exceeds what noise and structural mismatch allow,
+``((1 + noise_tol)^2 - 1) * noise^2``. Each case below breaks exactly one of them. A
+round runs unless the estimation and the selection residuals are both at the noise level
+(``hhra_phys.loop.stops_at_noise``).
 """
 
 from __future__ import annotations
 
 import pytest
 
-from hhra_phys.loop import Step, _decide
+from hhra_phys.errors import ParameterError
+from hhra_phys.loop import Step, _decide, stops_at_noise
 
 NOISE = 0.05
 
@@ -42,3 +45,31 @@ def test_allowance_case_is_what_it_claims():
     assert 0.0600 ** 2 - 0.0535 ** 2 < (1.15 ** 2 - 1) * NOISE ** 2
     # and the same gain far above the noise is accepted
     assert _decide(_step(0.0535 * 4, -1.0), 0.0600 * 4, 0.0, NOISE, 0.1, 0.15, "bic")
+
+
+def _level(ratio: float, p: float) -> dict:
+    return {"rmse": ratio * NOISE, "noise": NOISE, "ratio": ratio, "ljung_box_p": p,
+            "white": p > 0.05}
+
+
+@pytest.mark.parametrize(
+    ("sel", "est", "both", "selection_only", "why"),
+    [
+        # the study's missed friction (seed 2, g_coulomb 8): selection 1.07 x noise,
+        # estimation 1.30 x noise and coloured: the round must run
+        ((1.07, 0.0), (1.30, 0.0), False, True, "estimation still shows structure"),
+        ((1.01, 0.2), (0.98, 0.5), True, True, "both parts at the noise level"),
+        ((1.40, 0.0), (1.00, 0.3), False, False, "selection shows structure"),
+        ((1.10, 0.0), (1.30, 0.3), True, True, "a white estimation residual counts as noise"),
+        ((1.30, 0.3), (1.30, 0.0), False, True, "a white selection residual alone is not enough"),
+    ],
+)
+def test_noise_stop_needs_both_non_test_parts(sel, est, both, selection_only, why):
+    level = {**_level(*sel), "estimation": _level(*est)}
+    assert stops_at_noise(level, 0.15, "both") is both, why
+    assert stops_at_noise(level, 0.15, "selection") is selection_only, why
+
+
+def test_noise_stop_refuses_an_unknown_rule():
+    with pytest.raises(ParameterError, match="stop_on"):
+        stops_at_noise({**_level(1.0, 0.5), "estimation": _level(1.0, 0.5)}, 0.15, "test")
