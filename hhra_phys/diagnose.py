@@ -836,8 +836,12 @@ def plot_loop_residuals(
     res : LoopResult
         Result of :func:`hhra_phys.loop.augment` (its ``base``/``final`` fits,
         ``diagnoses``, ``final_diagnosis``, ``chosen`` and ``settings["split"]``).
-    data : Dataset
-        The whole record the loop ran on.
+    data : Dataset or sequence of Dataset
+        The whole record the loop ran on; for a loop over several records, those
+        records: then the figures show the records' estimation residuals one after
+        another (time continued from one record to the next, as
+        :func:`combine_diagnoses` joins them), without the selection and test
+        parts, which belong to each record.
     before_path, after_path : str or None
         Figure files (None: not drawn).
     overwrite : bool
@@ -852,6 +856,8 @@ def plot_loop_residuals(
     """
     from hhra_phys.loop import split_record
 
+    if not isinstance(data, Dataset) or res.final.records:
+        return _records_loop_residuals(res, data, before_path, after_path, overwrite, label)
     split, test = float(res.settings["split"]), float(res.settings.get("test") or 0.0)
     _, _, held = split_record(data, split, test)
     # Everything after the estimation part: selection, then (if any) the test part.
@@ -872,4 +878,25 @@ def plot_loop_residuals(
         out[1] = plot_residuals(res.final_diagnosis, after_path, title, overwrite, before=first,
                                 accepted=res.chosen, validation=r_val, unit=data.output_unit,
                                 marks=marks)
+    return out
+
+
+def _records_loop_residuals(res: Any, data: Any, before_path: str | None,
+                            after_path: str | None, overwrite: bool,
+                            label: str) -> list[str | None]:
+    """:func:`plot_loop_residuals` of a loop over several records (its docstring)."""
+    records = [data] if isinstance(data, Dataset) else list(data)
+    unit = records[0].output_unit if records else ""
+    first = res.diagnoses[0] if res.diagnoses else None
+    names = " + ".join(r["name"] for r in res.final.records if r.get("n_est"))
+    prefix = f"{label}: " if label else ""
+    out: list[str | None] = [None, None]
+    if before_path and first is not None:
+        out[0] = plot_residuals(first, before_path, f"{prefix}before: base model ({names}, "
+                                "estimation parts one after another)", overwrite, unit=unit)
+    if after_path and res.final_diagnosis is not None:
+        title = (f"{prefix}after: base model + {', '.join(res.chosen)}" if res.chosen
+                 else f"{prefix}after: no effect accepted (the base model)")
+        out[1] = plot_residuals(res.final_diagnosis, after_path, f"{title} ({names})",
+                                overwrite, before=first, accepted=res.chosen, unit=unit)
     return out

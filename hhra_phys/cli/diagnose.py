@@ -145,8 +145,8 @@ def run(args: argparse.Namespace) -> int:
         if args.report:
             from hhra_phys.diagnose import plot_loop_residuals
 
-            paths = (_records_figures(res, figs, data.output_unit, args.overwrite) if several else
-                     list(plot_loop_residuals(res, data, figs[0], figs[1], args.overwrite)))
+            paths = list(plot_loop_residuals(res, records if several else data, figs[0],
+                                             figs[1], args.overwrite))
             found = [s for s in res.steps if getattr(s, "residuals", None)]
             if found:
                 from hhra_phys.discover import plot_discovery
@@ -181,30 +181,6 @@ def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, lis
             warnings += warns
     check_records(records + (validation or []))
     return records, validation, warnings
-
-
-def _records_figures(res: Any, figs: list[str | None], unit: str,
-                     overwrite: bool) -> list[str | None]:
-    """Before/after residual figures of a loop over several records.
-
-    The estimation residuals of the records one after another (time continued from
-    one record to the next; :func:`~hhra_phys.diagnose.combine_diagnoses`), without
-    the selection and test parts, which belong to each record.
-    """
-    from hhra_phys.diagnose import plot_residuals
-
-    first = res.diagnoses[0] if res.diagnoses else None
-    out: list[str | None] = [None, None]
-    names = " + ".join(r["name"] for r in res.final.records if r.get("n_est"))
-    if figs and first is not None:
-        out[0] = plot_residuals(first, figs[0], f"before: base model ({names}, estimation "
-                                "parts one after another)", overwrite, unit=unit)
-    if figs and res.final_diagnosis is not None:
-        title = (f"after: base model + {', '.join(res.chosen)}" if res.chosen
-                 else "after: no effect accepted (the base model)")
-        out[1] = plot_residuals(res.final_diagnosis, figs[1], f"{title} ({names})", overwrite,
-                                before=first, accepted=res.chosen, unit=unit)
-    return out
 
 
 def _fmt(v: Any, digits: int = 4) -> str:

@@ -16,6 +16,7 @@ import numpy as np
 from hhra_phys.compare.registry import method_label
 from hhra_phys.compare.report import _fmt
 from hhra_phys.compare.runner import Comparison
+from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path
 
@@ -62,6 +63,11 @@ def plot_outputs(
     """
     from matplotlib.figure import Figure
 
+    if not isinstance(comparison.dataset, Dataset):
+        raise ParameterError(
+            f"plot_outputs draws one record; this comparison ran on "
+            f"{len(comparison.dataset)} records: compare each record on its own to plot it "
+            "(per-record scores: the 'records' of comparison.to_dict() and of each method)")
     names = [n for n in (methods or comparison.results) if comparison.results[n].outcome]
     if not names:
         raise ParameterError("no successful method to plot")

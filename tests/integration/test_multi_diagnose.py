@@ -89,6 +89,26 @@ def test_whole_validation_records_are_the_test_part():
         augment([a, b], base=res.base, **TINY)
 
 
+def test_python_figures_of_several_records(tmp_path):
+    """The loop's figures draw a several-record result; a comparison's output plot refuses it."""
+    from hhra_phys.compare import plot_outputs, run_comparison
+    from hhra_phys.diagnose import plot_loop_residuals
+    from hhra_phys.errors import ParameterError
+
+    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
+    a, b = _short(11, 3.0, effects=friction), _short(12, 2.5, amplitude=0.6, effects=friction)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = augment([a, b], seed=0, **TINY)
+    paths = plot_loop_residuals(res, [a, b], str(tmp_path / "before.png"),
+                                str(tmp_path / "after.png"))
+    assert paths == [str(tmp_path / "before.png"), str(tmp_path / "after.png")]
+    assert all((tmp_path / n).stat().st_size > 1000 for n in ("before.png", "after.png"))
+    comp = run_comparison([a, b], methods=["ls"])
+    with pytest.raises(ParameterError, match="2 records"):
+        plot_outputs(comp)
+
+
 def test_cli_diagnose_and_compare_several_records(tmp_path):
     pa = save_csv(_short(8, 3.0), tmp_path / "A.csv")
     pb = save_csv(_short(9, 2.5, amplitude=0.6), tmp_path / "B.csv")
