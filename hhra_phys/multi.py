@@ -88,7 +88,7 @@ class MultiProblem:
         The model shared by all records.
     records : sequence of Dataset
         Estimation records (at least one; lengths and sample rates may differ).
-    cost, free, fixed, bounds, initial_state, substeps
+    cost, free, fixed, bounds, initial_state, substeps, default_bounds, allow_outside_box
         As for :class:`~hhra_phys.problem.Problem`; ``free`` names model
         parameters (the per-record copies are made here).
     start : dict, optional
@@ -122,6 +122,9 @@ class MultiProblem:
         start: Mapping[str, float] | None = None,
         per_record: Sequence[str] | None = None,
         names: Sequence[str] | None = None,
+        default_bounds: Mapping[str, tuple[float, float]] | None = None,
+        allow_outside_box: bool = False,
+        simulator: Simulator | None = None,
     ) -> None:
         records = list(records)
         if not records:
@@ -145,14 +148,15 @@ class MultiProblem:
                 raise ParameterError(f"start value {name!r}: there are only {len(records)} records")
             else:
                 own_start[k - 1][base] = float(value)
-        sims: dict[float, Simulator] = {}
+        sims: dict[float, Simulator] = {float(simulator.fs): simulator} if simulator else {}
         self.records: list[Problem] = []
         for i, ds in enumerate(records):
             sim = sims.get(float(ds.fs))
             pr = Problem(model, ds, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
                          bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                          simulator=sim, substeps=substeps,
-                         start={**shared_start, **own_start[i]})
+                         start={**shared_start, **own_start[i]},
+                         default_bounds=default_bounds, allow_outside_box=allow_outside_box)
             sims.setdefault(float(ds.fs), pr.sim)
             self.records.append(pr)
         self.model = model
@@ -163,6 +167,12 @@ class MultiProblem:
         self.fixed = first.fixed
         self.sim = first.sim
         self.simulators = sims
+        # Boxes are per model parameter, the same in every record (see Problem).
+        self.explicit_bounds = first.explicit_bounds
+        self.default_boxes = {k: v for pr in self.records for k, v in pr.default_boxes.items()}
+        self.widened = [w for pr in self.records for w in pr.widened]
+        self.notes = list(first.notes)
+        self._model_free = free
 
         # Stacked layout: the shared model parameters, then record by record its own.
         own = set(per_record)
@@ -192,6 +202,27 @@ class MultiProblem:
         self.names = (list(names) if names is not None else
                       [ds.name or ds.source or f"record {k}" for k, ds in
                        enumerate(records, start=1)])
+
+    def with_boxes(self, boxes: Mapping[str, tuple[float, float]]) -> MultiProblem:
+        """The same problem with the default boxes of some model parameters replaced.
+
+        As :meth:`Problem.with_boxes <hhra_phys.problem.Problem.with_boxes>`; ``boxes``
+        are keyed by model parameter names (a per-record parameter's box is every
+        record's).
+        """
+        first = self.records[0]
+        explicit = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if p.name in self.explicit_bounds}
+        defaults = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
+        defaults.update(boxes)
+        new = MultiProblem(self.model, self.data, cost=self.cost, free=self._model_free,
+                           fixed=self.fixed, bounds=explicit, default_bounds=defaults,
+                           initial_state=self.initial_state, per_record=self.per_record,
+                           names=self.names, allow_outside_box=True, simulator=self.sim)
+        new.default_boxes = {**new.default_boxes, **self.default_boxes}
+        new.widened = list(self.widened)
+        return new
 
     # The coordinate maps and the box are the one-record problem's, on the stacked arrays.
     to_z = Problem.to_z
@@ -296,17 +327,18 @@ def fit_records(
         est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
     kw = dict(problem_kwargs)
     bounds = kw.pop("bounds", None)
+    defaults = dict(kw.pop("default_bounds", None) or {})
     if model is None:
         model, auto = default_model(records[0])
         for ds in records[1:]:
             for name, (lo, hi) in default_model(ds)[1].items():
                 old = auto.get(name, (lo, hi))
                 auto[name] = (min(old[0], lo), max(old[1], hi))
-        free = kw.get("free")
-        chosen = set(free) if free is not None else set(default_free(model, kw.get("fixed")))
-        bounds = {**{k: v for k, v in auto.items() if k in chosen}, **(bounds or {})}
+        defaults = {**auto, **defaults}
     names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
-    problem = MultiProblem(model, est, bounds=bounds, per_record=per_record, names=names, **kw)
+    # Automatic and default boxes may be widened by the fit, the user's ``bounds`` not.
+    problem = MultiProblem(model, est, bounds=bounds, default_bounds=defaults,
+                           per_record=per_record, names=names, **kw)
     return problem, val_parts, whole_val
 
 
