@@ -247,7 +247,8 @@ class Problem:
                 par = par.with_(lower=lo, upper=hi, nominal=nominal)
             if par.scale == "log" and name not in self.explicit_bounds:
                 self.default_boxes[name] = (par.lower, par.upper)
-                par = self._box_for_start(par, float(self.base[model.params.index(name)]))
+                if start and name in start:  # a given start, not a nominal off the box
+                    par = self._box_for_start(par, float(start[name]))
             params.append(par)
         unknown = set(bounds or {}) - set(free)
         if unknown:

@@ -94,3 +94,22 @@ def test_explicit_bounds_of_a_two_record_fit_are_never_widened() -> None:
     assert res.settings["bounds"]["g_damping"] == list(box)
     assert all(w["name"] != "g_damping" for w in res.settings.get("widened", []))
     assert any(w.startswith("g_damping ended at its upper bound") for w in res.warnings)
+
+
+def test_a_start_beyond_a_default_box_widens_it_by_whole_decades() -> None:
+    """A candidate warm-started at a widened base fit keeps its start inside its box."""
+    from hhra_phys.problem import MAX_WIDEN_DECADES, Problem
+
+    data = simulate_rig(seed=0, duration=2.0)
+    par = HHRAModel().params["g_damping"]
+    p = Problem(HHRAModel(), data, start={"g_damping": 28 * par.upper})
+    box = next(q for q in p.free_params if q.name == "g_damping")
+    assert (box.lower, box.upper) == pytest.approx((par.lower, 100 * par.upper))
+    assert p.widened[0]["reason"] == "start" and p.widened[0]["decades"] == 2
+    far = Problem(HHRAModel(), data, start={"g_damping": 1e9 * par.upper})
+    box = next(q for q in far.free_params if q.name == "g_damping")
+    assert box.upper == pytest.approx(par.upper * 10**MAX_WIDEN_DECADES)
+    given = Problem(HHRAModel(), data, bounds={"g_damping": (par.lower, par.upper)},
+                    start={"g_damping": 28 * par.upper})
+    assert not given.widened
+    assert next(q for q in given.free_params if q.name == "g_damping").upper == par.upper
