@@ -375,6 +375,14 @@ EDGE_TOL = 1e-4
 #: group sits at its edge because the data do not see it there (a leakage of zero), not
 #: because the truth lies beyond, and further decades would only cost refits.
 WIDEN_MIN_GAIN = 1e-3
+#: Largest share of the sum of squares above the residual's noise level at which boxes
+#: are widened (0.5: RMSE up to sqrt(2) times the noise). A model that lacks an effect
+#: leaves a residual far above the noise and pushes groups to their edges to make up for
+#: it; a wider box there buys a few per cent and distorts the groups the effect should
+#: explain (the diagnosis loop then chose the wrong effect). Measured (docs/fitting.md):
+#: 0.04-0.13 for the heavily damped rig whose group lies beyond its box, 0.86-0.93 for base
+#: fits lacking a sharp friction, 0.53-0.99 for the loop's candidate fits there.
+WIDEN_MAX_EXCESS = 0.5
 
 
 def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
@@ -398,8 +406,12 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
     return out
 
 
-def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) -> list[float]:
+def _release_gains(problem: Any, z: np.ndarray,
+                   edges: list[tuple[int, str]]) -> tuple[list[float], float]:
     """Predicted relative fall of the sum of squares from letting each edge group out.
+
+    Also returns the residual's *excess* over its noise level (``sum r^2 - N sigma^2``,
+    ``sigma`` from :func:`hhra_phys.diagnose.noise_level`) as a fraction of ``sum r^2``.
 
     One Gauss-Newton model of the least-squares cost at ``z`` (the exact residual
     Jacobian, as for the intervals): for each edge coordinate, the step over all free
@@ -410,10 +422,13 @@ def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) ->
     is no test: a group correlated with others (damping with leakage) only pays off when
     they follow it.
     """
+    from hhra_phys.diagnose import noise_level
+
     r, J = CompiledLeastSquares(problem)(z)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-        return [0.0] * len(edges)
+        return [0.0] * len(edges), 0.0
     total = float(r @ r)
+    excess = max(total - r.size * noise_level(r) ** 2, 1e-12 * total)
     held = {i for i, _ in edges}
 
     def rest(cols: list[int]) -> tuple[float, np.ndarray]:
@@ -428,7 +443,7 @@ def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) ->
         ssr, dz = rest(cols)
         outward = dz[cols.index(i)] * (1.0 if side == "upper" else -1.0) > 0
         gains.append((base - ssr) / total if outward and total > 0 else 0.0)
-    return gains
+    return gains, excess / total if total > 0 else 0.0
 
 
 def widen_boxes(
@@ -445,9 +460,11 @@ def widen_boxes(
     <hhra_phys.problem.Problem.default_boxes>`) of log-scaled (positive) model
     parameters are widened, never the user's explicit bounds, initial states or signed
     parameters; one decade on that side per round, at most :data:`MAX_WIDEN_DECADES`
-    beyond the default box, and only where moving the group out of its box lowers the
-    sum of squares by at least :data:`WIDEN_MIN_GAIN` (predicted by a Gauss-Newton step,
-    :func:`_release_gains`). Rounds
+    beyond the default box, only while the residual is mostly noise (at most
+    :data:`WIDEN_MAX_EXCESS` of the sum of squares above its noise level: otherwise the
+    model lacks something and the edge is a symptom of it), and only where moving the group
+    out of its box lowers the sum of squares by at least :data:`WIDEN_MIN_GAIN` (predicted
+    by a Gauss-Newton step, :func:`_release_gains`). Rounds
     stop once a refit lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
     (relative). Each refit (``search``) starts its global search with the previous
     optimum in the population, so it cannot end worse.
@@ -481,7 +498,9 @@ def widen_boxes(
         box: dict[str, list[float]] = {}
         changes = []
         edges = at_edges(problem, z)
-        gains = _release_gains(problem, z, edges) if edges else []
+        gains, excess = _release_gains(problem, z, edges) if edges else ([], 0.0)
+        if excess > WIDEN_MAX_EXCESS:
+            break  # model error, not a group beyond its box: the edge warning stays
         for (i, side), predicted in zip(edges, gains, strict=True):
             par = problem.free_params[i]
             name = split_record_name(par.name)[0]
