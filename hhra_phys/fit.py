@@ -49,7 +49,6 @@ from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES 
 from hhra_phys.refine import (
     CompiledLeastSquares,
     Stage,
-    least_squares_cost,
     refine_ipopt,
     refine_nlopt,
 )
@@ -406,12 +405,25 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
     return out
 
 
-def _release_gains(problem: Any, z: np.ndarray,
-                   edges: list[tuple[int, str]]) -> tuple[list[float], float]:
-    """Predicted relative fall of the sum of squares from letting each edge group out.
+def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
+    """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
 
-    Also returns the residual's *excess* over its noise level (``sum r^2 - N sigma^2``,
-    ``sigma`` from :func:`hhra_phys.diagnose.noise_level`) as a fraction of ``sum r^2``.
+    The noise is the residual's own (:func:`hhra_phys.diagnose.noise_level`, from its
+    sample-to-sample differences); one simulation.
+    """
+    from hhra_phys.diagnose import noise_level
+
+    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    total = float(r @ r)
+    if not np.isfinite(total):
+        return np.inf, 1.0
+    if total <= 0:
+        return 0.0, 0.0
+    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r) ** 2 / total)
+
+
+def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) -> list[float]:
+    """Predicted relative fall of the sum of squares from letting each edge group out.
 
     One Gauss-Newton model of the least-squares cost at ``z`` (the exact residual
     Jacobian, as for the intervals): for each edge coordinate, the step over all free
@@ -422,13 +434,10 @@ def _release_gains(problem: Any, z: np.ndarray,
     is no test: a group correlated with others (damping with leakage) only pays off when
     they follow it.
     """
-    from hhra_phys.diagnose import noise_level
-
     r, J = CompiledLeastSquares(problem)(z)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-        return [0.0] * len(edges), 0.0
+        return [0.0] * len(edges)
     total = float(r @ r)
-    excess = max(total - r.size * noise_level(r) ** 2, 1e-12 * total)
     held = {i for i, _ in edges}
 
     def rest(cols: list[int]) -> tuple[float, np.ndarray]:
@@ -443,7 +452,7 @@ def _release_gains(problem: Any, z: np.ndarray,
         ssr, dz = rest(cols)
         outward = dz[cols.index(i)] * (1.0 if side == "upper" else -1.0) > 0
         gains.append((base - ssr) / total if outward and total > 0 else 0.0)
-    return gains, excess / total if total > 0 else 0.0
+    return gains
 
 
 def widen_boxes(
@@ -491,16 +500,18 @@ def widen_boxes(
 
     origin = getattr(problem, "default_boxes", {})
     widened: list[dict[str, Any]] = []
-    cost = least_squares_cost(problem, z)
+    edges = at_edges(problem, z)
+    if not edges:
+        return problem, z, widened  # the common case: no simulation, no Jacobian
+    cost, excess = _cost_and_excess(problem, z)
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
-        if not np.isfinite(cost):
+        if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
-        box: dict[str, list[float]] = {}
-        changes = []
-        edges = at_edges(problem, z)
-        gains, excess = _release_gains(problem, z, edges) if edges else ([], 0.0)
         if excess > WIDEN_MAX_EXCESS:
             break  # model error, not a group beyond its box: the edge warning stays
+        box: dict[str, list[float]] = {}
+        changes = []
+        gains = _release_gains(problem, z, edges)
         for (i, side), predicted in zip(edges, gains, strict=True):
             par = problem.free_params[i]
             name = split_record_name(par.name)[0]
@@ -525,12 +536,13 @@ def widen_boxes(
                                label=f" (widened {round_})")
         stages.extend(more)
         history.extend(hist)
-        new_cost = least_squares_cost(problem, z)
+        new_cost, excess = _cost_and_excess(problem, z)
         gain = (cost - new_cost) / cost if cost > 0 else 0.0
         for c in changes:
             c["gain"] = float(gain)
         widened.extend(changes)
         cost = new_cost
+        edges = at_edges(problem, z)
         if gain < WIDEN_MIN_GAIN:
             break
     return problem, z, widened
