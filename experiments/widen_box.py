@@ -9,6 +9,11 @@ automatic widening of :func:`hhra_phys.fit.fit` (``widen_bounds``), and reports 
 the widened sides, the error of ``b/c`` and of every group, and the validation RMSE.
 
     python experiments/widen_box.py [--seeds 5] [--duration 8] [--pop 30] [--iters 40]
+                                    [--path fit|loop|records]
+
+``--path`` picks the fit path: a single-record ``fit`` (default), the base fit of the
+diagnosis loop (``augment`` with no candidates: ``fit`` of a given ``Problem``), or a fit
+of two records at once (two seeds of the rig, each ``--duration`` long).
 
 Prints a Markdown table (pasted into docs/fitting.md) and writes ``--out`` as JSON.
 """
@@ -41,13 +46,34 @@ def heavy_damping(factor: float = DAMPING_FACTOR) -> PhysicalParameters:
     return PhysicalParameters(B_c=b_c)
 
 
-def one(seed: int, widen: bool, duration: float, pop: int, iters: int) -> dict:
-    """Fit one record of the heavily damped rig; errors against its truth."""
+PATHS = ("fit", "loop", "records")
+
+
+def fit_path(path: str, seed: int, widen: bool, duration: float, pop: int, iters: int):
+    """(record used for the truth, FitResult) of one fit of the heavily damped rig."""
     data = simulate_rig(seed=seed, duration=duration, physical=heavy_damping())
+    if path == "fit":
+        return data, fit(data, pop_size=pop, max_iter=iters, seed=seed, widen_bounds=widen)
+    if path == "loop":
+        if not widen:
+            raise ValueError("the loop's base fit always widens (there is no switch)")
+        from hhra_phys.loop import augment
+
+        res = augment(data, HHRAModel(), candidates=[], pop_size=pop, max_iter=iters,
+                      seed=seed, test=0.0, discover=False)
+        return data, res.base
+    second = simulate_rig(seed=seed + 100, duration=duration, physical=heavy_damping())
+    return data, fit([data, second], model=HHRAModel(), pop_size=pop, max_iter=iters,
+                     seed=seed, widen_bounds=widen)
+
+
+def one(seed: int, widen: bool, duration: float, pop: int, iters: int,
+        path: str = "fit") -> dict:
+    """Fit the heavily damped rig by ``path``; errors against its truth."""
+    t0 = time.perf_counter()
+    data, res = fit_path(path, seed, widen, duration, pop, iters)
     truth = data.metadata["true_params"]
     tf_true = HHRAModel().tf_coefficients_of(truth)
-    t0 = time.perf_counter()
-    res = fit(data, pop_size=pop, max_iter=iters, seed=seed, widen_bounds=widen)
     bc = res.tf["b"] / res.tf["c"]
     bc_true = tf_true["b"] / tf_true["c"]
     return {
@@ -55,7 +81,7 @@ def one(seed: int, widen: bool, duration: float, pop: int, iters: int) -> dict:
         "widened": [f"{w['name']} {w['side']}" for w in res.settings.get("widened", [])],
         "bc_error": bc / bc_true - 1,
         "ratio": {k: res.values[k] / truth[k] for k in res.free if k in truth and truth[k]},
-        "val_rmse": res.metrics["val"]["rmse"],
+        "val_rmse": res.metrics["val"].get("rmse", float("nan")),
         "edge_warnings": sum("ended at its" in w for w in res.warnings),
     }
 
@@ -66,11 +92,14 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--pop", type=int, default=30)
     ap.add_argument("--iters", type=int, default=40)
+    ap.add_argument("--path", choices=PATHS, default="fit")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
-    rows = [one(s, w, a.duration, a.pop, a.iters) for s in range(a.seeds) for w in (False, True)]
-    print(f"g_damping = {DAMPING_FACTOR:g} x nominal; {a.duration:g} s records, pop {a.pop}, "
-          f"{a.iters} it. + IPOPT\n")
+    modes = (True,) if a.path == "loop" else (False, True)
+    rows = [one(s, w, a.duration, a.pop, a.iters, a.path) for s in range(a.seeds)
+            for w in modes]
+    print(f"g_damping = {DAMPING_FACTOR:g} x nominal; path {a.path}; {a.duration:g} s records, "
+          f"pop {a.pop}, {a.iters} it. + IPOPT\n")
     print("| seed | widening | widened sides | b/c error | g_damping / truth | g_leak / truth "
           "| val RMSE [deg] | groups at an edge | s |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -79,7 +108,7 @@ def main() -> None:
               f"{', '.join(r['widened']) or '-'} | {100 * r['bc_error']:+.1f} % | "
               f"{r['ratio']['g_damping']:.3f} | {r['ratio']['g_leak']:.3f} | "
               f"{r['val_rmse']:.4f} | {r['edge_warnings']} | {r['seconds']:.1f} |")
-    for w in (False, True):
+    for w in modes:
         err = np.abs([r["bc_error"] for r in rows if r["widen"] == w])
         print(f"\nwidening {'on' if w else 'off'}: |b/c error| median "
               f"{100 * np.median(err):.1f} %, max {100 * err.max():.1f} %, "

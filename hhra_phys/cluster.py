@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from hhra_phys.errors import ParameterError
+from hhra_phys.interrupt import ignore_sigint, stop_on_interrupt
 
 __all__ = [
     "executor",
@@ -53,6 +54,10 @@ def dask_client(address: str) -> Any:
 def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Executor | None]:
     """The executor asked for, shut down (or disconnected) on exit.
 
+    On Ctrl-C inside the block its jobs are cancelled and the local worker processes
+    ended at once (:func:`hhra_phys.interrupt.stop_workers`): no worker is left running
+    and nothing waits for the jobs that were running.
+
     Parameters
     ----------
     workers : int, optional
@@ -71,11 +76,14 @@ def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Ex
     if dask:
         client = dask_client(dask)
         try:
-            yield client.get_executor()
+            ex = client.get_executor()
+            with stop_on_interrupt(ex):
+                yield ex
         finally:
             client.close()
     elif workers:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with (ProcessPoolExecutor(max_workers=workers, initializer=ignore_sigint) as pool,
+              stop_on_interrupt(pool)):
             yield pool
     else:
         yield None

@@ -202,6 +202,7 @@ class InformationModel:
                      checks=DataChecks(require_excitation=False))
         return Problem(self.model, ds, cost="ssr", free=self.free, fixed=self.fixed,
                        bounds=self.bounds, initial_state="fit", simulator=self.sim,
+                       allow_outside_box=True,  # fixed: the fit's own values
                        start={n: vals[n] for n in self.free})
 
     def draws(self, n: int, seed: int | np.random.Generator | None) -> list[dict[str, float]]:

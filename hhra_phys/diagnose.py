@@ -663,7 +663,7 @@ def diagnose_fit(result: Any, data: Dataset, split: float | None = None,
     fixed = {k: v for k, v in result.values.items() if k not in free}
     init = result.settings.get("initial_state", "fit")
     problem = Problem(model, est, free=free, fixed=fixed, initial_state=init,
-                      start=result.values)
+                      start=result.values, allow_outside_box=True)  # the fit's own values
     vals = [result.values[n] if not n.startswith("x0_") else result.x0_param(n)
             for n in problem.free_names]
     return analyse(problem, np.array(vals), candidates=candidates)

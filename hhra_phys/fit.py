@@ -36,16 +36,19 @@ import numpy as np
 
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
-from hhra_phys.interrupt import interruptible
+from hhra_phys.interrupt import interruptible, map_stopping
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.optim import minimize
-from hhra_phys.problem import Problem, default_free  # noqa: F401  (re-exported)
+from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
+    MAX_WIDEN_DECADES,
+    Problem,
+    default_free,
+)
 from hhra_phys.refine import (
     CompiledLeastSquares,
     Stage,
-    least_squares_cost,
     refine_ipopt,
     refine_nlopt,
 )
@@ -54,6 +57,8 @@ from hhra_phys.result import FitResult, uncertainty
 __all__ = [
     "MAX_WIDEN_DECADES",
     "at_edges",
+    "fit_and_widen",
+    "widen_boxes",
     "OPTIMIZERS",
     "default_model",
     "fit",
@@ -123,6 +128,7 @@ def fit(
     per_record: Sequence[str] | None = None,
     default_bounds: Mapping[str, tuple[float, float]] | None = None,
     widen_bounds: bool = True,
+    allow_outside_box: bool = False,
 ) -> FitResult:
     """Fit a physical model to a record, or to several records at once.
 
@@ -200,11 +206,15 @@ def fit(
         boxes of a record in sample units); unlike ``bounds`` they may be widened.
     widen_bounds : bool
         When a log-scaled free group ends at the edge of its default box (the model's,
-        or ``default_bounds``), widen that side by a decade (at most
-        :data:`MAX_WIDEN_DECADES`, fewer when a refit does not lower the cost) and
-        refit; the result's warnings and ``settings["widened"]`` say so. Groups with
-        explicit ``bounds``, fits of a given ``problem`` and fits of several records are
-        never widened.
+        or ``default_bounds``) and moving it out lowers the sum of squares, widen that
+        side by a decade (at most :data:`MAX_WIDEN_DECADES`, fewer when a refit does not
+        lower the cost) and refit (:func:`widen_boxes`); the result's warnings and
+        ``settings["widened"]`` say so. The same for one record, several records and a
+        given ``problem`` (whose ``bounds`` are its explicit ones); groups with explicit
+        ``bounds`` are never widened.
+    allow_outside_box : bool
+        Accept ``fixed`` values outside their parameter's box (checked by
+        :class:`~hhra_phys.problem.Problem`; the CLI's ``--allow-outside-box``).
 
     Returns
     -------
@@ -228,31 +238,32 @@ def fit(
         data = simulate_rig(seed=0)
     if optimizer not in OPTIMIZERS:
         raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
+    search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
+                     pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
+                     options=options, refine_options=refine_options, start=start,
+                     seed_population=seed_population, progress=progress, callback=callback)
     if isinstance(data, (list, tuple)):
-        from hhra_phys.multi import fit_records
+        from hhra_phys.multi import fit_records, records_result
 
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
         if problem is None:
-            # Boxes are not widened for several records: default boxes act as bounds.
-            bounds = {**(default_bounds or {}), **(bounds or {})} or None
             problem, val_parts, whole_val = fit_records(
                 data, model, validation, split,
                 {"cost": cost, "free": free, "fixed": fixed, "bounds": bounds,
-                 "initial_state": initial_state, "start": start}, per_record)
+                 "default_bounds": default_bounds, "initial_state": initial_state,
+                 "start": start, "allow_outside_box": allow_outside_box}, per_record)
         else:
             val_parts, whole_val = [None] * len(problem.records), list(validation or [])
         with interruptible():
-            z, stages, history = _search_and_refine(
-                problem, optimizer, refine, pop_size, max_iter, seed, lam, options,
-                refine_options, start, seed_population, progress, callback)
-        from hhra_phys.multi import records_result
-
-        return records_result(problem, z, stages, history, val_parts, whole_val,
-                              _settings(problem, optimizer, refine, pop_size, max_iter, lam,
-                                        split, time.perf_counter() - t_start),
-                              seed, datasheet, intervals, t_start)
-    widen_bounds = widen_bounds and problem is None
+            problem, z, stages, history, widened = fit_and_widen(problem, search,
+                                                                 widen_bounds)
+        result = records_result(problem, z, stages, history, val_parts, whole_val,
+                                _settings(problem, optimizer, refine, pop_size, max_iter, lam,
+                                          split, time.perf_counter() - t_start),
+                                seed, datasheet, intervals, t_start)
+        _report_widening(result, widened, problem)
+        return result
     record_notes: list[str] = []
     if model is None and problem is None:
         # The default HHRA knows its units: convert the record, warn about odd ranges.
@@ -269,46 +280,82 @@ def fit(
         est, val = data.split(split) if split < 1 else (data, None)
     else:
         est, val = data, validation
-    # The user's explicit bounds are kept as given; default boxes may be widened.
-    fixed_box = set(bounds or {})
     if problem is None:
         if model is None:
             model, auto_bounds = default_model(data)
             default_bounds = {**auto_bounds, **(default_bounds or {})}
-        chosen = set(free) if free is not None else set(default_free(model, fixed))
-        default_bounds = {k: v for k, v in (default_bounds or {}).items() if k in chosen}
-        bounds = {**default_bounds, **(bounds or {})}
+        # The user's explicit bounds are kept as given; default boxes may be widened.
         problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
-                          bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
-                          start=start)
-    search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
-                     pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
-                     options=options, refine_options=refine_options, start=start,
-                     seed_population=seed_population, progress=progress, callback=callback)
-    widened: list[dict[str, Any]] = []
+                          bounds=bounds, default_bounds=default_bounds,
+                          initial_state=initial_state,  # type: ignore[arg-type]
+                          start=start, allow_outside_box=allow_outside_box)
     with interruptible():
-        z, stages, history = search(problem)
-        if widen_bounds:
-            problem, z, widened = _widen(problem, z, search, stages, history, fixed_box)
+        problem, z, stages, history, widened = fit_and_widen(problem, search, widen_bounds)
     result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
                      max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
                      intervals)
-    if widened:
-        result.settings["widened"] = widened
-        result.warnings.extend(_widening_notes(widened))
+    _report_widening(result, widened, problem)
     result.warnings.extend(record_notes)
     return result
 
 
+def fit_and_widen(
+    problem: Any,
+    search: Callable[..., tuple[np.ndarray, list[Stage], list[float]]],
+    widen: bool = True,
+) -> tuple[Any, np.ndarray, list[Stage], list[float], list[dict[str, Any]]]:
+    """Search and refine ``problem``, then widen default boxes a group ends at and refit.
+
+    The one place every fit (one record, a given problem, several records) runs its
+    search and the box widening of :func:`widen_boxes`.
+
+    Parameters
+    ----------
+    problem : Problem or MultiProblem
+    search : callable
+        ``search(problem, z_start=None, label="") -> (z, stages, history)``
+        (:func:`_search_and_refine` with the fit's settings).
+    widen : bool
+        Widen default boxes (``False``: one search, as given).
+
+    Returns
+    -------
+    problem, z, stages, history, widened
+        The (possibly widened) problem, the optimum in its coordinates, the stages and
+        best-cost history of all searches, and the widened box sides (the problem's own
+        widenings for start values first).
+    """
+    z, stages, history = search(problem)
+    widened: list[dict[str, Any]] = list(getattr(problem, "widened", []))
+    if widen:
+        problem, z, more = widen_boxes(problem, z, search, stages, history)
+        widened += more
+    return problem, z, stages, history, widened
+
+
+def _report_widening(result: FitResult, widened: list[dict[str, Any]], problem: Any) -> None:
+    """Put the widened sides and the fixed-value notes into the result."""
+    if widened:
+        result.settings["widened"] = widened
+        result.warnings.extend(_widening_notes(widened))
+    result.warnings.extend(getattr(problem, "notes", []))
+
+
 def _widening_notes(widened: list[dict[str, Any]]) -> list[str]:
-    """One sentence per widened box side, from the rounds of :func:`_widen`."""
-    sides: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    """One sentence per widened box side, from the rounds of :func:`widen_boxes`."""
+    sides: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     for w in widened:
-        sides.setdefault((w["name"], w["side"]), []).append(w)
+        sides.setdefault((w["name"], w["side"], w.get("reason", "fit")), []).append(w)
     notes = []
-    for (name, side), rounds in sides.items():
+    for (name, side, _), rounds in sides.items():
         first, last = rounds[0], rounds[-1]
-        n = len(rounds)
+        n = sum(int(w.get("decades", 1)) for w in rounds)
+        if first.get("reason") == "start":
+            notes.append(f"{name}'s start value lies beyond the {side} edge of its default box "
+                         f"[{first['from'][0]:.4g}, {first['from'][1]:.4g}]; that side was "
+                         f"widened by {n} decade{'s' if n > 1 else ''} to [{last['to'][0]:.4g}, "
+                         f"{last['to'][1]:.4g}]")
+            continue
         text = (f"{name} ended at the {side} edge of its default box [{first['from'][0]:.4g}, "
                 f"{first['from'][1]:.4g}]; that side was widened by {n} decade"
                 f"{'s' if n > 1 else ''} to [{last['to'][0]:.4g}, {last['to'][1]:.4g}] and the "
@@ -321,17 +368,20 @@ def _widening_notes(widened: list[dict[str, Any]]) -> list[str]:
     return notes
 
 
-#: Decades a default box side may be widened in all, one per refit. Three decades
-#: beyond the factor-10 default box (a factor 10^4 from nominal) is the most a group of a
-#: working actuator can plausibly differ from the rig's; further out a group at its edge is
-#: a model or unit error, which the edge warning reports.
-MAX_WIDEN_DECADES = 3
 #: Distance to a box edge (fraction of the box in fitting coordinates) that counts as "at it".
 EDGE_TOL = 1e-4
 #: Relative fall of the least-squares cost below which a widened box did not help: the
 #: group sits at its edge because the data do not see it there (a leakage of zero), not
 #: because the truth lies beyond, and further decades would only cost refits.
 WIDEN_MIN_GAIN = 1e-3
+#: Largest share of the sum of squares above the residual's noise level at which boxes
+#: are widened (0.5: RMSE up to sqrt(2) times the noise). A model that lacks an effect
+#: leaves a residual far above the noise and pushes groups to their edges to make up for
+#: it; a wider box there buys a few per cent and distorts the groups the effect should
+#: explain (the diagnosis loop then chose the wrong effect). Measured (docs/fitting.md):
+#: 0.04-0.13 for the heavily damped rig whose group lies beyond its box, 0.86-0.93 for base
+#: fits lacking a sharp friction, 0.53-0.99 for the loop's candidate fits there.
+WIDEN_MAX_EXCESS = 0.5
 
 
 def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
@@ -355,61 +405,144 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
     return out
 
 
-def _widen(
-    problem: Problem,
+def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
+    """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
+
+    The noise is the residual's own (:func:`hhra_phys.diagnose.noise_level`, from its
+    sample-to-sample differences); one simulation.
+    """
+    from hhra_phys.diagnose import noise_level
+
+    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    total = float(r @ r)
+    if not np.isfinite(total):
+        return np.inf, 1.0
+    if total <= 0:
+        return 0.0, 0.0
+    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r) ** 2 / total)
+
+
+def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) -> list[float]:
+    """Predicted relative fall of the sum of squares from letting each edge group out.
+
+    One Gauss-Newton model of the least-squares cost at ``z`` (the exact residual
+    Jacobian, as for the intervals): for each edge coordinate, the step over all free
+    coordinates with that one released and the other edge ones held, against the step
+    with all of them held. A group at an edge because the data do not see it there (a
+    negligible effect's coefficient) gains nothing, nor does one the step would move
+    back inside; widening its box would only cost a refit. Moving one coordinate alone
+    is no test: a group correlated with others (damping with leakage) only pays off when
+    they follow it.
+    """
+    r, J = CompiledLeastSquares(problem)(z)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+        return [0.0] * len(edges)
+    total = float(r @ r)
+    held = {i for i, _ in edges}
+
+    def rest(cols: list[int]) -> tuple[float, np.ndarray]:
+        dz, *_ = np.linalg.lstsq(J[:, cols], -r, rcond=1e-10)
+        e = r + J[:, cols] @ dz
+        return float(e @ e), dz
+
+    base, _ = rest([j for j in range(problem.n_free) if j not in held])
+    gains = []
+    for i, side in edges:
+        cols = [j for j in range(problem.n_free) if j not in held or j == i]
+        ssr, dz = rest(cols)
+        outward = dz[cols.index(i)] * (1.0 if side == "upper" else -1.0) > 0
+        gains.append((base - ssr) / total if outward and total > 0 else 0.0)
+    return gains
+
+
+def widen_boxes(
+    problem: Any,
     z: np.ndarray,
     search: Callable[..., tuple[np.ndarray, list[Stage], list[float]]],
     stages: list[Stage],
     history: list[float],
-    fixed_box: set[str],
-) -> tuple[Problem, np.ndarray, list[dict[str, Any]]]:
+) -> tuple[Any, np.ndarray, list[dict[str, Any]]]:
     """Widen default boxes whose edge a log-scaled free group ends at, and refit.
 
-    One decade on that side per round, at most :data:`MAX_WIDEN_DECADES` per side, and no
-    further once a round lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
-    (relative); the user's explicit bounds (``fixed_box``), initial-state and linear (signed)
-    parameters are never widened. Each refit (``search``, :func:`_search_and_refine`)
-    starts its global search with the previous optimum in the population, so it cannot end
-    worse. ``stages`` and ``history`` are extended.
+    The rule of every fit path (:func:`fit_and_widen`): only default boxes (the model's
+    or ``default_bounds``, :attr:`Problem.default_boxes
+    <hhra_phys.problem.Problem.default_boxes>`) of log-scaled (positive) model
+    parameters are widened, never the user's explicit bounds, initial states or signed
+    parameters; one decade on that side per round, at most :data:`MAX_WIDEN_DECADES`
+    beyond the default box, only while the residual is mostly noise (at most
+    :data:`WIDEN_MAX_EXCESS` of the sum of squares above its noise level: otherwise the
+    model lacks something and the edge is a symptom of it), and only where moving the group
+    out of its box lowers the sum of squares by at least :data:`WIDEN_MIN_GAIN` (predicted
+    by a Gauss-Newton step, :func:`_release_gains`). Rounds
+    stop once a refit lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
+    (relative). Each refit (``search``) starts its global search with the previous
+    optimum in the population, so it cannot end worse.
+
+    Parameters
+    ----------
+    problem : Problem or MultiProblem
+    z : ndarray, shape (n_free,)
+        The optimum of the first search, in fitting coordinates.
+    search : callable
+        As for :func:`fit_and_widen`.
+    stages, history : list
+        Extended in place with the refits' stages and histories.
+
+    Returns
+    -------
+    problem, z, widened
+        The widened problem (``problem`` itself if nothing was widened), its optimum and
+        one dict per widened side and round: ``name``, ``side``, ``round``, ``from``,
+        ``to`` (the box in physical units) and ``gain`` (the refit's relative fall of the
+        least-squares cost).
     """
-    original = {p.name: (p.lower, p.upper) for p in problem.free_params}
+    from hhra_phys.multi import split_record_name
+
+    origin = getattr(problem, "default_boxes", {})
     widened: list[dict[str, Any]] = []
-    cost = least_squares_cost(problem, z)
+    edges = at_edges(problem, z)
+    if not edges:
+        return problem, z, widened  # the common case: no simulation, no Jacobian
+    cost, excess = _cost_and_excess(problem, z)
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
-        if not np.isfinite(cost):
+        if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
-        box = {p.name: [p.lower, p.upper] for p in problem.free_params
-               if not p.name.startswith("x0_")}
+        if excess > WIDEN_MAX_EXCESS:
+            break  # model error, not a group beyond its box: the edge warning stays
+        box: dict[str, list[float]] = {}
         changes = []
-        for i, side in at_edges(problem, z):
+        gains = _release_gains(problem, z, edges)
+        for (i, side), predicted in zip(edges, gains, strict=True):
             par = problem.free_params[i]
-            if par.scale != "log" or par.name in fixed_box or par.name not in box:
+            name = split_record_name(par.name)[0]
+            if par.scale != "log" or name not in origin or name in box:
                 continue
             k = 0 if side == "lower" else 1
-            if abs(np.log10(box[par.name][k] / original[par.name][k])) >= MAX_WIDEN_DECADES - 0.5:
+            if abs(np.log10([par.lower, par.upper][k] / origin[name][k])) >= (
+                    MAX_WIDEN_DECADES - 0.5):
                 continue
-            before = tuple(box[par.name])
-            box[par.name][k] = box[par.name][k] / 10 if k == 0 else box[par.name][k] * 10
-            changes.append({"name": par.name, "side": side, "round": round_,
-                            "from": list(before), "to": list(box[par.name])})
+            if predicted < WIDEN_MIN_GAIN:
+                continue
+            before = [par.lower, par.upper]
+            box[name] = list(before)
+            box[name][k] = before[0] / 10 if k == 0 else before[1] * 10
+            changes.append({"name": name, "side": side, "round": round_,
+                            "from": before, "to": list(box[name])})
         if not changes:
             break
         values = problem.from_z(z)
-        problem = Problem(problem.model, problem.data, cost=problem.cost,  # type: ignore[arg-type]
-                          free=list(box), fixed=problem.fixed,
-                          bounds={n: tuple(b) for n, b in box.items()},
-                          initial_state=problem.initial_state,  # type: ignore[arg-type]
-                          simulator=problem.sim)
+        problem = problem.with_boxes({n: tuple(b) for n, b in box.items()})
         z, more, hist = search(problem, z_start=problem.to_z(values),
                                label=f" (widened {round_})")
         stages.extend(more)
         history.extend(hist)
-        new_cost = least_squares_cost(problem, z)
+        new_cost, excess = _cost_and_excess(problem, z)
         gain = (cost - new_cost) / cost if cost > 0 else 0.0
         for c in changes:
             c["gain"] = float(gain)
         widened.extend(changes)
         cost = new_cost
+        edges = at_edges(problem, z)
         if gain < WIDEN_MIN_GAIN:
             break
     return problem, z, widened
@@ -687,7 +820,9 @@ def fit_many(
         multi-start (see :func:`best_of`).
     executor : concurrent.futures.Executor, optional
         Where the fits run (a ``ProcessPoolExecutor`` locally, a Dask
-        ``Client.get_executor()`` on a cluster); default: one after another here.
+        ``Client.get_executor()`` on a cluster); default: one after another here. On
+        Ctrl-C its queued fits are cancelled and its worker processes ended
+        (:func:`hhra_phys.interrupt.stop_workers`; a process pool cannot be used again).
     **kwargs
         Passed to :func:`fit`.
 
@@ -701,7 +836,7 @@ def fit_many(
     jobs = [dict(kwargs, data=d, seed=s) for d in data_list for s in seed_list]
     if executor is None:
         return [_fit_one(j) for j in jobs]
-    return list(executor.map(_fit_one, jobs))
+    return list(map_stopping(executor, _fit_one, jobs))
 
 
 def best_of(results: Sequence[FitResult]) -> FitResult:

@@ -10,17 +10,40 @@ an unfinished result as if it were final.
 usual); when the block ends, or when :func:`check` is called in between, a recorded
 interrupt is raised again, whatever a solver did with the first one (swallowed it, or
 turned it into an error of its own).
+
+Jobs in other processes (a ``ProcessPoolExecutor``, a Dask cluster) do not stop by
+themselves when the parent is interrupted: ``Executor.map`` cancels the jobs not yet
+started, but leaving a ``with ProcessPoolExecutor()`` block waits for the running ones.
+:func:`stop_workers` (used by :func:`map_stopping`, :func:`stop_on_interrupt`,
+:func:`hhra_phys.fit.fit_many` and the CLI's ``--workers``/``--dask``) cancels every
+queued job and ends the worker processes at once; :func:`ignore_sigint` keeps a worker
+that waits for a job from dying of the terminal's Ctrl-C (the parent decides).
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any, TypeVar
 
-__all__ = ["check", "interruptible"]
+__all__ = [
+    "check",
+    "ignore_sigint",
+    "interruptible",
+    "map_stopping",
+    "stop_on_interrupt",
+    "stop_workers",
+]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: Seconds a terminated worker process gets to exit before it is killed.
+TERMINATE_WAIT = 5.0
 
 _state = {"depth": 0, "hit": False}
 
@@ -74,3 +97,90 @@ def interruptible() -> Iterator[None]:
         if outer:
             signal.signal(signal.SIGINT, previous)
             _state["hit"] = False
+
+
+def ignore_sigint() -> None:
+    """Worker-process initializer: SIGINT is ignored while a worker waits for a job.
+
+    A terminal's Ctrl-C reaches every process of its group; an idle worker would die of
+    it and break the pool before the parent decides. A job that runs :func:`fit
+    <hhra_phys.fit.fit>` still stops at once (:func:`interruptible` sets its own handler
+    for the job's duration), and the parent ends the workers (:func:`stop_workers`).
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def stop_workers(executor: Executor) -> None:
+    """Cancel the queued jobs of ``executor`` and end its running ones, after Ctrl-C.
+
+    A ``ProcessPoolExecutor``'s worker processes are terminated (killed if they do not
+    exit within :data:`TERMINATE_WAIT` s), so none is left running; the pool cannot be
+    used afterwards. Any other executor is shut down without waiting, which cancels its
+    jobs (a Dask ``ClientExecutor`` cancels them on the cluster; thread pools finish the
+    running ones in the background).
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor
+    """
+    procs = []
+    if isinstance(executor, ProcessPoolExecutor):
+        # No public handle on the workers before Python 3.14's terminate_workers().
+        procs = list((getattr(executor, "_processes", None) or {}).values())
+    try:
+        executor.shutdown(wait=False, cancel_futures=True)
+    except TypeError:  # executors whose shutdown has no cancel_futures (Dask's)
+        executor.shutdown(wait=False)
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in procs:
+        proc.join(TERMINATE_WAIT)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(TERMINATE_WAIT)
+    if procs:
+        # The pool's manager thread sees its workers gone and ends; waiting for it here
+        # keeps Python's exit from waking it through a pipe it is closing (a traceback).
+        executor.shutdown(wait=True)
+
+
+@contextmanager
+def stop_on_interrupt(executor: Executor | None) -> Iterator[None]:
+    """A block after whose Ctrl-C the jobs of ``executor`` are stopped (:func:`stop_workers`).
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor or None
+        ``None``: nothing to stop.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Again, after stopping the workers.
+    """
+    try:
+        yield
+    except KeyboardInterrupt:
+        if executor is not None:
+            stop_workers(executor)
+        raise
+
+
+def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T]) -> Iterator[R]:
+    """``executor.map(fn, jobs)`` whose results, on Ctrl-C while waiting, stop the workers.
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor
+    fn : callable
+        Picklable for process and Dask executors.
+    jobs : iterable
+
+    Yields
+    ------
+    The results in the order of ``jobs``.
+    """
+    results: Iterator[Any] = executor.map(fn, jobs)
+    with stop_on_interrupt(executor):
+        yield from results

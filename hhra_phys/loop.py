@@ -53,6 +53,7 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
+from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.multi import (
@@ -239,7 +240,7 @@ class LoopResult:
                                            for k, src in (("est", "est"), ("sel", "val"),
                                                           ("test", "test"))}}
                     for r in res.records]
-            return out
+            return {**out, **{k: v for k, v in res.settings.items() if k == "widened"}}
 
         final = part(self.final, "final")
         final["params"] = self.final.values
@@ -356,7 +357,7 @@ def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[s
                 st[f"x0_{state}"] = float(x0[state])
     return Problem(model, cfg.est, free=list(free), fixed=dict(fixed), bounds=bnd,
                    initial_state=cfg.initial_state, simulator=sim,  # type: ignore[arg-type]
-                   start=st)
+                   start=st, allow_outside_box=True)  # fixed values come from the loop's fits
 
 
 def _records_problem(cfg: _Settings, model: Model, free: Sequence[str],
@@ -1044,7 +1045,7 @@ def augment(
                         continue
                     compiler.submit(_warm_compile, cfg, m_c, 2 * _search_size(
                         len(new) + len(job.previous), cand_pop, cand_iter)[0])
-            outcomes = (executor.map(refit_candidate, jobs) if executor is not None
+            outcomes = (map_stopping(executor, refit_candidate, jobs) if executor is not None
                         else map(refit_candidate, jobs))
             tried: list[tuple[Step, _Outcome]] = []
             for job, out in zip(jobs, outcomes, strict=True):

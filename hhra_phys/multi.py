@@ -108,7 +108,7 @@ class MultiProblem:
         The model shared by all records.
     records : sequence of Dataset
         Estimation records (at least one; lengths and sample rates may differ).
-    cost, free, fixed, bounds, initial_state, substeps
+    cost, free, fixed, bounds, initial_state, substeps, default_bounds, allow_outside_box
         As for :class:`~hhra_phys.problem.Problem`; ``free`` names model
         parameters (the per-record copies are made here).
     start : dict, optional
@@ -151,6 +151,9 @@ class MultiProblem:
         per_record: Sequence[str] | None = None,
         names: Sequence[str] | None = None,
         simulators: Mapping[float, Simulator] | None = None,
+        default_bounds: Mapping[str, tuple[float, float]] | None = None,
+        allow_outside_box: bool = False,
+        simulator: Simulator | None = None,
     ) -> None:
         records = list(records)
         if not records:
@@ -167,6 +170,8 @@ class MultiProblem:
         shared_start, own_start = _per_record_split(start, len(records), "start value")
         shared_fixed, own_fixed = _per_record_split(fixed, len(records), "fixed value")
         sims: dict[float, Simulator] = {float(k): v for k, v in (simulators or {}).items()}
+        if simulator is not None:  # the earlier one-simulator argument
+            sims.setdefault(float(simulator.fs), simulator)
         self.records: list[Problem] = []
         for i, ds in enumerate(records):
             sim = sims.get(float(ds.fs))
@@ -174,7 +179,8 @@ class MultiProblem:
             pr = Problem(model, ds, cost=cost, free=free, fixed=fixed_k,  # type: ignore[arg-type]
                          bounds=bounds, initial_state=initial_state,  # type: ignore[arg-type]
                          simulator=sim, substeps=substeps,
-                         start={**shared_start, **own_start[i]})
+                         start={**shared_start, **own_start[i]},
+                         default_bounds=default_bounds, allow_outside_box=allow_outside_box)
             sims.setdefault(float(ds.fs), pr.sim)
             self.records.append(pr)
         self.model = model
@@ -183,8 +189,16 @@ class MultiProblem:
         self.per_record = per_record
         first = self.records[0]
         self.fixed = first.fixed
+        # As given (per-record names kept), so that with_boxes rebuilds the same problem.
+        self._fixed_given = dict(fixed or {})
         self.sim = first.sim
         self.simulators = sims
+        # Boxes are per model parameter, the same in every record (see Problem).
+        self.explicit_bounds = first.explicit_bounds
+        self.default_boxes = {k: v for pr in self.records for k, v in pr.default_boxes.items()}
+        self.widened = [w for pr in self.records for w in pr.widened]
+        self.notes = list(first.notes)
+        self._model_free = free
 
         # Stacked layout: the shared model parameters, then record by record its own.
         own = set(per_record)
@@ -214,6 +228,28 @@ class MultiProblem:
         self.names = (list(names) if names is not None else
                       [ds.name or ds.source or f"record {k}" for k, ds in
                        enumerate(records, start=1)])
+
+    def with_boxes(self, boxes: Mapping[str, tuple[float, float]]) -> MultiProblem:
+        """The same problem with the default boxes of some model parameters replaced.
+
+        As :meth:`Problem.with_boxes <hhra_phys.problem.Problem.with_boxes>`; ``boxes``
+        are keyed by model parameter names (a per-record parameter's box is every
+        record's).
+        """
+        first = self.records[0]
+        explicit = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if p.name in self.explicit_bounds}
+        defaults = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
+        defaults.update(boxes)
+        new = MultiProblem(self.model, self.data, cost=self.cost, free=self._model_free,
+                           fixed=self._fixed_given, bounds=explicit, default_bounds=defaults,
+                           initial_state=self.initial_state, per_record=self.per_record,
+                           names=self.names, allow_outside_box=True,
+                           simulators=self.simulators)
+        new.default_boxes = {**new.default_boxes, **self.default_boxes}
+        new.widened = list(self.widened)
+        return new
 
     # The coordinate maps and the box are the one-record problem's, on the stacked arrays.
     to_z = Problem.to_z
@@ -318,17 +354,18 @@ def fit_records(
         est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
     kw = dict(problem_kwargs)
     bounds = kw.pop("bounds", None)
+    defaults = dict(kw.pop("default_bounds", None) or {})
     if model is None:
         model, auto = default_model(records[0])
         for ds in records[1:]:
             for name, (lo, hi) in default_model(ds)[1].items():
                 old = auto.get(name, (lo, hi))
                 auto[name] = (min(old[0], lo), max(old[1], hi))
-        free = kw.get("free")
-        chosen = set(free) if free is not None else set(default_free(model, kw.get("fixed")))
-        bounds = {**{k: v for k, v in auto.items() if k in chosen}, **(bounds or {})}
+        defaults = {**auto, **defaults}
     names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
-    problem = MultiProblem(model, est, bounds=bounds, per_record=per_record, names=names, **kw)
+    # Automatic and default boxes may be widened by the fit, the user's ``bounds`` not.
+    problem = MultiProblem(model, est, bounds=bounds, default_bounds=defaults,
+                           per_record=per_record, names=names, **kw)
     return problem, val_parts, whole_val
 
 

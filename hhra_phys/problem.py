@@ -66,6 +66,13 @@ COSTS: tuple[str, ...] = ("itae", "mse", "rmse", "ssr")
 #: Newton steps of the ``"data"`` rule (one is exact for an output linear in the states).
 DATA_RULE_STEPS = 3
 
+#: Decades a default box side may be widened in all (:func:`hhra_phys.fit.fit` widens one
+#: per refit; a start value beyond it widens as many as it needs up to this). Three decades
+#: beyond the factor-10 default box (a factor 10^4 from nominal) is the most a group of a
+#: working actuator can plausibly differ from the rig's; further out a group at its edge is
+#: a model or unit error, which the edge warning reports.
+MAX_WIDEN_DECADES = 3
+
 
 def default_free(model: Model, fixed: Mapping[str, float] | None = None) -> list[str]:
     """Parameters a fit frees by default: all but the model's ``held`` ones and ``fixed``.
@@ -129,7 +136,8 @@ class Problem:
         ``{name: value}``: parameters held at the given value (e.g. from a
         datasheet). A name both free and fixed is an error.
     bounds : dict, optional
-        ``{name: (lower, upper)}`` overriding the model's bounds (physical units).
+        ``{name: (lower, upper)}`` overriding the model's bounds (physical units): the
+        user's explicit boxes, never widened (:attr:`explicit_bounds`).
     initial_state : {"data", "zero", "fit"}
         How the initial state is set (module docstring).
     simulator : Simulator, optional
@@ -140,12 +148,38 @@ class Problem:
         Parameter values to use instead of the model's nominal values for the
         parameters that are neither free nor fixed, and as the start of the
         search (first population member, local refiners). ``x0_<state>`` names
-        start a fitted initial state.
+        start a fitted initial state. A start value beyond a default box (not one of
+        ``bounds``) of a log-scaled parameter widens that side by whole decades until
+        it holds the value (at most :data:`MAX_WIDEN_DECADES`; :attr:`widened`).
+    default_bounds : dict, optional
+        ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
+        boxes of a record in sample units); like the model's, and unlike ``bounds``,
+        they may be widened. Names that are not free are ignored.
+    allow_outside_box : bool
+        Accept ``fixed`` values of the right sign outside their parameter's box (the
+        CLI's ``--allow-outside-box``); otherwise such a value is an error
+        (:meth:`~hhra_phys.parameters.ParameterSet.check_values`, the check of
+        ``--fix``). Notes about accepted values are in :attr:`notes`.
+
+    Attributes
+    ----------
+    explicit_bounds : frozenset of str
+        Free parameters whose box was given in ``bounds`` (never widened).
+    default_boxes : dict
+        ``{name: (lower, upper)}``: the default box, before any widening, of every free
+        log-scaled model parameter whose box may be widened.
+    widened : list of dict
+        Box sides widened here for a start value beyond them: ``name``, ``side``,
+        ``round`` (0), ``from``, ``to``, ``reason`` (``"start"``).
+    notes : list of str
+        Fixed values accepted outside their box.
 
     Raises
     ------
     ParameterError
-        Unknown or contradictory parameter names, bad bounds.
+        Unknown or contradictory parameter names, bad bounds, a fixed value that is
+        not finite, of the wrong sign, or outside its box (without
+        ``allow_outside_box``), each naming the parameter.
     DataError
         Data too short for the number of free parameters, or a sample rate that
         does not match the simulator.
@@ -163,6 +197,8 @@ class Problem:
         simulator: Simulator | None = None,
         substeps: int | str = "auto",
         start: Mapping[str, float] | None = None,
+        default_bounds: Mapping[str, tuple[float, float]] | None = None,
+        allow_outside_box: bool = False,
     ) -> None:
         if cost not in COSTS:
             raise ParameterError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
@@ -176,8 +212,9 @@ class Problem:
         self.initial_state = initial_state
         fixed = dict(fixed or {})
         names = model.params.names
-        for name in fixed:
-            model.params.index(name)  # clear error for unknown names
+        # The one check of held values (also the CLI's --fix): name, sign, box.
+        self.notes: list[str] = model.params.check_values(
+            fixed, allow_outside_box=allow_outside_box, what="fixed")
         if free is None:
             free = default_free(model, fixed)
         free = list(free)
@@ -193,19 +230,25 @@ class Problem:
             if not name.startswith("x0_"):
                 self.base[model.params.index(name)] = float(value)
         for name, value in fixed.items():
-            if not math.isfinite(float(value)):
-                raise ParameterError(f"fixed value of {name!r} must be finite, got {value}")
             self.base[model.params.index(name)] = float(value)
         self.fixed = {n: float(self.base[model.params.index(n)]) for n in names if n not in free}
 
         # Free parameters (model parameters, then initial-state parameters).
+        self.explicit_bounds: frozenset[str] = frozenset(bounds or {})
+        self.default_boxes: dict[str, tuple[float, float]] = {}
+        self.widened: list[dict[str, object]] = []
         params: list[Parameter] = []
         for name in free:
             par = model.params[name]
-            if bounds and name in bounds:
-                lo, hi = (float(b) for b in bounds[name])
+            box = (bounds or {}).get(name, (default_bounds or {}).get(name))
+            if box is not None:
+                lo, hi = (float(b) for b in box)
                 nominal = min(max(par.nominal, lo), hi)
                 par = par.with_(lower=lo, upper=hi, nominal=nominal)
+            if par.scale == "log" and name not in self.explicit_bounds:
+                self.default_boxes[name] = (par.lower, par.upper)
+                if start and name in start:  # a given start, not a nominal off the box
+                    par = self._box_for_start(par, float(start[name]))
             params.append(par)
         unknown = set(bounds or {}) - set(free)
         if unknown:
@@ -256,6 +299,46 @@ class Problem:
         self.u = data.u
         self.y = data.y
         self.t = data.t - data.t[0]
+
+    def _box_for_start(self, par: Parameter, value: float) -> Parameter:
+        """``par`` with its default box widened by whole decades to hold a start ``value``."""
+        lo, hi = par.lower, par.upper
+        if not (math.isfinite(value) and value > 0) or lo <= value <= hi:
+            return par
+        side = "lower" if value < lo else "upper"
+        decades = math.ceil(abs(math.log10(value / (lo if side == "lower" else hi))) - 1e-9)
+        decades = min(decades, MAX_WIDEN_DECADES)
+        new = (lo / 10**decades, hi) if side == "lower" else (lo, hi * 10**decades)
+        self.widened.append({"name": par.name, "side": side, "round": 0, "from": [lo, hi],
+                             "to": list(new), "reason": "start", "decades": decades})
+        return par.with_(lower=new[0], upper=new[1])
+
+    def with_boxes(self, boxes: Mapping[str, tuple[float, float]]) -> Problem:
+        """The same problem with the default boxes of some parameters replaced (widened).
+
+        Everything else is kept: free set, fixed values, explicit bounds, initial-state
+        rule, simulator; :attr:`default_boxes` (the boxes before any widening) and
+        :attr:`widened` carry over.
+
+        Parameters
+        ----------
+        boxes : dict
+            ``{name: (lower, upper)}`` of free model parameters whose box is not explicit.
+        """
+        explicit = {p.name: (p.lower, p.upper) for p in self.free_params
+                    if p.name in self.explicit_bounds}
+        defaults = {p.name: (p.lower, p.upper) for p in self.free_params
+                    if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
+        defaults.update(boxes)
+        new = Problem(self.model, self.data, cost=self.cost,  # type: ignore[arg-type]
+                      free=[n for n in self.free_names if not n.startswith("x0_")],
+                      fixed=self.fixed, bounds=explicit, default_bounds=defaults,
+                      initial_state=self.initial_state,  # type: ignore[arg-type]
+                      simulator=self.sim, allow_outside_box=True)
+        new.default_boxes = {**new.default_boxes, **self.default_boxes}
+        new.widened = list(self.widened)
+        new.notes = list(self.notes)
+        return new
 
     # -- coordinates --------------------------------------------------------------------
     def to_z(self, values: np.ndarray) -> np.ndarray:

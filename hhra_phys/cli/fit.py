@@ -106,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
                 data_warnings += warns
         data = records[0]
         model, auto_bounds = model_for(args, data, args.valve)
-        for note in model.params.check_values(fixed, allow_outside_box=args.allow_outside_box):
-            print(f"note: {note}", file=sys.stderr)
+        # Problem runs the same check in every fit; here it names --fix before any worker
+        # starts. Notes about values accepted outside their box come with the result.
+        model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
         chosen = set(free) if free is not None else set(default_free(model, fixed))
         bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
         for other in records[1:] + (validation or []):  # the widest automatic box of all
@@ -133,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
                 default_bounds=bounds, split=args.split, validation=val_arg,
                 pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
                 progress=not args.quiet and args.starts == 1 and ex is None,
-                intervals=args.intervals, widen_bounds=not args.no_widen)
+                intervals=args.intervals, widen_bounds=not args.no_widen,
+                allow_outside_box=args.allow_outside_box)
         res = best_of(results)
         res.warnings.extend(data_warnings)
         print(res.summary())

@@ -236,3 +236,27 @@ def test_python_fit_converts_and_warns_with_the_default_model() -> None:
     unlabelled = type(ds)(t=ds.t, u=ds.u, y=np.deg2rad(ds.y), source="r.csv")
     res = fit(unlabelled, optimizer="none", refine="none")
     assert any("radians" in w for w in res.warnings)
+
+
+def test_problem_checks_fixed_values_as_the_cli_does() -> None:
+    """Python's ``fixed`` gets the --fix check (sign, box), with the same opt-out."""
+    from hhra_phys.errors import ParameterError
+    from hhra_phys.fit import fit
+    from hhra_phys.models.hhra.model import HHRAModel
+    from hhra_phys.problem import Problem
+
+    ds = simulate_rig(seed=0, duration=2.0)
+    with pytest.raises(ParameterError, match=r"fixed g_leak=.* outside its box.*allow_outside"):
+        Problem(HHRAModel(), ds, fixed={"g_leak": 1e9})
+    with pytest.raises(ParameterError, match=r"fixed g_leak=-1.*positive quantity"):
+        Problem(HHRAModel(), ds, fixed={"g_leak": -1.0}, allow_outside_box=True)
+    with pytest.raises(ParameterError, match=r"fixed g_nope=.*g_nope"):
+        Problem(HHRAModel(), ds, fixed={"g_nope": 1.0})
+    problem = Problem(HHRAModel(), ds, fixed={"g_leak": 1e9}, allow_outside_box=True)
+    assert problem.base[problem.model.params.index("g_leak")] == 1e9
+    assert any("g_leak" in n and "allowed" in n for n in problem.notes)
+    with pytest.raises(ParameterError, match="outside its box"):
+        fit(ds, fixed={"g_leak": 1e9}, optimizer="none", refine="none")
+    res = fit(ds, fixed={"g_leak": 1e9}, allow_outside_box=True, optimizer="none",
+              refine="none")
+    assert any("g_leak" in w and "allowed" in w for w in res.warnings)
