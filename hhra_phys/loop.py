@@ -312,6 +312,8 @@ class _Settings:
     substeps: int | tuple[tuple[float, int], ...] | None
     split: float
     criterion: str
+    #: Default boxes (widened like the model's when a group ends at an edge).
+    default_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 #: Samples per compiled step of candidate simulators. The default of a plain fit
@@ -355,9 +357,11 @@ def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[s
         for state in model.fitted_states:  # warm start of the fitted initial state too
             if x0 and state in x0:
                 st[f"x0_{state}"] = float(x0[state])
+    dflt = {k: v for k, v in cfg.default_bounds.items() if k in free and k not in bnd}
     return Problem(model, cfg.est, free=list(free), fixed=dict(fixed), bounds=bnd,
                    initial_state=cfg.initial_state, simulator=sim,  # type: ignore[arg-type]
-                   start=st, allow_outside_box=True)  # fixed values come from the loop's fits
+                   start=st, allow_outside_box=True,  # fixed values come from the loop's fits
+                   default_bounds=dflt or None)
 
 
 def _records_problem(cfg: _Settings, model: Model, free: Sequence[str],
@@ -390,9 +394,11 @@ def _records_problem(cfg: _Settings, model: Model, free: Sequence[str],
           if (k in model.params or split_record_name(k)[1] is not None)
           and k not in held and split_record_name(k)[0] not in fixed}
     bnd = {k: v for k, v in cfg.bounds.items() if k in free}
+    dflt = {k: v for k, v in cfg.default_bounds.items() if k in free and k not in bnd}
     return MultiProblem(model, list(cfg.est), free=list(free), fixed=held, bounds=bnd,
                         initial_state=cfg.initial_state, start=st, simulators=sims,
-                        names=cfg.data.names)
+                        names=cfg.data.names, default_bounds=dflt or None,
+                        allow_outside_box=True)
 
 
 def _values(res: FitResult) -> dict[str, float]:
@@ -812,6 +818,7 @@ def augment(
     criterion: str = "bic",
     free: Sequence[str] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    default_bounds: Mapping[str, tuple[float, float]] | None = None,
     effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
     backend: str = "auto",
     ipopt_iter: int = 60,
@@ -878,7 +885,11 @@ def augment(
     free : sequence of str, optional
         Free base parameters (default: the Problem's default).
     bounds : dict, optional
-        Bounds overriding the model's (base and effect parameters).
+        Bounds overriding the model's (base and effect parameters); never widened.
+    default_bounds : dict, optional
+        Boxes replacing the model's defaults (e.g. scaled to a record in sample
+        units, :func:`base_model_for`): like the model's own, widened by decades when
+        a fitted group ends at an edge (:mod:`hhra_phys.fit`), unlike ``bounds``.
     effect_kw : dict, optional
         ``{effect: {field: value}}`` for :func:`~hhra_phys.effects.make_effect`.
     backend : {"auto", "native", "casadi"}
@@ -970,7 +981,7 @@ def augment(
             f"loop's estimation part has {est.n} (split={split}): fit it with the same split")
     t0 = time.perf_counter()
     cfg = _Settings(est, sel, data, dict(bounds or {}), backend, seed, ipopt_iter,
-                    initial_state, None, split, criterion)
+                    initial_state, None, split, criterion, dict(default_bounds or {}))
     if base is None:
         base_free = list(free) if free is not None else default_free(model)
         say(f"base fit: {', '.join(base_free)} (pop {pop_size}, {max_iter} iterations)")

@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                 test=args.test, candidates=parse_names(args.effects),
                 max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
                 max_iter=args.iters, seed=args.seed, margin=args.margin,
-                noise_tol=args.noise_tol, bounds=bounds, executor=ex,
+                noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
                 progress=lambda s: print(s, file=sys.stderr, flush=True),
                 discover=not args.no_discover, discover_kw={"method": args.discover_method},
             )

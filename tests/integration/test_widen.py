@@ -113,3 +113,17 @@ def test_a_start_beyond_a_default_box_widens_it_by_whole_decades() -> None:
                     start={"g_damping": 28 * par.upper})
     assert not given.widened
     assert next(q for q in given.free_params if q.name == "g_damping").upper == par.upper
+
+
+def test_the_loops_default_bounds_widen_and_its_bounds_do_not() -> None:
+    """``augment(default_bounds=...)`` (the CLI's boxes for a record) widen; ``bounds`` never."""
+    data = simulate_rig(seed=0, duration=6.0, physical=widen_box.heavy_damping())
+    nominal = HHRAModel().params["g_damping"]
+    box = {"g_damping": (nominal.lower, nominal.upper)}
+    kw = {"candidates": [], "pop_size": 20, "max_iter": 20, "seed": 0, "test": 0.0,
+          "discover": False}
+    given = augment(data, HHRAModel(), default_bounds=box, **kw)
+    assert ("g_damping", "upper") in {(w["name"], w["side"])
+                                      for w in given.to_json()["base"].get("widened", [])}
+    fixed = augment(data, HHRAModel(), bounds=box, **kw)
+    assert all(w["name"] != "g_damping" for w in fixed.to_json()["base"].get("widened", []))
