@@ -19,7 +19,10 @@ just before and after each discovered term), and prints the summary.
 mis-tuned (docs/diagnosis.md, "Public measured record"): it prints the measured
 output's spectral peak on each part, the model's own resonance, and IPOPT refits of
 the final model (on estimation only, its free groups, its boxes) started with
-``g_torque`` moved so that the mode sits at each of :data:`PROBE_PERIODS`. With a
+``g_torque`` moved so that the mode sits at each of :data:`PROBE_PERIODS`, and
+unseeded H-GWO searches (pop 60 x 100, :data:`PROBE_SEEDS`) of the final structure on
+estimation and, as a diagnostic of what the structure can reach there, on the
+selection part alone (never used to choose). With a
 pressure output ``g_torque*g_compress`` sets the mode (``g_compress`` is held
 because only the product is observable), so ``g_torque`` alone moves it.
 """
@@ -43,6 +46,8 @@ from hhra_phys.result import FitResult
 
 #: Periods [samples] the resonance probe starts the final model's own mode at.
 PROBE_PERIODS: tuple[float, ...] = (20.0, 22.5, 25.0, 27.5, 30.0)
+#: Seeds of the probe's global searches.
+PROBE_SEEDS: tuple[int, ...] = (0, 1)
 
 
 def spectral_peak(y: np.ndarray, shortest: float = 8.0, longest: float = 60.0) -> float:
@@ -72,9 +77,9 @@ def probe_resonance(res: FitResult, data: Dataset, bounds: dict[str, tuple[float
     parts = {"est": data.slice(0, n_est), "sel": data.slice(n_est, n_est + n_sel),
              "test": data.slice(n_est + n_sel, data.n)}
 
-    def rmses(r: FitResult) -> str:
-        return ", ".join(f"{k} {float(np.sqrt(np.mean((d.y - r.predict(d)) ** 2))):.4f}"
-                         for k, d in parts.items())
+    def rmses(r: FitResult, names: tuple[str, ...] = ("est", "sel", "test")) -> str:
+        err = {k: parts[k].y - r.predict(parts[k]) for k in names}
+        return ", ".join(f"{k} {float(np.sqrt(np.mean(e ** 2))):.4f}" for k, e in err.items())
 
     print("measured spectral peak [samples]:",
           {k: round(spectral_peak(d.y), 1) for k, d in parts.items()})
@@ -96,6 +101,18 @@ def probe_resonance(res: FitResult, data: Dataset, bounds: dict[str, tuple[float
         print(f"start at {period:g} samples -> own modes",
               [(round(p, 1), round(z, 3)) for p, z in own_periods(r, data)],
               f"g_torque {r.values['g_torque']:.4g} |", rmses(r))
+    # A global search of the final structure from the model's default nominals (not
+    # seeded by the loop's values), and the same search on the selection part alone: a
+    # diagnostic of what the structure can reach there at all, never a choice.
+    for seed in PROBE_SEEDS:
+        for on, other in (("est", "sel"), ("sel", "est")):
+            r = fit(parts[on], model=res.model, validation=parts[other], optimizer="hgwo",
+                    pop_size=60, max_iter=100, free=free, bounds=box, seed=seed,
+                    seed_population=False)
+            print(f"H-GWO 60x100 seed {seed} fitted on {on} -> own modes",
+                  [(round(p, 1), round(z, 3)) for p, z in own_periods(r, data)], "|",
+                  rmses(r) if on == "est" else rmses(r, ("est", "sel")),
+                  "| at a bound:", [w for w in r.warnings if "bound" in w][:2])
 
 
 def main() -> None:
