@@ -21,7 +21,7 @@ docs/diagnosis.md).
     python experiments/closed_loop.py [--seeds 2 | --seeds 4,5] [--duration 8] [--out FILE.json]
         [--source reference|rig] [--sharp EFFECTS] [--sizes large|small|both] [--discover]
         [--pairs A+B,C+D] [--max-effects 2] [--top K] [--stop-on both|selection]
-        [--joint-search]
+        [--joint-search] [--no-backward]
 
 With ``--sharp``, a record hiding one of those effects is generated with every
 switch exact (``smooth=False`` for the whole reference plant: a dead zone beside a
@@ -103,6 +103,10 @@ def run_case(effects: dict[str, dict[str, float]], seed: int, duration: float,
                              if not e.identifiable and not e.note.startswith("skipped")]
         if res.diagnoses else [],
         "wrong": [n for n in res.chosen if n not in effects],
+        "removed": res.settings.get("removed", []),
+        "backward_steps": [{"round": s.round, "effect": s.effect, "action": s.action,
+                            "reason": s.reason} for s in res.steps if s.action != "add"],
+        "rounds": len(res.diagnoses),
         "first_chosen": res.chosen[0] if res.chosen else None,
         "noise_levels": res.settings.get("noise_levels"),
         "sharp": sharp,
@@ -142,6 +146,9 @@ def main() -> None:
     ap.add_argument("--joint-search", action=argparse.BooleanOptionalAction, default=False,
                     help="search earlier effects' parameters again in a candidate's global "
                          "search (augment's joint_search; default: held)")
+    ap.add_argument("--backward", action=argparse.BooleanOptionalAction, default=True,
+                    help="the loop's backward step (augment's backward; --no-backward: "
+                         "effects once accepted stay)")
     ap.add_argument("--discover", action="store_true",
                     help="let the loop look for a term outside the library (off: library "
                          "effects only)")
@@ -170,7 +177,7 @@ def main() -> None:
     out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
     loop_kw = {"max_effects": args.max_effects, "top_k": args.top, "pop_size": 20,
                "max_iter": 30, "discover": args.discover, "stop_on": args.stop_on,
-               "joint_search": args.joint_search}
+               "joint_search": args.joint_search, "backward": args.backward}
     load_start = os.getloadavg()
     pick = {"small": [0], "large": [1], "both": [0, 1]}[args.sizes]
     kinds = set(args.cases.split(","))

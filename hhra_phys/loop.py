@@ -84,6 +84,7 @@ __all__ = [
     "noise_stop",
     "stops_at_noise",
     "refit_candidate",
+    "backward_decision",
     "NOISE_TOL",
 ]
 
@@ -183,6 +184,13 @@ class Step:
     identifiable: bool = True
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    #: ``"add"``: a candidate proposed in a round (forward step); ``"keep"`` or
+    #: ``"remove"``: the backward check of an effect accepted earlier (:func:`augment`'s
+    #: ``backward``), where ``val_rmse_before``/``criterion_before`` are the model
+    #: *without* the effect and ``val``/``criterion`` the model with it.
+    action: str = "add"
+    #: The backward check took the effect out of the model.
+    removed: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able dictionary (layout of the CLI's report)."""
@@ -194,7 +202,7 @@ class Step:
             "criterion": self.criterion, "criterion_before": self.criterion_before,
             "val_rmse_before": self.val_rmse_before, "accepted": self.accepted,
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
-            "seconds": self.seconds,
+            "seconds": self.seconds, "action": self.action, "removed": self.removed,
         }
 
 
@@ -782,6 +790,124 @@ def _decide(step: Step, rmse_cur: float, crit_cur: float, noise: float, margin: 
     return ok
 
 
+def _effect_params(model: Model, effect: str) -> list[str]:
+    """Names of the parameters of the part called ``effect`` in ``model``."""
+    part = next(p for p in model.parts if p.name == effect)
+    return [p.name for p in part.parameters]
+
+
+def backward_decision(rmse_without: float, rmse_with: float, crit_without: float,
+                      crit_with: float, noise: float, margin: float, noise_tol: float,
+                      criterion: str = "bic") -> tuple[bool, str]:
+    """Whether an effect accepted earlier is taken out again (the backward step).
+
+    The forward rule read the other way: the effect stays only if it would be
+    accepted when proposed now to the model without it, i.e. :func:`acceptance`
+    with the model without it as "before" and the current model as "after". There
+    is no second threshold.
+
+    Parameters
+    ----------
+    rmse_without, rmse_with : float
+        Selection RMSE of the model without the effect (refitted) and of the
+        current model with it (output units).
+    crit_without, crit_with : float
+        Their information criteria on estimation (:func:`information_criterion`).
+    noise : float
+        Noise level of the selection residual of the model without it (output units).
+    margin, noise_tol : float
+        As in :func:`acceptance`.
+    criterion : str
+        Name of the criterion (for the reason).
+
+    Returns
+    -------
+    remove : bool
+        True when the effect would not be accepted now.
+    reason : str
+        :func:`acceptance`'s comparisons.
+    """
+    keep, reason = acceptance(rmse_without, rmse_with, crit_without, crit_with, margin,
+                              criterion, noise, noise_tol)
+    return not keep, reason
+
+
+def _backward_step(cfg: _Settings, cur: FitResult, cur_prob: Problem, cur_free: list[str],
+                   chosen: list[str], base_free: Sequence[str], rnd: int, margin: float,
+                   noise_tol: float, cand_pop: int | None, cand_iter: int | None,
+                   say: Callable[[str], None],
+                   ) -> tuple[FitResult, Problem, list[str], list[Step], str | None]:
+    """Try taking out each effect accepted before the newest one (stepwise selection).
+
+    Each earlier effect is removed from the current model and the rest refitted
+    like a candidate: a global search over the other effects' parameters (they may
+    have absorbed what it did, warm-started from the current fit, the base
+    parameters held), then IPOPT over all free parameters. The effect is removed
+    when :func:`backward_decision` says the model without it is not worse by the
+    acceptance rule; of several such effects the one whose removal leaves the lowest
+    selection RMSE goes (one per call: the loop's next round may propose others).
+
+    Returns
+    -------
+    cur, cur_prob, cur_free
+        The model after the step (unchanged when nothing is removed).
+    steps : list of Step
+        One per effect checked (``action`` ``"keep"`` or ``"remove"``).
+    removed : str or None
+        The effect removed.
+    """
+    crit_with = information_criterion(cur, cfg.criterion)
+    rmse_with = float(cur.metrics["val"]["rmse"])
+    steps: list[Step] = []
+    out: list[tuple[float, Step, Problem, FitResult, list[str]]] = []
+    for effect in chosen[:-1]:
+        ts = time.perf_counter()
+        mine = _effect_params(cur_prob.model, effect)
+        model_r = cur_prob.model.without(effect)
+        free_r = [n for n in cur_free if n not in mine]
+        searched = [n for n in free_r if n not in base_free and not n.startswith("x0_")]
+        vals = {k: v for k, v in _values(cur).items() if k not in mine}
+        try:
+            pop, iters = _search_size(len(searched), cand_pop, cand_iter)
+            p1 = _problem(cfg, model_r, searched, {n: vals[n] for n in free_r
+                                                   if n not in searched}, vals, cur.x0)
+            r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
+            p2 = _problem(cfg, model_r, free_r, {}, _values(r1), r1.x0,
+                          simulator=getattr(p1, "simulators", p1.sim))
+            r2 = _run(cfg, p2, "none", 0, 0)
+        except Exception as exc:  # noqa: BLE001 - a failing refit keeps the effect
+            say(f"  backward: refit without {effect} failed ({type(exc).__name__}: {exc}); "
+                "kept")
+            continue
+        rmse_r = float(r2.metrics["val"].get("rmse", math.inf))
+        rmse_r = rmse_r if math.isfinite(rmse_r) else math.inf
+        crit_r = information_criterion(r2, cfg.criterion)
+        noise = float(selection_noise(p2, r2, cfg.sel)["noise"])
+        remove, why = backward_decision(rmse_r, rmse_with, crit_r, crit_with, noise, margin,
+                                        noise_tol, cfg.criterion)
+        step = Step(rnd, effect, {}, {n: cur.values[n] for n in mine if n in cur.values},
+                    {n: list(cur.ci95[n]) for n in mine if n in cur.ci95},
+                    dict(cur.metrics["est"]), dict(cur.metrics["val"]), crit_with, crit_r,
+                    rmse_r, action="keep", reason=f"kept (proposed now it would be "
+                    f"accepted): {why}" if not remove else why)
+        step.seconds = time.perf_counter() - ts
+        say(f"  backward: without {effect}: {why} -> {'remove' if remove else 'keep'} "
+            f"[{step.seconds:.1f} s]")
+        steps.append(step)
+        if remove:
+            out.append((rmse_r, step, p2, r2, free_r))
+    if not out:
+        return cur, cur_prob, cur_free, steps, None
+    _, step, p2, r2, free_r = min(out, key=lambda t: t[0])
+    step.action, step.removed = "remove", True
+    step.reason = "removed (proposed now it would not be accepted): " + step.reason
+    # Polished like an accepted candidate before the next round.
+    prob = _problem(cfg, p2.model, free_r, {}, _values(r2), r2.x0)
+    res = _run(cfg, prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+    say(f"round {rnd}: removed {step.effect}")
+    return res, prob, free_r, steps, step.effect
+
+
 class _DiscoveryFits:
     """What :func:`hhra_phys.discover.discover_step` needs of the loop's fits."""
 
@@ -832,6 +958,7 @@ def augment(
     validation: Dataset | Sequence[Dataset] | None = None,
     stop_on: str = "both",
     joint_search: bool = False,
+    backward: bool = True,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -939,6 +1066,14 @@ def augment(
         local minimum; on 10 pair records the joint search found one such pair more
         but accepted one stand-in more (spool lag for a delay), so it is off by
         default (docs/diagnosis.md, "Simulated study").
+    backward : bool
+        Backward step (stepwise selection): after a round accepts an effect and at
+        least two are in, each effect accepted earlier is refitted out of the model
+        and removed when it would not be accepted if proposed now
+        (:func:`backward_decision`, the same rule read the other way). A removed
+        effect is not proposed again; rounds go on until ``max_effects`` are in, so
+        a loop may run more rounds than ``max_effects``. Each check is a
+        :class:`Step` with ``action`` ``"keep"`` or ``"remove"``.
 
     Returns
     -------
@@ -1008,14 +1143,20 @@ def augment(
     diagnoses: list[Diagnosis] = []
     warnings: list[str] = []
     skipped: dict[str, str] = {}
+    dropped: list[str] = []  # removed by the backward step, never proposed again
     levels: list[dict[str, Any]] = []
     est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     stop = "max_effects"
     compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
                 if executor is None and background and backend != "casadi" else None)
     try:
-        for rnd in range(1, max_effects + 1):
-            remaining = [n for n in names if n not in chosen]
+        rnd = 0
+        # Without removals (backward=False) this is one round per accepted effect,
+        # max_effects rounds at most; each removal takes a name out of the
+        # candidates for good, so the loop ends.
+        while len(chosen) < max_effects:
+            rnd += 1
+            remaining = [n for n in names if n not in chosen and n not in dropped]
             if not remaining:
                 stop = "no candidates left"
                 break
@@ -1090,6 +1231,14 @@ def augment(
             cur = _run(cfg, cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
             cur_free = best.free
             say(f"round {rnd}: accepted {best_step.effect}")
+            if backward and len(chosen) >= 2:
+                cur, cur_prob, cur_free, back, gone = _backward_step(
+                    cfg, cur, cur_prob, cur_free, chosen, base_free, rnd, margin, tol,
+                    cand_pop, cand_iter, say)
+                steps.extend(back)
+                if gone is not None:
+                    chosen.remove(gone)
+                    dropped.append(gone)
         else:
             stop = "max_effects"
     finally:
@@ -1130,6 +1279,7 @@ def augment(
                 "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
                 "noise_tol": tol, "criterion": criterion, "backend": backend,
                 "discover": discover, "stop_on": stop_on, "joint_search": joint_search,
+                "backward": backward, "removed": list(dropped),
                 "executor": type(executor).__name__ if executor is not None else None,
                 "base_given": base is not None, "stop": stop,
                 "noise_levels": levels + [final_level],
