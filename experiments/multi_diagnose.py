@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import warnings
+from concurrent.futures import Executor
 
 from hhra_phys.fit import fit
 from hhra_phys.loop import augment, split_record
@@ -46,12 +47,15 @@ def alone_width(res, ds) -> float:
     return hi - lo
 
 
-def run(seed: int) -> dict:
-    """One seed: the joint loop's choice, estimate, interval and the records' own widths."""
+def run(seed: int, executor: Executor | None = None) -> dict:
+    """One seed: the joint loop's choice, estimate, interval and the records' own widths.
+
+    ``executor`` runs the loop's candidate refits (same results as serial).
+    """
     a, b = records(seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment([a, b], seed=seed, **LOOP_KW)
+        res = augment([a, b], seed=seed, executor=executor, **LOOP_KW)
         row = {"seed": seed, "chosen": res.chosen, "test_rmse": res.test["rmse"]}
         if "coulomb_friction" in res.chosen:
             lo, hi = res.final.ci95["g_coulomb"]

@@ -37,3 +37,18 @@ def public_record():
         return load_public_actuator()
     except DataError as exc:
         pytest.skip(f"public data not available: {exc}")
+
+
+@pytest.fixture(scope="session")
+def loop_workers():
+    """Two worker processes for the candidate refits of the loop tests' rounds.
+
+    The loop's own executor path (``augment(executor=...)``, ``hhra-phys diagnose
+    --workers``), whose results equal the serial run's for the same seed
+    (``tests/integration/test_loop_cluster.py``): the rate tests loop over seeds and
+    candidates, and on the 2-core CI machine this halves their wall time.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        yield pool

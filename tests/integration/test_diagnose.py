@@ -103,7 +103,7 @@ def test_clean_record_adds_nothing():
 
 
 @pytest.mark.slow
-def test_loop_finds_each_hidden_effect_at_the_measured_rate():
+def test_loop_finds_each_hidden_effect_at_the_measured_rate(loop_workers):
     """Each library effect hidden alone: found, with the truth in the 95 % CI.
 
     Measured (same settings, reference records, every effect on seeds 1-5,
@@ -112,7 +112,7 @@ def test_loop_finds_each_hidden_effect_at_the_measured_rate():
     5: on seed 4 the two best-ranked candidates did not include it), no wrong effect, test
     RMSE after at most 1.10 x the noise. Here one seed per effect: at least 4 of the 5.
     """
-    runs = {name: _run(_reference({name: HIDDEN[name]}, seed), seed=seed)
+    runs = {name: _run(_reference({name: HIDDEN[name]}, seed), seed=seed, executor=loop_workers)
             for name, seed in SEEDS.items()}
     ok = {name: _found_in_ci(res, {name: HIDDEN[name]}) for name, res in runs.items()}
     summary = {n: (r.chosen, {k: r.final.values.get(k) for k in HIDDEN[n]})
@@ -132,7 +132,7 @@ def test_loop_finds_each_hidden_effect_at_the_measured_rate():
 
 
 @pytest.mark.slow
-def test_two_hidden_effects_are_both_found():
+def test_two_hidden_effects_are_both_found(loop_workers):
     """Dead zone and input delay hidden together (reference record, smooth switching).
 
     Every candidate refitted: with the two best-ranked only, delay ranked 5th of 8 after
@@ -143,7 +143,7 @@ def test_two_hidden_effects_are_both_found():
     time in check), and the JSON layout.
     """
     truth = {"valve_deadzone": {"i_dead": 0.2}, "input_delay": {"delay": 4.0}}
-    res = _run(_reference(truth, 2), seed=2, max_effects=2, top_k=None)
+    res = _run(_reference(truth, 2), seed=2, max_effects=2, top_k=None, executor=loop_workers)
     assert sorted(res.chosen) == sorted(truth), res.chosen
     assert res.final.metrics["val"]["rmse"] <= 1.5 * NOISE
     js = res.to_json()

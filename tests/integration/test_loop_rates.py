@@ -29,15 +29,15 @@ NOISE = 0.05
 PAIR_MIN = 2
 
 
-def _loop(seed: int, effects: dict[str, dict[str, float]], smooth: bool):
+def _loop(seed: int, effects: dict[str, dict[str, float]], smooth: bool, workers):
     ds = reference_record(seed=seed, duration=8.0, noise_deg=NOISE, levels=4,
                           effects=effects, smooth=smooth)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return augment(ds, seed=seed, **LOOP_KW)
+        return augment(ds, seed=seed, executor=workers, **LOOP_KW)
 
 
-def test_sharp_friction_found_first_with_truth_in_ci():
+def test_sharp_friction_found_first_with_truth_in_ci(loop_workers):
     """Exact stick-slip Coulomb friction (smooth=False) of 30 rad/s^2 hidden in the plant.
 
     Measured on seeds 1-3: found first on 3 of 3, truth in the 95 % CI on 2 of 3 (seed 2:
@@ -45,7 +45,8 @@ def test_sharp_friction_found_first_with_truth_in_ci():
     (within 15 % of the 0.05 deg noise) on all three.
     """
     truth = 30.0
-    runs = [_loop(s, {"coulomb_friction": {"g_coulomb": truth}}, smooth=False) for s in SEEDS]
+    runs = [_loop(s, {"coulomb_friction": {"g_coulomb": truth}}, smooth=False,
+                  workers=loop_workers) for s in SEEDS]
     first = sum(bool(r.chosen) and r.chosen[0] == "coulomb_friction" for r in runs)
     in_ci = 0
     for r in runs:
@@ -60,18 +61,18 @@ def test_sharp_friction_found_first_with_truth_in_ci():
         assert r.test["rmse"] < 1.15 * NOISE, r.test
 
 
-def test_clean_records_add_nothing():
+def test_clean_records_add_nothing(loop_workers):
     """No hidden effect: the loop must stop at the noise level without adding any.
 
     Measured: 6 of 6 clean records (seeds 1-3, 11-13) add nothing, test RMSE
     0.048-0.052 deg.
     """
-    runs = [_loop(s, {}, smooth=True) for s in SEEDS]
+    runs = [_loop(s, {}, smooth=True, workers=loop_workers) for s in SEEDS]
     assert all(not r.chosen for r in runs), [r.chosen for r in runs]
     assert all(r.test["rmse"] < 1.15 * NOISE for r in runs), [r.test for r in runs]
 
 
-def test_dead_zone_and_sharp_friction_both_found():
+def test_dead_zone_and_sharp_friction_both_found(loop_workers):
     """A dead zone and exact stick-slip friction hidden together (issue 16).
 
     Reference records with every switch exact (``smooth=False``: the dead zone is a clip,
@@ -90,7 +91,7 @@ def test_dead_zone_and_sharp_friction_both_found():
                               effects=truth, smooth=False)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            runs.append(augment(ds, seed=seed, **LOOP_KW))
+            runs.append(augment(ds, seed=seed, executor=loop_workers, **LOOP_KW))
     found = [r for r in runs if sorted(r.chosen) == sorted(truth)]
     assert len(found) >= PAIR_MIN, [r.chosen for r in runs]
     assert not [c for r in runs for c in r.chosen if c not in truth], [r.chosen for r in runs]

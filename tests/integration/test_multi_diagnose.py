@@ -189,7 +189,7 @@ def test_a_held_per_record_parameter_keeps_each_records_value():
 
 
 @pytest.mark.slow
-def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root):
+def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root, loop_workers):
     """Sharp Coulomb friction (30 rad/s^2) hidden in two records at different excitations.
 
     Measured (experiments/multi_diagnose.py, seeds 1-4): found first on 4 of 4, the truth in
@@ -202,7 +202,7 @@ def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root
         "multi_diagnose", repo_root / "experiments" / "multi_diagnose.py")
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
-    rows = [study.run(seed) for seed in (1, 2, 3)]
+    rows = [study.run(seed, loop_workers) for seed in (1, 2, 3)]
     found = [r for r in rows if r["chosen"][:1] == ["coulomb_friction"]]
     assert len(found) == 3, rows
     assert sum(r["ci"][0] <= study.TRUTH <= r["ci"][1] for r in found) >= 2, rows
