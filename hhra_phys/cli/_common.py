@@ -224,6 +224,29 @@ def load_records(args: argparse.Namespace, names: list[str] | None = None) -> li
     return [load_data(argparse.Namespace(**{**vars(args), "data": item})) for item in items]
 
 
+def model_records(args: argparse.Namespace) -> tuple[list[Dataset], list[Dataset] | None,
+                                                   list[str]]:
+    """DATA records and ``--validate`` records in the model's units, and their warnings.
+
+    Each record is loaded by :func:`load_records` and converted by
+    :func:`record_for_model`; ``None`` for the validation records when
+    ``--validate`` was not given.
+    """
+    warnings: list[str] = []
+
+    def converted(names: list[str] | None) -> list[Dataset]:
+        out = []
+        for ds in load_records(args, names):
+            ds, warns = record_for_model(args, ds)
+            out.append(ds)
+            warnings.extend(warns)
+        return out
+
+    records = converted(None)
+    validation = converted(args.validate) if getattr(args, "validate", None) else None
+    return records, validation, warnings
+
+
 def parse_fixed(items: list[str] | None) -> dict[str, float]:
     """``["NAME=VALUE", ...]`` -> ``{NAME: VALUE}`` with clear errors."""
     out: dict[str, float] = {}

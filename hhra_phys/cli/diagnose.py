@@ -14,12 +14,11 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     check_outputs,
     fraction,
-    load_records,
     model_for,
+    model_records,
     nonnegative_int,
     population,
     positive_int,
-    record_for_model,
     report_error,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
@@ -167,18 +166,7 @@ def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, lis
     """
     from hhra_phys.multi import check_records
 
-    warnings: list[str] = []
-    records, validation = [], None
-    for ds in load_records(args):
-        ds, warns = record_for_model(args, ds)
-        records.append(ds)
-        warnings += warns
-    if args.validate:
-        validation = []
-        for ds in load_records(args, args.validate):
-            ds, warns = record_for_model(args, ds)
-            validation.append(ds)
-            warnings += warns
+    records, validation, warnings = model_records(args)
     check_records(records + (validation or []))
     return records, validation, warnings
 

@@ -11,13 +11,12 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     check_outputs,
     fraction,
-    load_records,
     model_for,
+    model_records,
     parse_fixed,
     parse_names,
     population,
     positive_int,
-    record_for_model,
     report_error,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
@@ -92,18 +91,7 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([args.json], args.overwrite, figures=[args.plot])
         fixed = parse_fixed(args.fix)
         free = parse_names(args.free)
-        data_warnings: list[str] = []
-        records, validation = [], None
-        for ds in load_records(args):
-            ds, warns = record_for_model(args, ds)
-            records.append(ds)
-            data_warnings += warns
-        if args.validate:
-            validation = []
-            for ds in load_records(args, args.validate):
-                ds, warns = record_for_model(args, ds)
-                validation.append(ds)
-                data_warnings += warns
+        records, validation, data_warnings = model_records(args)
         data = records[0]
         model, auto_bounds = model_for(args, data, args.valve)
         # Problem runs the same check in every fit; here it names --fix before any worker
