@@ -572,7 +572,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "reliab-fix-box-unchecked",
         "--fix values outside the box are accepted silently",
-        "if not par.lower <= v <= par.upper:",
+        "if not par.lower - slack <= v <= par.upper + slack:",
         "if False:",
         RELIAB_TESTS,
     ),
