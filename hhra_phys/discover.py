@@ -1354,7 +1354,7 @@ def plot_discovery(steps: Sequence[DiscoveredStep], path: str, overwrite: bool =
             a = ax[i, j]
             a.plot(before, lw=0.7, color="0.6", label=f"before (RMSE {rb:.3g})")
             a.plot(after, lw=0.7, color="C0", label=f"after (RMSE {ra:.3g})")
-            a.set(title=f"{'estimation' if part == 'est' else 'validation'}: {s.effect}"
+            a.set(title=f"{'estimation' if part == 'est' else 'selection'}: {s.effect}"
                         f"{' (accepted)' if s.accepted else ''}",
                   xlabel="sample", ylabel="residual")
             a.legend(fontsize=8, loc="upper right")

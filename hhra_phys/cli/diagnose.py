@@ -35,8 +35,10 @@ def register(subparsers: Any) -> None:
             "Fit the physical model, analyse the residual, add effects of the library "
             "(friction, dead zone, delay, ...) one at a time, refit, and keep an effect only if "
             "the error on the selection part falls clearly, beyond what noise and structural "
-            "mismatch allow, and BIC agrees; stop when the selection residual is at the noise "
-            "level. The record splits into estimation (--split), selection and test (--test) "
+            "mismatch allow, and BIC agrees; after each accepted effect, take out an earlier one "
+            "the same rule would no longer accept (backward step); stop when the estimation and "
+            "the selection residual are both at the noise level. The record splits into "
+            "estimation (--split), selection and test (--test) "
             "parts; the test part chooses nothing and reports the error before and after. "
             "Writes a JSON summary and a Markdown report with residual plots before and after."
         ),
@@ -75,6 +77,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-discover", action="store_true",
                    help="do not look for a term outside the library after it (discovery, "
                         "hhra_phys.discover, is on by default)")
+    p.add_argument("--no-backward", action="store_true",
+                   help="no backward step: keep every accepted effect (by default, after a round "
+                        "accepts an effect, each earlier one is refitted out and removed if the "
+                        "rule would no longer accept it)")
     p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
                    help="sparsity rule of the discovery (default threshold)")
     add_cluster_arguments(p, "the candidate refits")
@@ -123,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
                 noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
                 progress=lambda s: print(s, file=sys.stderr, flush=True),
                 discover=not args.no_discover, discover_kw={"method": args.discover_method},
+                backward=not args.no_backward,
             )
         res.warnings.extend(data_warnings)
         out = res.to_json()
@@ -264,7 +271,7 @@ def discovery_section(res: Any) -> list[str]:
     if not found:
         return lines + ["Discovery ran; no entry point gave a term that survived its sparse refit.",
                         ""]
-    lines += ["| term | expression | uses | val RMSE before -> after | accepted | notes |",
+    lines += ["| term | expression | uses | selection RMSE before -> after | accepted | notes |",
               "|---|---|---|---|---|---|"]
     for s in found:
         notes = "; ".join(n for n in s.notes if "outside the range" in n)
@@ -278,9 +285,11 @@ def discovery_section(res: Any) -> list[str]:
         for n, v in s.params.items():
             ci = s.ci95.get(n, (math.nan, math.nan))
             lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
-        lines += ["", "Sparse refits: " + "; ".join(n for n in s.notes
-                                                     if "outside the range" not in n)]
+        # A term's notes tell its sparse refits; a resonant mode's its starts and checks.
+        label = "Refits" if "period" in (s.screening or {}) else "Sparse refits"
+        lines += ["", f"{label}: " + "; ".join(n for n in s.notes
+                                                if "outside the range" not in n)]
     lines += ["", "Residual plots: before (base model) and after (every accepted effect and "
               "term), and the residual just before and after each discovered term (estimation "
-              "and validation), are in the section below."]
+              "and selection), are in the section below."]
     return lines + [""]

@@ -176,3 +176,22 @@ def test_cli_diagnose_writes_json_and_report_and_refuses_overwrite(tmp_path, cap
     assert (tmp_path / "d_before.png").exists() and (tmp_path / "d_after.png").exists()
     assert main(args) == 2  # outputs exist: a usage error, as on every command
     assert "exists; pass --overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("flag", "backward"), [([], True), (["--no-backward"], False)])
+def test_cli_diagnose_passes_the_backward_choice_to_the_loop(flag, backward, tmp_path,
+                                                             monkeypatch):
+    import hhra_phys.loop
+    from hhra_phys.cli import main
+    from hhra_phys.errors import HHRAError
+
+    seen = {}
+
+    def fake(*args, **kw):  # stop before any fit: only the settings are checked
+        seen.update(kw)
+        raise HHRAError("stopped by the test")
+
+    monkeypatch.setattr(hhra_phys.loop, "augment", fake)
+    assert main(["diagnose", "rig", "--json", str(tmp_path / "d.json"), *flag]) == 1
+    assert seen["backward"] is backward
+    assert not (tmp_path / "d.json").exists()
