@@ -3,7 +3,9 @@
 Records come from the independent reference model with one term the effect
 library has no part for (:mod:`hhra_phys.reference.outside`), or read through a
 resonant sensor (``resonance:<period s>``, :mod:`hhra_phys.reference.resonant`, the
-truth of the discovered mode), or with one library effect at its large size of
+truth of the discovered mode), or with a load on a compliant coupling of the shaft
+(``load:<period s>``, ratio ``--load-ratio``, damping ``--damping``: the truth of the
+load mode at ``rate:omega``), or with one library effect at its large size of
 ``experiments/closed_loop.py`` (``<effect>:large``: a mode or term accepted there is
 a stand-in), and clean records (false discoveries). Every record runs the loop
 with ``max_effects=0`` (library rounds off, so the discovery step alone is
@@ -16,10 +18,11 @@ Usage::
 
     python experiments/discover.py [--seeds 3,5] [--duration 6] [--out results.json]
         [--families quadratic_drag:400,pressure_leak:100,cubic_spring:1000,none:0]
-        [--methods threshold,l1] [--damping 0.1] [--entries mode:output,mode:input]
+        [--methods threshold,l1] [--damping 0.1] [--load-ratio 0.5]
+        [--entries mode:output,mode:input,mode:rate:omega]
 
-``--entries`` restricts the discovery to those entry points (``mode:output`` and
-``mode:input`` alone score the resonant mode by itself).
+``--entries`` restricts the discovery to those entry points (``mode:output``,
+``mode:input`` and ``mode:rate:omega`` alone score the resonant modes by themselves).
 """
 
 from __future__ import annotations
@@ -35,19 +38,26 @@ from closed_loop import SIZES, make_record
 from hhra_phys.loop import augment
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference.outside import OUTSIDE, outside_record
-from hhra_phys.reference.resonant import resonant_record
+from hhra_phys.reference.resonant import loaded_record, resonant_record
 
 #: The variable each truth term depends on.
-TRUE_SIGNAL = {"quadratic_drag": "omega", "cubic_spring": "theta", "pressure_leak": "p"}
+TRUE_SIGNAL = {"quadratic_drag": "omega", "cubic_spring": "theta", "pressure_leak": "p",
+               "load": "omega"}
 TRUTH_TEXT = {"quadratic_drag": "d omega/dt += -{s:g}*omega*|omega|",
               "cubic_spring": "d omega/dt += -{s:g}*theta^3",
               "pressure_leak": "d p/dt += -{s:g}*p*|p|", "none": "nothing",
-              "resonance": "y_s = H y, period {s:g} s, z {z:g}"}
+              "resonance": "y_s = H y, period {s:g} s, z {z:g}",
+              "load": "load of ratio {k:g} on the shaft, period {s:g} s, z {z:g}"}
+#: Families whose truth is a mode (period in seconds as the size).
+MODE_FAMILIES = ("resonance", "load")
 
 
 def record(family: str, size: float, seed: int, duration: float, noise: float,
-           damping: float):
+           damping: float, ratio: float = 0.5):
     """The study's record of ``family`` (module docstring)."""
+    if family == "load":
+        return loaded_record(size, ratio, damping, seed=seed, duration=duration,
+                             noise_deg=noise)
     if family == "resonance":
         return resonant_record(size, damping, seed=seed, duration=duration, noise_deg=noise)
     if family in SIZES:
@@ -56,9 +66,10 @@ def record(family: str, size: float, seed: int, duration: float, noise: float,
 
 
 def run(family: str, size: float, seed: int, method: str, duration: float,
-        noise: float, damping: float = 0.1, entries: list[str] | None = None) -> dict:
+        noise: float, damping: float = 0.1, entries: list[str] | None = None,
+        ratio: float = 0.5) -> dict:
     """One record, one sparsity rule: the row of the study."""
-    ds = record(family, size, seed, duration, noise, damping)
+    ds = record(family, size, seed, duration, noise, damping, ratio)
     t0 = time.perf_counter()
     kw: dict = {"method": method}
     if entries:
@@ -71,12 +82,12 @@ def run(family: str, size: float, seed: int, method: str, duration: float,
     acc = [s for s in found if s["accepted"]]
     modes = [s for s in found if "period" in s["screening"]]
     mode = next((s for s in modes if s["accepted"]), modes[0] if modes else None)
-    truth_w = ds.metadata.get("truth", {}).get("w") if family == "resonance" else None
+    truth_w = ds.metadata.get("truth", {}).get("w") if family in MODE_FAMILIES else None
     w_ci = next((v for k, v in mode["ci95"].items() if k.endswith("_w")), None) if mode else None
     return {
         "family": family, "size": size, "seed": seed, "method": method,
         "truth": (f"{family} {SIZES[family][1]}" if family in SIZES
-                  else TRUTH_TEXT[family].format(s=size, z=damping)),
+                  else TRUTH_TEXT[family].format(s=size, z=damping, k=ratio)),
         "mode_tried": mode["expression"] if mode else None,
         "mode_accepted": bool(mode and mode["accepted"]),
         "mode_val_rmse": mode["val"]["rmse"] if mode else None,
@@ -111,25 +122,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="write the rows as JSON here")
     ap.add_argument("--overwrite", action="store_true")
     ap.add_argument("--damping", type=float, default=0.1,
-                    help="damping ratio of the resonance family")
+                    help="damping ratio of the resonance and load families")
+    ap.add_argument("--load-ratio", type=float, default=0.5,
+                    help="load inertia over the actuator's of the load family")
     ap.add_argument("--entries", default=None,
                     help="comma-separated entry points of the discovery (default: all)")
     args = ap.parse_args(argv)
     fams = []
-    known = [*OUTSIDE, "resonance", "none", *(f"{e}:large" for e in SIZES)]
+    known = [*OUTSIDE, *MODE_FAMILIES, "none", *(f"{e}:large" for e in SIZES)]
     for item in args.families.split(","):
         name, _, size = item.partition(":")
-        if name not in OUTSIDE and name not in ("none", "resonance") and not (
+        if name not in OUTSIDE and name not in ("none", *MODE_FAMILIES) and not (
                 name in SIZES and size == "large"):
             ap.error(f"--families: unknown family {item!r} (known: {', '.join(known)})")
         try:
             fams.append((name, 0.0 if name in SIZES else float(size or 0)))
         except ValueError:
             ap.error(f"--families: size of {name!r} must be a number, got {size!r}")
-        if name == "resonance" and not fams[-1][1] > 0:
-            ap.error("--families: resonance needs its period in seconds, e.g. resonance:0.25")
+        if name in MODE_FAMILIES and not fams[-1][1] > 0:
+            ap.error(f"--families: {name} needs its period in seconds, e.g. {name}:0.25")
     if not args.damping > 0:
         ap.error(f"--damping must be > 0, got {args.damping}")
+    if not args.load_ratio > 0:
+        ap.error(f"--load-ratio must be > 0, got {args.load_ratio}")
     entries = args.entries.split(",") if args.entries else None
     methods = args.methods.split(",")
     for m in methods:
@@ -146,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     for fam, size in fams:
         for seed in seeds:
             for m in methods:
-                r = run(fam, size, seed, m, args.duration, args.noise, args.damping, entries)
+                r = run(fam, size, seed, m, args.duration, args.noise, args.damping, entries,
+                        args.load_ratio)
                 rows.append(r)
                 mode = "-"
                 if r["mode_period"] is not None:

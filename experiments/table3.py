@@ -261,6 +261,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if fig_dir:
                 planned += [fig_dir / f"identification_{r}_{k}.png" for k in FIGURES]
         _check_free(planned, args.overwrite)
+        if fig_dir is not None and not fig_dir.is_dir():
+            # Checked here: the figures are written after minutes of fits.
+            raise ParameterError(f"--figures {fig_dir}: folder does not exist; create it first")
         out.mkdir(parents=True, exist_ok=True)
 
         summary: dict[str, Any] = {

@@ -1,12 +1,24 @@
-"""Records with a resonance the model lacks: the reference rig read through a resonant sensor.
+"""Records with a resonance the model lacks, from the independent reference rig.
 
 Truth for the tests and study of the discovered mode
-(:class:`hhra_phys.discover.DiscoveredMode`): the noise-free angle of the
-independent reference model (:func:`hhra_phys.reference.outside.outside_record`
-with no extra term, NumPy/SciPy, ``solve_ivp``) passed through a second-order
-filter ``H(s) = w^2/(s^2 + 2 z w s + w^2)`` (a compliant coupling between shaft
-and encoder, or a resonant sensor) by :func:`scipy.signal.lsim`, then noise is
-added. Nothing here imports the package's model code or the mode's code.
+(:class:`hhra_phys.discover.DiscoveredMode`). Nothing here imports the package's
+model code or the mode's code.
+
+* :func:`resonant_record`: the noise-free angle of the independent reference model
+  (:func:`hhra_phys.reference.outside.outside_record` with no extra term,
+  NumPy/SciPy, ``solve_ivp``) passed through a second-order filter
+  ``H(s) = w^2/(s^2 + 2 z w s + w^2)`` (a compliant coupling between shaft and
+  encoder, or a resonant sensor) by :func:`scipy.signal.lsim`, then noise.
+* :func:`loaded_record`: the reference model's shaft carries a second inertia on a
+  compliant coupling (a load on a flexible arm); the encoder reads the actuator's
+  angle. Absolute states ``[theta, omega, p, theta_l, omega_l]``, integrated by
+  ``solve_ivp`` under an exact zero-order hold::
+
+      torque of the coupling over the actuator's inertia:
+          c = ratio*(w^2*(theta - theta_l) + 2*z*w*(omega - omega_l))
+      domega/dt   = (reference rate of omega) - c
+      dtheta_l/dt = omega_l
+      domega_l/dt = c/ratio
 """
 
 from __future__ import annotations
@@ -15,11 +27,13 @@ import math
 
 import numpy as np
 from scipy import signal as sps
+from scipy.integrate import solve_ivp
 
 from hhra_phys.data import Dataset
+from hhra_phys.reference.hhra import REFERENCE_GROUPS, reference_record, reference_rhs
 from hhra_phys.reference.outside import outside_record
 
-__all__ = ["resonant_record"]
+__all__ = ["resonant_record", "loaded_record"]
 
 
 def resonant_record(period: float, damping: float, seed: int = 0, duration: float = 6.0,
@@ -65,3 +79,77 @@ def resonant_record(period: float, damping: float, seed: int = 0, duration: floa
     return Dataset.from_arrays(base.u, y, fs=fs, metadata=meta,
                                name=f"resonant-{period:g}s-seed{seed}", input_name="current",
                                input_unit="mA", output_name="angle", output_unit="deg")
+
+
+def loaded_record(period: float, ratio: float, damping: float, seed: int = 0,
+                  duration: float = 6.0, fs: float = 250.0, noise_deg: float = 0.05,
+                  levels: int = 4) -> Dataset:
+    """A rig record (angle [deg] from current [mA]) whose shaft carries a compliant load.
+
+    Parameters
+    ----------
+    period : float
+        Natural period ``2 pi / w`` of the load on its coupling (actuator held) [s].
+    ratio : float
+        Load inertia over the actuator's inertia [-] (> 0).
+    damping : float
+        Damping ratio ``z`` of the coupling [-].
+    seed : int
+        Seeds the excitation (as :func:`~hhra_phys.reference.hhra.reference_record`)
+        and the noise.
+    duration, fs : float
+        Length [s] and sample rate [Hz].
+    noise_deg : float
+        Standard deviation of the angle noise [deg].
+    levels : int
+        Amplitude levels of the excitation.
+
+    Returns
+    -------
+    Dataset
+        ``metadata["truth"]`` holds ``period``, ``w`` [rad/s], ``ratio``, ``damping``, the
+        reference groups ``params`` and the initial state ``x0`` of the actuator.
+    """
+    if not all(math.isfinite(v) and v > 0 for v in (period, ratio, damping)):
+        raise ValueError(f"period, ratio and damping must be > 0, got {period}, {ratio}, "
+                         f"{damping}")
+    base = reference_record(seed=seed, duration=duration, fs=fs, noise_deg=0.0, levels=levels)
+    u = base.u
+    params = {k: v for k, v in REFERENCE_GROUPS.items() if k != "g_kp"}
+    x0 = [base.metadata["x0"][n] for n in ("theta", "omega", "p")]
+    # The load starts with the shaft, untwisted.
+    x = np.array([*x0, x0[0], x0[1]], dtype=float)
+    w = 2 * math.pi / period
+
+    def rhs(_t: float, xx: np.ndarray, uk: float) -> np.ndarray:
+        d = np.empty(5)
+        d[:3] = reference_rhs(xx[:3], uk, params)
+        c = ratio * (w * w * (xx[0] - xx[3]) + 2 * damping * w * (xx[1] - xx[4]))
+        d[1] -= c
+        d[3] = xx[4]
+        d[4] = c / ratio
+        return d
+
+    dt = 1.0 / fs
+    X = np.empty((u.size, 5))
+    change = np.flatnonzero(np.diff(u) != 0) + 1
+    for a, b in zip(np.concatenate([[0], change]), np.concatenate([change, [u.size]]),
+                    strict=True):
+        t_eval = np.arange(b - a + 1) * dt
+        sol = solve_ivp(rhs, (0.0, t_eval[-1]), x, t_eval=t_eval, args=(float(u[a]),),
+                        method="LSODA", rtol=1e-9, atol=1e-11)
+        if not sol.success:
+            raise RuntimeError(f"loaded_record: integration failed at sample {a}: "
+                               f"{sol.message}")
+        X[a:b] = sol.y[:, :-1].T
+        x = sol.y[:, -1]
+    rng = np.random.default_rng([seed, 3])
+    y = np.degrees(X[:, 0]) + noise_deg * rng.standard_normal(u.size)
+    meta = {"generator": "hhra_phys.reference.resonant.loaded_record", "seed": seed,
+            "noise_deg": noise_deg,
+            "truth": {"period": period, "w": w, "ratio": ratio, "damping": damping,
+                      "params": params, "x0": dict(zip(("theta", "omega", "p"), x0, strict=True))}}
+    return Dataset.from_arrays(u, y, fs=fs, metadata=meta,
+                               name=f"loaded-{period:g}s-{ratio:g}-seed{seed}",
+                               input_name="current", input_unit="mA", output_name="angle",
+                               output_unit="deg")

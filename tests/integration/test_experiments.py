@@ -64,6 +64,11 @@ def test_table3_on_the_perturbed_rig_and_public_record(tmp_path):
                  "rig_perturbed_outputs.png", "public_convergence.png"):
         assert (out / name).exists(), name
     assert "physical IPOPT from nominal" in (out / "tables.md").read_text()
+    # A missing figures folder is refused before the fits (it was found after them).
+    proc = _call("table3.py", "--out", str(tmp_path / "t3b"), "--figures",
+                 str(tmp_path / "missing"), "--records", "rig", cwd=tmp_path)
+    assert proc.returncode == 2 and "folder does not exist" in proc.stderr
+    assert not (tmp_path / "t3b").exists()
 
 
 @pytest.mark.skipif(not PUBLIC.exists(), reason="public data not present next to the repository")
