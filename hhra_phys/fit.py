@@ -718,8 +718,6 @@ def _result(
     values_free = problem.from_z(z)
     P = problem.full(values_free)
     values = model.params.as_dict(P)
-    units = {p.name: p.unit for p in model.params}
-    units.update({p.name: p.unit for p in problem.free_params})
     ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
@@ -742,12 +740,37 @@ def _result(
                     f"validation output leaves the estimation range [{lo_e:.3g}, {hi_e:.3g}]: "
                     "position-dependent terms are extrapolated there"
                 )
-    physical, why = model.physical_view(values, datasheet, data.metadata)
-    if why:
-        warnings.append(why)
     settings = _settings(problem, optimizer, refine, pop_size, max_iter, lam, split, seconds)
     settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
                         "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
+    return assemble_result(problem, values, x0, metrics,
+                           (ci95, std, corr, warnings, interval_info), stages, history,
+                           settings, seed, datasheet, data.metadata,
+                           status="diverged" if diverged else "ok")
+
+
+def assemble_result(problem: Any, values: dict[str, float], x0: dict[str, float],
+                    metrics: dict[str, Any], interval_parts: tuple[Any, ...],
+                    stages: list[Stage], history: list[float], settings: dict[str, Any],
+                    seed: int | None, datasheet: Any | None, metadata: Any, *,
+                    status: str = "ok",
+                    records: list[dict[str, Any]] | None = None) -> FitResult:
+    """The :class:`~hhra_phys.result.FitResult` of a fit: one place for the
+    single-record fit and the several-record fit (:mod:`hhra_phys.multi`).
+
+    ``values`` are the model's parameters by name, ``x0`` the (first) record's
+    initial state by state name, ``interval_parts`` the ``(ci95, std, correlation,
+    warnings, info)`` of :func:`_intervals` (its warnings list, with the caller's
+    added, becomes the result's). The physical view is derived from ``values`` and
+    ``datasheet``/``metadata``; its note joins the warnings.
+    """
+    model = problem.model
+    ci95, std, corr, warns, interval_info = interval_parts
+    units = {p.name: p.unit for p in model.params}
+    units.update({p.name: p.unit for p in problem.free_params})
+    physical, why = model.physical_view(values, datasheet, metadata)
+    if why:
+        warns.append(why)
     return FitResult(
         model_spec=model.to_json(),
         values=values,
@@ -756,7 +779,7 @@ def _result(
         ci95=ci95,
         std=std,
         correlation=corr,
-        warnings=warnings,
+        warnings=warns,
         metrics=metrics,
         stages=[s.to_json() for s in stages],
         history=history,
@@ -767,7 +790,8 @@ def _result(
         physical=physical,
         intervals=interval_info,
         problem=problem,
-        status="diverged" if diverged else "ok",
+        status=status,
+        records=list(records or []),
     )
 
 

@@ -396,8 +396,7 @@ def records_result(
     """
     import time
 
-    from hhra_phys.fit import _intervals
-    from hhra_phys.result import FitResult
+    from hhra_phys.fit import _intervals, assemble_result
 
     model = problem.model
     v = problem.from_z(z)
@@ -437,37 +436,14 @@ def records_result(
     metrics = {"est": pooled_score(est_y, est_sim),
                "val": pooled_score(val_y, val_sim) if val_y else {}}
     values = model.params.as_dict(first.full(v0))
-    units = {p.name: p.unit for p in model.params}
-    units.update({p.name: p.unit for p in problem.free_params})
-    physical, why = model.physical_view(values, datasheet, first.data.metadata)
-    if why:
-        warnings.append(why)
     settings = dict(settings)
     settings["per_record"] = list(problem.per_record)
     settings["data"] = [_describe(pr.data) for pr in problem.records]
     settings["validation"] = [_describe(ds) for ds in whole_val]
     settings["seconds"] = time.perf_counter() - t_start
-    return FitResult(
-        model_spec=model.to_json(),
-        values=values,
-        free=problem.free_names,
-        units=units,
-        ci95=ci95,
-        std=std,
-        correlation=corr,
-        warnings=warnings,
-        metrics=metrics,
-        stages=[s.to_json() for s in stages],
-        history=history,
-        tf=model.tf_coefficients_of(values),
-        x0=records[0]["x0"],
-        settings=settings,
-        seed=seed,
-        physical=physical,
-        intervals=interval_info,
-        problem=problem,
-        records=records,
-    )
+    return assemble_result(problem, values, records[0]["x0"], metrics,
+                           (ci95, std, corr, warnings, interval_info), stages, history,
+                           settings, seed, datasheet, first.data.metadata, records=records)
 
 
 def _label(ds: Dataset, k: int) -> str:
