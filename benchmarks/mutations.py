@@ -51,6 +51,8 @@ LOOP_TESTS = ("tests/unit/test_loop_rule.py", "tests/integration/test_user_model
 RELIAB_TESTS = ("tests/unit/test_units.py", "tests/unit/test_cli_args.py",
                 "tests/integration/test_bad_inputs.py")
 DISCOVER_TESTS = ("tests/integration/test_discover.py",)
+#: The mode's equation checks come first in the file, so -x stops there.
+MODE_TESTS = "tests/integration/test_discover_mode.py"
 #: Its slow rate test comes last, so -x stops at the quick test that notices.
 MULTI_TEST = "tests/integration/test_multi_diagnose.py"
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
@@ -597,6 +599,20 @@ MUTATIONS: tuple[Mutation, ...] = (
         "v = (x if family == \"hinge+\" else -x) - knot",
         "v = (x if family == \"hinge+\" else -x) + knot",
         DISCOVER_TESTS,
+    ),
+    _m(
+        "discover-load-reaction-sign",
+        "the load mode's reaction pushes the shaft along the load's acceleration",
+        "ctx.add_rate(self.velocity, -k * f_c)",
+        "ctx.add_rate(self.velocity, k * f_c)",
+        (MODE_TESTS,),
+    ),
+    _m(
+        "discover-load-relative-rate",
+        "the load mode's relative velocity forgets the shaft's own reaction (1 + k -> 1)",
+        "ctx.add_rate(f\"mode{i}_b\", rest - (1 + k) * f_c)",
+        "ctx.add_rate(f\"mode{i}_b\", rest - f_c)",
+        (MODE_TESTS,),
     ),
     # -- several records: diagnosis and comparison --------------------------------------------
     _m(
