@@ -750,7 +750,9 @@ def plot_residuals(
         ax_t.axvspan(split_t, float(max(v[0][-1] for v in validation.values())),
                      color="C2", alpha=0.07)
         ax_t.axvline(split_t, color="k", lw=0.8, ls=":")
-        ax_t.text(split_t, 1.0, " validation >", transform=ax_t.get_xaxis_transform(),
+        # With a test part after it (marks), the part right of the split is the selection.
+        first = "selection" if marks else "validation"
+        ax_t.text(split_t, 1.0, f" {first} >", transform=ax_t.get_xaxis_transform(),
                   va="top", fontsize=8)
         ax_t.text(split_t, 1.0, "< estimation ", transform=ax_t.get_xaxis_transform(),
                   va="top", ha="right", fontsize=8)
@@ -763,7 +765,7 @@ def plot_residuals(
                 continue
             rms = float(np.sqrt(np.mean(np.square(rv))))
             style = grey if key == "before" else {"color": "C3", "lw": 0.7}
-            rest = "validation" + "".join(f" + {name}" for _, name in marks)
+            rest = first + "".join(f" + {name}" for _, name in marks)
             label = ("before" if key == "before" else now) + f", {rest} (RMSE {rms:.3g})"
             ax_t.plot(tv, rv, label=label, **style)
     ax_t.axhspan(-diag.noise, diag.noise, color="C1", alpha=0.15,
