@@ -74,6 +74,7 @@ from hhra_phys.simulate import Simulator
 __all__ = [
     "information_criterion",
     "acceptance",
+    "noise_allowance",
     "Step",
     "LoopResult",
     "augment",
@@ -116,6 +117,16 @@ def information_criterion(result: FitResult, kind: str = "bic") -> float:
     return n * math.log(mse) + pen
 
 
+def noise_allowance(noise: float, noise_tol: float) -> float:
+    """Selection variance that noise and structural mismatch explain,
+    ``((1 + noise_tol)^2 - 1) * noise^2`` [output unit^2] (0 when ``noise`` is not finite).
+
+    A candidate must remove more than this (:func:`acceptance`); two models whose
+    selection variances differ by less are not told apart by the selection part.
+    """
+    return ((1 + noise_tol) ** 2 - 1) * noise ** 2 if math.isfinite(noise) else 0.0
+
+
 def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_after: float,
                margin: float, criterion: str = "bic", noise: float = math.nan,
                noise_tol: float = 0.0) -> tuple[bool, str]:
@@ -153,7 +164,7 @@ def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_a
     crit_ok = crit_after < crit_before
     # A model within (1 + noise_tol) of the noise explains everything an effect can
     # claim; a candidate must remove more selection variance than that allowance.
-    allowance = ((1 + noise_tol) ** 2 - 1) * noise ** 2 if math.isfinite(noise) else 0.0
+    allowance = noise_allowance(noise, noise_tol)
     beyond_ok = rmse_before ** 2 - vr ** 2 > allowance
     reason = (
         f"selection RMSE {rmse_before:.4g} -> {vr:.4g} "
