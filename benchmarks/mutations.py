@@ -614,6 +614,21 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ctx.add_rate(f\"mode{i}_b\", rest - f_c)",
         (MODE_TESTS,),
     ),
+    _m(
+        "discover-mode-mix-edge-ignored",
+        "a mode whose mix (a load's ratio) ends at its box bound is still claimed",
+        "for role, label in ((\"w\", \"frequency\"), (\"z\", \"damping\"),\n"
+        "                        (\"k\", \"ratio\" if mode.velocity else \"mix\")):",
+        "for role, label in ((\"w\", \"frequency\"), (\"z\", \"damping\")):",
+        (MODE_TESTS,),
+    ),
+    _m(
+        "discover-tie-by-selection",
+        "of several acceptable discoveries the lowest selection error wins, even within noise",
+        "step, fitted = min(tied, key=lambda t: t[1].crit)",
+        "step, fitted = min(ok, key=lambda t: t[1].val_rmse)",
+        (MODE_TESTS,),
+    ),
     # -- several records: diagnosis and comparison --------------------------------------------
     _m(
         "multi-arx-rows-span-records",

@@ -227,3 +227,26 @@ def test_no_mode_without_a_resonance(seed, make):
     res = _run(make(), seed, mode_entries(HHRAModel()))
     assert not any(s["accepted"] for s in _mode_steps(res))
     assert res.chosen == []
+
+
+def test_a_mode_at_a_box_bound_is_not_a_resolved_resonance():
+    """Frequency, damping and mix (a load's ratio) at a bound: dropped (docs/diagnosis.md:
+    an output mode with its mix at -3 stood in for a dead zone)."""
+    from types import SimpleNamespace
+
+    from hhra_phys.discover import _mode_at_edge
+
+    def edges(mode, **vals):
+        values = {p.name: p.nominal for p in mode.parameters}
+        values.update({mode.pname[k]: v for k, v in vals.items()})
+        return _mode_at_edge(SimpleNamespace(term=mode, result=SimpleNamespace(values=values)))
+
+    out = DiscoveredMode(index=1, w=60.0, zeta=0.1, mix=1.0, w_min=10.0, w_max=300.0)
+    assert edges(out) == []
+    assert edges(out, k=-3.0) == ["mix"] and edges(out, k=2.99) == ["mix"]
+    assert edges(out, k=2.9) == [] and edges(out, k=-0.01) == []
+    assert edges(out, z=0.005) == ["damping"] and edges(out, w=300.0) == ["frequency"]
+    load = DiscoveredMode(target="rate:omega", index=1, w=60.0, zeta=0.1, mix=0.5,
+                          w_min=10.0, w_max=300.0)
+    assert edges(load) == [] and edges(load, k=10.0) == ["ratio"]
+    assert edges(load, k=1e-3) == ["ratio"] and edges(load, k=0.002) == []
