@@ -127,6 +127,7 @@ __all__ = [
     "MODE_ENTRIES",
     "mode_entries",
     "velocity_states",
+    "velocity_pairs",
     "load_column",
     "MODE_SEPARATION",
     "mode_column",
@@ -781,6 +782,9 @@ class DiscoveredMode(Effect):
         Box of the natural frequency [rad per time unit].
     unit : str
         Unit of the entry (output, input or the velocity state; for the states' units).
+    twist_unit : str
+        Load mode only: unit of the position whose rate is the velocity (the twist's);
+        default ``<unit>*<time unit>``.
     time_unit : str
         ``"s"`` or ``"sample"``.
     u_start, u_scale : float
@@ -796,6 +800,7 @@ class DiscoveredMode(Effect):
     w_max: float = 100.0
     unit: str = ""
     time_unit: str = "s"
+    twist_unit: str = ""
     u_start: float = 0.0
     u_scale: float = 1.0
     signature = ("a damped oscillation at one frequency in the residual, which no function "
@@ -876,8 +881,8 @@ class DiscoveredMode(Effect):
     def states(self) -> Sequence[State]:
         i, tu, u = self.index, self.time_unit, self.unit or "out"
         if self.velocity:
-            return (State(f"mode{i}_a", f"{u}*{tu}", 0.0, "load coupling's twist",
-                          fit_initial=False),
+            return (State(f"mode{i}_a", self.twist_unit or f"{u}*{tu}", 0.0,
+                          "load coupling's twist", fit_initial=False),
                     State(f"mode{i}_b", u, 0.0, f"{self.velocity} minus the load's velocity",
                           fit_initial=False))
         if self.target == "input":
@@ -939,21 +944,27 @@ class DiscoveredMode(Effect):
         return f"{v} += {g.format(k)}*(H - 1) {v}, H = w^2/(s^2 + 2 z w s + w^2), {wz}"
 
 
-def velocity_states(model: Model) -> list[str]:
-    """States that are another state's rate (``d theta/dt = omega``: ``omega``).
-
-    Found symbolically from the assembled model: the rate of some state equals the
-    state exactly. Such a velocity can carry a load on a compliant coupling
-    (:class:`DiscoveredMode` with ``target="rate:<v>"``).
-    """
+def velocity_pairs(model: Model) -> dict[str, str]:
+    """``{velocity: position}``: states that are another state's rate, and that state
+    (``d theta/dt = omega``: ``{"omega": "theta"}``), found symbolically from the
+    assembled model (the rate of the position equals the velocity exactly)."""
     x, u, p = model.symbols()
     ctx = model._context(x, u, p, 1.0)
-    out: list[str] = []
+    out: dict[str, str] = {}
     for q in model.state_names:
         for v in model.state_names:
             if v != q and v not in out and ca.simplify(ctx.rates[q] - ctx.x[v]).is_zero():
-                out.append(v)
+                out[v] = q
     return out
+
+
+def velocity_states(model: Model) -> list[str]:
+    """States that are another state's rate (``d theta/dt = omega``: ``omega``).
+
+    Such a velocity can carry a load on a compliant coupling (:class:`DiscoveredMode`
+    with ``target="rate:<v>"``); :func:`velocity_pairs` also names the position.
+    """
+    return list(velocity_pairs(model))
 
 
 def mode_entries(model: Model) -> list[str]:
@@ -1237,9 +1248,12 @@ def _mode_for(scr: ModeScreen, start: tuple[float, float, float, float], index: 
     w, z, k, _ = start
     tu = "sample" if data.time_unit == "samples" else "s"
     target = scr.entry.split(":", 1)[1]
+    twist = ""
     if target.startswith("rate:"):
-        unit = next((st.unit for st in (model.states if model is not None else ())
-                     if st.name == target[5:]), "")
+        units = {st.name: st.unit for st in (model.states if model is not None else ())}
+        unit = units.get(target[5:], "")
+        pos = velocity_pairs(model).get(target[5:]) if model is not None else None
+        twist = units.get(pos, "") if pos else ""
         # The screened mix is a first-order (light-load) value; from a light start the
         # refit stays in the undamped light-load optimum (public record: ratio 0.02 at
         # the damping floor, where starts at 0.3 reach 0.2-0.8 and a lower error).
@@ -1249,7 +1263,8 @@ def _mode_for(scr: ModeScreen, start: tuple[float, float, float, float], index: 
     return DiscoveredMode(target=target, index=index, w=w, zeta=z, mix=k,
                           w_min=2 * math.pi / float(scr.periods[-1]) / 1.5,
                           w_max=2 * math.pi / float(scr.periods[0]) * 1.2,
-                          unit=unit, time_unit=tu, u_start=float(data.u[0]),
+                          unit=unit, time_unit=tu, twist_unit=twist,
+                          u_start=float(data.u[0]),
                           u_scale=float(np.max(np.abs(data.u))) or 1.0)
 
 

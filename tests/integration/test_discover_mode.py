@@ -22,6 +22,7 @@ from hhra_phys.discover import (
     load_column,
     mode_column,
     mode_entries,
+    velocity_pairs,
     velocity_states,
 )
 from hhra_phys.errors import ModelError
@@ -85,13 +86,14 @@ def test_load_mode_is_the_reference_loaded_shaft():
     (:func:`~hhra_phys.reference.resonant.loaded_record`: absolute load states,
     ``solve_ivp``), for a light and a heavy load."""
     base = HHRAModel()
-    assert velocity_states(base) == ["omega"]
+    assert velocity_states(base) == ["omega"] and velocity_pairs(base) == {"omega": "theta"}
     assert mode_entries(base) == ["mode:output", "mode:input", "mode:rate:omega"]
     for period, ratio, z in ((0.1, 0.5, 0.1), (0.25, 0.3, 0.2)):
         rec = loaded_record(period, ratio, z, seed=1, duration=2.0, noise_deg=0.0)
         truth = rec.metadata["truth"]
         mode = DiscoveredMode(target="rate:omega", index=1, w=truth["w"], zeta=z, mix=ratio,
-                              w_min=1.0, w_max=1e3, unit="rad/s")
+                              w_min=1.0, w_max=1e3, unit="rad/s", twist_unit="rad")
+        assert [st.unit for st in mode.states] == ["rad", "rad/s"]
         assert mode.name == "discovered_mode_rate_omega_1" and mode.uses == ["omega"]
         assert mode.applicable(base) is None
         m = base.with_parts(mode)
@@ -205,6 +207,8 @@ def test_hidden_load_is_found_with_its_frequency_and_ratio_in_the_ci():
             hits.append(w_lo <= ds.metadata["truth"]["w"] <= w_hi and k_lo <= ratio <= k_hi)
             assert acc[0]["uses"] == ["omega"] and "compliant coupling" in acc[0]["expression"]
             assert res.chosen == ["discovered_mode_rate_omega_1"]
+            units = {st.name: st.unit for st in res.final.model.states}
+            assert units["mode1_a"] == "rad" and units["mode1_b"] == "rad/s"
             assert res.test_scores["final"]["rmse"] < 1.15 * NOISE
     assert sum(hits) >= 2, hits
 
