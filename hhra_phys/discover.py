@@ -1726,7 +1726,7 @@ def discover_step(
     # make an oscillation, so they are tried whatever the terms scored, unless a term is
     # already at the noise. Every mode entry is tried: one mode can stand in for another
     # near the noise (an output mode for a load on the shaft, 1.05 against 1.0 times the
-    # noise on reference records), and the best by selection error is taken.
+    # noise on reference records); the choice below breaks such near-ties.
     m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
     for entry in [] if at_noise() else [e for e in modes if e in chosen]:
         ts = time.perf_counter()
@@ -1754,4 +1754,10 @@ def discover_step(
     step, fitted = min(tied, key=lambda t: t[1].crit)
     step.accepted = True
     step.reason = "accepted: " + step.reason
+    for other, _ in ok:
+        if other is not step:
+            how = ("within the noise allowance of the best on selection, higher "
+                   f"{criterion.upper()}" if any(other is t[0] for t in tied)
+                   else "a higher selection error")
+            other.reason = f"acceptable, not chosen ({how} than {step.effect}): {other.reason}"
     return steps, (fitted.result, fitted.problem, fitted.free, fitted.term.name)
