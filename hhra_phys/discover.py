@@ -202,9 +202,25 @@ def _entry_tag(entry: str) -> str:
 # --- the discovered part ------------------------------------------------------------------
 
 
+class _AtEntry(Effect):
+    """Stage and entry of a discovered part from its ``target`` (a dataclass field of the
+    subclass): the input entry runs before every part; the others after all the model's
+    stages, so that every signal and rate they read is complete."""
+
+    target: str
+
+    @property  # type: ignore[override]
+    def stage(self) -> str:  # noqa: D102
+        return INPUT_STAGE if self.target == "input" else OUTPUT_STAGE
+
+    @property  # type: ignore[override]
+    def entry(self) -> str:  # noqa: D102
+        return self.target
+
+
 @register_part
 @dataclass(frozen=True)
-class DiscoveredTerm(Effect):
+class DiscoveredTerm(_AtEntry):
     """A sparse sum of terms found from the residual, added at one entry point.
 
     ``target`` += ``sum_j a_j * f_j(v/s)`` where each ``f_j`` is a family of
@@ -270,16 +286,6 @@ class DiscoveredTerm(Effect):
     @property  # type: ignore[override]
     def name(self) -> str:  # noqa: D102
         return f"discovered_{_entry_tag(self.target)}_{self.index}"
-
-    @property  # type: ignore[override]
-    def stage(self) -> str:  # noqa: D102
-        # The input entry runs before every part; the others after all the model's
-        # stages, so that every signal they read exists.
-        return INPUT_STAGE if self.target == "input" else OUTPUT_STAGE
-
-    @property  # type: ignore[override]
-    def entry(self) -> str:  # noqa: D102
-        return self.target
 
     @property
     def uses(self) -> list[str]:
@@ -723,7 +729,7 @@ MODE_SEPARATION = 1.5
 
 @register_part
 @dataclass(frozen=True)
-class DiscoveredMode(Effect):
+class DiscoveredMode(_AtEntry):
     """A resonant mode at the output, the input or a velocity state: a new state pair.
 
     ``target="output"`` (a compliant coupling or a resonant sensor between the
@@ -830,15 +836,6 @@ class DiscoveredMode(Effect):
     def velocity(self) -> str:
         """The velocity state of a load mode (``"rate:<v>"``), else ``""``."""
         return self.target[5:] if self.target.startswith("rate:") else ""
-
-    @property  # type: ignore[override]
-    def stage(self) -> str:  # noqa: D102
-        # A load mode reads the velocity's whole rate: it runs after every other part.
-        return INPUT_STAGE if self.target == "input" else OUTPUT_STAGE
-
-    @property  # type: ignore[override]
-    def entry(self) -> str:  # noqa: D102
-        return self.target
 
     @property  # type: ignore[override]
     def reads(self) -> tuple[str, ...]:  # noqa: D102

@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 from hhra_phys.data import Dataset
 from hhra_phys.reference.hhra import REFERENCE_GROUPS, reference_record, reference_rhs
 
-__all__ = ["OUTSIDE", "outside_record"]
+__all__ = ["OUTSIDE", "outside_record", "integrate_held"]
 
 #: Term name -> (state index whose rate it changes, change of that rate given the state).
 OUTSIDE: dict[str, tuple[int, Callable[[np.ndarray], float]]] = {
@@ -35,6 +35,45 @@ OUTSIDE: dict[str, tuple[int, Callable[[np.ndarray], float]]] = {
     "cubic_spring": (1, lambda x: -x[0] ** 3),
     "pressure_leak": (2, lambda x: -x[2] * abs(x[2])),
 }
+
+
+def integrate_held(rhs: Callable[[float, np.ndarray, float], np.ndarray], x0: np.ndarray,
+                   u: np.ndarray, fs: float, what: str) -> np.ndarray:
+    """States at every sample under an exact zero-order hold of ``u``.
+
+    Parameters
+    ----------
+    rhs : callable
+        ``rhs(t, x, u_k) -> dx/dt`` with the held input ``u_k``.
+    x0 : ndarray, shape (nx,)
+        State at the first sample.
+    u : ndarray, shape (N,)
+        Sampled input, held between samples.
+    fs : float
+        Sample rate [Hz].
+    what : str
+        Name of the caller, for the error message.
+
+    Returns
+    -------
+    ndarray, shape (N, nx)
+        One :func:`~scipy.integrate.solve_ivp` call (LSODA, rtol 1e-9, atol 1e-11) per run
+        of equal inputs.
+    """
+    dt = 1.0 / fs
+    x = np.asarray(x0, dtype=float)
+    X = np.empty((u.size, x.size))
+    change = np.flatnonzero(np.diff(u) != 0) + 1
+    for a, b in zip(np.concatenate([[0], change]), np.concatenate([change, [u.size]]),
+                    strict=True):
+        t_eval = np.arange(b - a + 1) * dt
+        sol = solve_ivp(rhs, (0.0, t_eval[-1]), x, t_eval=t_eval, args=(float(u[a]),),
+                        method="LSODA", rtol=1e-9, atol=1e-11)
+        if not sol.success:
+            raise RuntimeError(f"{what}: integration failed at sample {a}: {sol.message}")
+        X[a:b] = sol.y[:, :-1].T
+        x = sol.y[:, -1]
+    return X
 
 
 def outside_record(term: str, size: float, seed: int = 0, duration: float = 6.0,
@@ -80,19 +119,7 @@ def outside_record(term: str, size: float, seed: int = 0, duration: float = 6.0,
         d[index] += k * extra(xx)
         return d
 
-    dt = 1.0 / fs
-    X = np.empty((u.size, 3))
-    change = np.flatnonzero(np.diff(u) != 0) + 1
-    for a, b in zip(np.concatenate([[0], change]), np.concatenate([change, [u.size]]),
-                    strict=True):
-        t_eval = np.arange(b - a + 1) * dt
-        sol = solve_ivp(rhs, (0.0, t_eval[-1]), x, t_eval=t_eval, args=(float(u[a]),),
-                        method="LSODA", rtol=1e-9, atol=1e-11)
-        if not sol.success:
-            raise RuntimeError(f"outside_record: integration failed at sample {a}: "
-                               f"{sol.message}")
-        X[a:b] = sol.y[:, :-1].T
-        x = sol.y[:, -1]
+    X = integrate_held(rhs, x, u, fs, "outside_record")
     rng = np.random.default_rng([seed, 1])
     y = np.degrees(X[:, 0]) + noise_deg * rng.standard_normal(u.size)
     meta = {"generator": "hhra_phys.reference.outside", "seed": seed, "noise_deg": noise_deg,

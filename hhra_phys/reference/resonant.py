@@ -27,11 +27,10 @@ import math
 
 import numpy as np
 from scipy import signal as sps
-from scipy.integrate import solve_ivp
 
 from hhra_phys.data import Dataset
 from hhra_phys.reference.hhra import REFERENCE_GROUPS, reference_record, reference_rhs
-from hhra_phys.reference.outside import outside_record
+from hhra_phys.reference.outside import integrate_held, outside_record
 
 __all__ = ["resonant_record", "loaded_record"]
 
@@ -130,19 +129,7 @@ def loaded_record(period: float, ratio: float, damping: float, seed: int = 0,
         d[4] = c / ratio
         return d
 
-    dt = 1.0 / fs
-    X = np.empty((u.size, 5))
-    change = np.flatnonzero(np.diff(u) != 0) + 1
-    for a, b in zip(np.concatenate([[0], change]), np.concatenate([change, [u.size]]),
-                    strict=True):
-        t_eval = np.arange(b - a + 1) * dt
-        sol = solve_ivp(rhs, (0.0, t_eval[-1]), x, t_eval=t_eval, args=(float(u[a]),),
-                        method="LSODA", rtol=1e-9, atol=1e-11)
-        if not sol.success:
-            raise RuntimeError(f"loaded_record: integration failed at sample {a}: "
-                               f"{sol.message}")
-        X[a:b] = sol.y[:, :-1].T
-        x = sol.y[:, -1]
+    X = integrate_held(rhs, x, u, fs, "loaded_record")
     rng = np.random.default_rng([seed, 3])
     y = np.degrees(X[:, 0]) + noise_deg * rng.standard_normal(u.size)
     meta = {"generator": "hhra_phys.reference.resonant.loaded_record", "seed": seed,
