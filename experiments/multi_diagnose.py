@@ -20,8 +20,9 @@ import warnings
 from concurrent.futures import Executor
 
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment, split_record
+from hhra_phys.loop import augment
 from hhra_phys.reference import reference_record
+from hhra_phys.selection import split_record
 
 TRUTH = 30.0
 EFFECT = {"coulomb_friction": {"g_coulomb": TRUTH}}

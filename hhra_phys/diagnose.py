@@ -856,7 +856,7 @@ def plot_loop_residuals(
     list of (str or None)
         The two paths written (None where not drawn).
     """
-    from hhra_phys.loop import split_record
+    from hhra_phys.selection import split_record
 
     if not isinstance(data, Dataset) or res.final.records:
         return _records_loop_residuals(res, data, before_path, after_path, overwrite, label)

@@ -2,7 +2,8 @@
 
 The diagnosis loop (:mod:`hhra_phys.loop`) chooses among registered effects. When
 the missing physics is none of them, this module builds the term from the model's
-own quantities and fits it through the simulator, as the loop's last candidate.
+own quantities and fits it through the simulator, a candidate of every loop round
+beside the library's effects.
 It knows no particular model: it reads ``model.state_names``, the signals the
 model provides (``model.signal_names()``) and the input.
 
@@ -29,8 +30,8 @@ Screening (first order)
     for library effects (:func:`~hhra_phys.diagnose.linear_response`,
     :func:`~hhra_phys.diagnose.nuisance_basis`). A greedy orthogonal matching
     pursuit picks up to ``max_terms`` columns per entry; entries are ranked by
-    the residual fraction their picks explain and refitted in that order (all of
-    them by default, until one reaches the noise level).
+    the residual fraction their picks explain; the loop refits them in that order, beside
+    the library's effects.
 
 How (sparse fit through the simulator)
     The chosen terms become one :class:`DiscoveredTerm` part whose coefficients
@@ -64,11 +65,10 @@ A new state (:class:`DiscoveredMode`, entries ``mode:output``, ``mode:input`` an
     then judged by the same rule as a term.
 
 Result
-    The term is accepted by the loop's rule (:func:`hhra_phys.loop.acceptance`:
-    validation gain margin and information criterion). Of several acceptable
-    candidates (terms and modes) the best on selection is taken, unless others are
-    within the noise allowance of it (:func:`hhra_phys.loop.noise_allowance`): then
-    the lowest information criterion on estimation among those. It is a registered part
+    Each entry is a :class:`Proposal` of a :class:`Discovery`; the loop ranks them with the
+    library's effects by first-order score, refits them in that order and judges every
+    refit by the one rule of :mod:`hhra_phys.selection` (acceptance, then the tie rule
+    among acceptable candidates of every kind). An accepted term is a registered part
     (saved and reloaded with a :class:`~hhra_phys.result.FitResult`) named
     ``discovered_<entry>_<k>`` (``rate_omega`` for ``rate:omega``), printed as an
     expression in the model's names and units, e.g.
@@ -94,7 +94,6 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import linear_response, noise_level, nuisance_basis
 from hhra_phys.errors import ModelError, ParameterError
-from hhra_phys.loop import Step, acceptance, information_criterion, noise_allowance
 from hhra_phys.model import Model
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import (
@@ -107,6 +106,7 @@ from hhra_phys.parts import (
 )
 from hhra_phys.problem import Problem
 from hhra_phys.result import FitResult
+from hhra_phys.selection import Step, information_criterion
 
 __all__ = [
     "DiscoveredTerm",
@@ -118,7 +118,8 @@ __all__ = [
     "screen",
     "variable_series",
     "lasso_path",
-    "discover_step",
+    "Discovery",
+    "Proposal",
     "plot_discovery",
     "SPARSITY_METHODS",
     "FAMILIES",
@@ -137,15 +138,12 @@ __all__ = [
 #: Families of one-variable terms (module docstring).
 FAMILIES: tuple[str, ...] = ("lin", "sq", "cube", "odd2", "abs", "sign", "hinge+", "hinge-",
                              "sat")
-#: Sparsity rules of :func:`discover_step`.
+#: Sparsity rules of :class:`Discovery`.
 SPARSITY_METHODS: tuple[str, ...] = ("threshold", "l1")
 #: Width of the smooth sign, |.| and relu on the scaled variable (2 % of its range).
 SMOOTH = 0.02
 #: |coefficient|/sd below which sequential thresholding drops a term (95 % CI contains 0).
 T_DROP = 1.96
-#: Discovery stops trying further entry points once an acceptable term brings the
-#: validation RMSE to this multiple of the noise level (nothing left to explain).
-NOISE_STOP = 1.2
 #: Quantile of |q| where a hinge knot starts.
 KNOT_QUANTILE = 0.6
 #: Relative excess over the estimation range (of the range's width) that flags extrapolation.
@@ -1221,7 +1219,7 @@ def _refit(fitter: Any, term: DiscoveredTerm, model: Model, cur: FitResult, cur_
     """IPOPT over the term's parameters and the physical free ones; None if it fails."""
     model_c = model.with_parts(term)
     new = [p.name for p in term.parameters]
-    start = {**cur.values, **{p.name: p.nominal for p in term.parameters}}
+    start = {**fitter.values(cur), **{p.name: p.nominal for p in term.parameters}}
     for shrink in (1.0, 0.5, 0.1):
         st = dict(start)
         for j in range(len(term.terms)):
@@ -1327,8 +1325,8 @@ def _mode_rejected(f: _Fitted, base: Model, data: Dataset, dt: float) -> str:
     return ""
 
 
-def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob: Problem,
-              values: np.ndarray, cur_free: list[str], criterion: str,
+def _fit_mode(fitter: Discovery, scr: ModeScreen, index: int, cur: FitResult, cur_prob: Any,
+              cur_free: list[str], criterion: str,
               say: Callable[[str], None]
               ) -> tuple[_Fitted | None, list[str], tuple[_Fitted, str] | None]:
     """IPOPT from each start (screened, and the model's own resonances); the best by the
@@ -1345,7 +1343,7 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
     # screened start ends in that swapped optimum. A start of the mode at each of the
     # model's own resonances lets the refit move the model back.
     d, dt = fitter.data, 1.0 / fitter.data.fs
-    own = _resonances(cur_prob.model, cur_prob.full(values), d, dt,
+    own = _resonances(cur_prob.model, fitter.sub.full(fitter.sub_values), d, dt,
                       2 * math.pi / float(scr.periods[-1]), 2 * math.pi / float(scr.periods[0]))
     k_own = MODE_LOAD_START if scr.entry.startswith("mode:rate:") else 1.0
     for w_own, z_own in own:
@@ -1355,7 +1353,7 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
         mode = _mode_for(scr, st, index, d, cur_prob.model)
         model_c = cur_prob.model.with_parts(mode)
         new = [p.name for p in mode.parameters]
-        start = {**cur.values, **{p.name: p.nominal for p in mode.parameters}}
+        start = {**fitter.values(cur), **{p.name: p.nominal for p in mode.parameters}}
         try:
             prob = fitter.problem(model_c, cur_free + new, {}, start, cur.x0)
             res = fitter.run(prob, "none", 0, 0)
@@ -1368,7 +1366,7 @@ def _fit_mode(fitter: Any, scr: ModeScreen, index: int, cur: FitResult, cur_prob
             log.append(f"mode from period {mode.period(st[0]):.3g}: not finite")
             continue
         f = _Fitted(mode, res, prob, cur_free + new, information_criterion(res, criterion), vr)
-        why = _mode_rejected(f, cur_prob.model, d, dt)
+        why = _mode_rejected(fitter._view(f), cur_prob.model, d, dt)
         log.append(f"mode from period {mode.period(st[0]):.3g} {mode.time_unit}: "
                    f"{mode.expression(res.values)}; |k|/sd {_t_values(f)[0]:.1f}, "
                    f"{criterion.upper()} {f.crit:.1f}, val RMSE {vr:.4g}"
@@ -1564,115 +1562,192 @@ def _extrapolated(fitted: _Fitted, val: Dataset) -> list[str]:
     return out
 
 
-def discover_step(
-    fitter: Any,
-    cur: FitResult,
-    cur_prob: Problem,
-    cur_free: list[str],
-    *,
-    round_no: int,
-    margin: float,
-    criterion: str = "bic",
-    method: str = "threshold",
-    n_entries: int | None = None,
-    max_terms: int = 4,
-    entries: Sequence[str] | None = None,
-    progress: Callable[[str], None] | None = None,
-    sel_noise: float = math.nan,
-    noise_tol: float = 0.0,
-) -> tuple[list[DiscoveredStep], tuple[FitResult, Problem, list[str], str] | None]:
-    """One discovery round after the library: screen, fit sparse terms, accept or not.
+@dataclass
+class Proposal:
+    """One discovery candidate of a round: an entry point and its first-order score.
+
+    Attributes
+    ----------
+    entry : str
+        ``input``, ``output``, ``rate:<state>`` (a term) or ``mode:<target>`` (a mode).
+    score : float
+        Fraction of the projected residual its screening explains to first order (0..1),
+        the same measure as a library effect's :attr:`~hhra_phys.diagnose.EffectEvidence.score`,
+        so that the loop ranks both in one list.
+    screen : EntryScreen or ModeScreen
+    """
+
+    entry: str
+    score: float
+    screen: EntryScreen | ModeScreen = field(repr=False)
+
+
+def _record_view(problem: Any, values: np.ndarray, data: Any) -> tuple[Problem, np.ndarray,
+                                                                       Dataset, int]:
+    """The one-record problem, values and record that screening looks at.
+
+    One record: the problem itself. Several (a :class:`~hhra_phys.multi.MultiProblem`): the
+    record whose estimation residual carries the most energy (where the missing term shows
+    most); the refits that decide are still fitted to every record.
+    """
+    records = getattr(problem, "records", None)
+    if not records:
+        return problem, values, data, 0
+    energies = []
+    for k, pr in enumerate(records):
+        vk = problem.record_values(values, k)
+        r = pr.data.y - pr.simulate_values(vk)
+        energies.append(float(np.sum(r ** 2)) if np.isfinite(r).all() else -1.0)
+    k = int(np.argmax(energies))
+    whole = data[k] if isinstance(data, (list, tuple)) else data
+    return records[k], problem.record_values(values, k), whole, k
+
+
+class Discovery:
+    """Discovery candidates of one loop round: screened, then refitted one by one on demand.
+
+    The loop (:func:`hhra_phys.loop.augment`) ranks :meth:`proposals` together with the
+    library's effects by first-order score, refits them in that order (:meth:`refit`) and
+    judges every refit by the one rule (:mod:`hhra_phys.selection`); it is never chosen
+    here.
 
     Parameters
     ----------
-    fitter : hhra_phys.loop._Fitter
-        The loop's fitter (estimation/validation split, bounds, backend, IPOPT limit).
+    fitter : object
+        The loop's fits: ``problem(model, free, fixed, start, x0)``, ``run(problem,
+        optimizer, pop, iters, refine=..., warm=...)``, ``values(result)`` (start values,
+        each record's own too), ``data`` (the whole record, or records) and ``val`` (the
+        selection part(s)).
     cur : FitResult
-        The current fit (base model plus accepted library effects).
-    cur_prob : Problem
+        The current fit (base model plus what was accepted).
+    cur_prob : Problem or MultiProblem
         Its problem.
     cur_free : list of str
-        Its free model parameters.
+        Its free parameters.
     round_no : int
         Round number reported in the steps.
-    margin : float
-        Required relative fall of the validation RMSE (the loop's).
     criterion : {"bic", "aic"}
         Information criterion (the loop's).
     method : {"threshold", "l1"}
         Sparsity rule (module docstring).
-    n_entries : int, optional
-        Entry points refitted, best screened first (default: all of them, stopping
-        early once an acceptable term brings the validation RMSE to
-        ``NOISE_STOP`` times the noise level). The first-order ranking is weak for
-        strong nonlinear terms (on a record with a quadratic drag the right entry
-        was ranked fourth of five), so refits decide, as in the library rounds.
     max_terms : int
         Most terms per entry before sparsification.
     entries : sequence of str, optional
-        Entry points to consider (default: all): those of :func:`entry_points`
-        for terms and those of :func:`mode_entries` (``"mode:output"``,
-        ``"mode:input"``, ``"mode:rate:<v>"``) for a resonant mode
-        (:class:`DiscoveredMode`).
+        Entry points to consider (default: all): those of :func:`entry_points` for terms
+        and those of :func:`mode_entries` for a resonant mode (:class:`DiscoveredMode`).
     progress : callable, optional
         Receives a line of text per step.
-    sel_noise, noise_tol : float
-        Noise level of the selection residual and the loop's tolerance: the
-        acceptance rule's noise allowance (:func:`hhra_phys.loop.acceptance`).
-
-    Returns
-    -------
-    steps : list of DiscoveredStep
-        One per entry refitted (at most one accepted).
-    accepted : tuple or None
-        ``(result, problem, free, name)`` of the accepted term.
     """
-    say = progress or (lambda s: None)
-    if method not in SPARSITY_METHODS:
-        raise ParameterError(f"discovery method must be one of {', '.join(SPARSITY_METHODS)}, "
-                             f"got {method!r}")
-    if (n_entries is not None and n_entries < 1) or max_terms < 1:
-        raise ParameterError(f"n_entries and max_terms must be >= 1, got {n_entries}, "
-                             f"{max_terms}")
-    values = np.array([cur.values[n] if not n.startswith("x0_") else cur.x0_param(n)
-                       for n in cur_prob.free_names])
-    modes = mode_entries(cur_prob.model)
-    all_entries = entry_points(cur_prob.model) + modes
-    chosen = list(entries) if entries is not None else all_entries
-    for e in chosen:
-        if e not in all_entries:
-            raise ParameterError(f"unknown entry point {e!r}; entry points of this model: "
-                                 f"{', '.join(all_entries)}")
-    term_entries = [e for e in chosen if e not in modes]
-    screens = screen(cur_prob, values, entries=term_entries, max_terms=max_terms)
-    say(f"round {round_no}: discovery, entry points by first-order score: " + ", ".join(
-        f"{s.entry} {s.score:.2f}" for s in screens))
-    index = 1 + sum(isinstance(p, DiscoveredTerm) for p in cur_prob.model.parts)
-    crit_cur = information_criterion(cur, criterion)
-    rmse_cur = float(cur.metrics["val"]["rmse"])
-    noise = noise_level(cur_prob.data.y - cur_prob.simulate_values(values))
-    before = _residuals(cur_prob, cur, fitter.val)
-    steps: list[DiscoveredStep] = []
-    ok: list[tuple[DiscoveredStep, _Fitted]] = []
 
-    def judge(fitted: _Fitted, scr: EntryScreen | ModeScreen, log: list[str],
-              ts: float, veto: str = "") -> None:
-        """The step of a refitted candidate, accepted or not by the loop's rule (never
-        with a ``veto``: the reason a mode is not claimed)."""
+    def __init__(self, fitter: Any, cur: FitResult, cur_prob: Any, cur_free: list[str], *,
+                 round_no: int, criterion: str = "bic", method: str = "threshold",
+                 max_terms: int = 4, entries: Sequence[str] | None = None,
+                 progress: Callable[[str], None] | None = None) -> None:
+        self.say = progress or (lambda s: None)
+        if method not in SPARSITY_METHODS:
+            raise ParameterError(f"discovery method must be one of "
+                                 f"{', '.join(SPARSITY_METHODS)}, got {method!r}")
+        if max_terms < 1:
+            raise ParameterError(f"max_terms must be >= 1, got {max_terms}")
+        self.fitter, self.cur, self.cur_prob = fitter, cur, cur_prob
+        self.cur_free, self.round_no = list(cur_free), round_no
+        self.criterion, self.method, self.max_terms = criterion, method, max_terms
+        values = np.array([cur.values[n] if n in cur.values else cur.x0_param(n)
+                           for n in cur_prob.free_names])
+        self.sub, self.sub_values, self.record, self.record_index = _record_view(
+            cur_prob, values, fitter.data)
+        modes = mode_entries(cur_prob.model)
+        all_entries = entry_points(cur_prob.model) + modes
+        chosen = list(entries) if entries is not None else all_entries
+        for e in chosen:
+            if e not in all_entries:
+                raise ParameterError(f"unknown entry point {e!r}; entry points of this model: "
+                                     f"{', '.join(all_entries)}")
+        terms = [e for e in chosen if e not in modes]
+        screens: list[EntryScreen | ModeScreen] = list(
+            screen(self.sub, self.sub_values, entries=terms, max_terms=max_terms))
+        screens += [screen_mode(self.sub, self.sub_values, target=e.split(":", 1)[1])
+                    for e in chosen if e in modes]
+        self._proposals = [Proposal(s.entry, float(s.score), s) for s in screens
+                           if not isinstance(s, EntryScreen) or s.picked]
+        self._proposals.sort(key=lambda p: -p.score)
+        self.index = 1 + sum(isinstance(p, DiscoveredTerm) for p in cur_prob.model.parts)
+        self.m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
+        self.crit_cur = information_criterion(cur, criterion)
+        self.rmse_cur = float(cur.metrics["val"]["rmse"])
+        self.noise = noise_level(self.sub.data.y - self.sub.simulate_values(self.sub_values))
+        self._before: tuple[np.ndarray, np.ndarray] | None = None
+        self.say(f"round {round_no}: discovery, entry points by first-order score"
+                 + (f" (screened on record {self.record_index + 1})"
+                    if getattr(cur_prob, "records", None) else "") + ": "
+                 + ", ".join(f"{p.entry} {p.score:.2f}" for p in self._proposals))
+
+    def proposals(self) -> list[Proposal]:
+        """The entries worth a refit, best first-order score first."""
+        return list(self._proposals)
+
+    def _view(self, fitted: _Fitted) -> _Fitted:
+        """``fitted`` seen on the screened record (for residuals and ranges)."""
+        pr = fitted.problem
+        if not getattr(pr, "records", None):
+            return fitted
+        res = fitted.result
+        v = np.array([res.values[n] if n in res.values else res.x0_param(n)
+                      for n in pr.free_names])
+        sub = pr.records[self.record_index]
+        vk = pr.record_values(v, self.record_index)
+        return _Fitted(fitted.term, _ValuesOnly(sub.free_names, vk, res.ci95), sub,
+                       fitted.free, fitted.crit, fitted.val_rmse)
+
+    def _val(self) -> Dataset:
+        val = self.fitter.val
+        return val[self.record_index] if isinstance(val, (list, tuple)) else val
+
+    def refit(self, proposal: Proposal) -> tuple[DiscoveredStep, _Fitted, str] | None:
+        """Fit the proposal's term (or mode) through the simulator.
+
+        Returns
+        -------
+        (step, fitted, veto) or None
+            The step (not yet judged: the loop writes its reason and decision), the fit
+            for the loop to continue from if chosen, and the reason a mode is not claimed
+            (``""`` when it may be); None when nothing could be refitted.
+        """
+        ts = time.perf_counter()
+        scr = proposal.screen
+        cur, cur_prob, say = self.cur, self.cur_prob, self.say
+        veto = ""
+        if isinstance(scr, ModeScreen):
+            say(f"  entry {scr.entry}: screened periods " + ", ".join(
+                f"{2 * math.pi / w:.3g} (z {z:g}, {e:.2f})" for w, z, _, e in scr.starts))
+            fitted, log, dropped = _fit_mode(self, scr, self.m_index, cur, cur_prob,
+                                             self.cur_free, self.criterion, say)
+            if fitted is None and dropped is not None:
+                fitted, veto = dropped
+        else:
+            picks = ", ".join(scr.candidates[i].spec for i in scr.picked)
+            say(f"  entry {scr.entry}: screened {picks}")
+            if self.method == "threshold":
+                fitted, log = _sparse_threshold(self, scr, self.index, cur, cur_prob,
+                                                self.cur_free, self.criterion, say)
+            else:
+                fitted, log = _sparse_l1(self, scr, self.index, cur, cur_prob,
+                                         self.cur_free, self.criterion, self.max_terms, say)
+        if fitted is None:
+            say(f"  entry {scr.entry}: nothing refitted")
+            return None
         res, term = fitted.result, fitted.term
         new = [p.name for p in term.parameters]
-        accepted, reason = acceptance(rmse_cur, fitted.val_rmse, crit_cur, fitted.crit,
-                                      margin, criterion, sel_noise, noise_tol)
-        if veto:
-            accepted, reason = False, f"dropped: {veto} ({reason})"
-        expr = term.expression(res.values)
+        view = self._view(fitted)
         step = DiscoveredStep(
-            round_no, term.name, {"score": scr.score, "detectability": float("nan"),
-                                  "noise": noise},
-            {n: res.values[n] for n in new}, {n: list(res.ci95[n]) for n in new if n in res.ci95},
-            dict(res.metrics["est"]), dict(res.metrics["val"]), fitted.crit, crit_cur, rmse_cur,
-            expression=expr, uses=term.uses, entry=scr.entry, method=method,
-            screening=scr.to_json(), extrapolated=_extrapolated(fitted, fitter.val))
+            self.round_no, term.name, {"score": scr.score, "detectability": float("nan"),
+                                       "noise": self.noise},
+            {n: res.values[n] for n in new}, {n: list(res.ci95[n]) for n in new
+                                              if n in res.ci95},
+            dict(res.metrics["est"]), dict(res.metrics["val"]), fitted.crit, self.crit_cur,
+            self.rmse_cur, expression=term.expression(res.values), uses=term.uses,
+            entry=scr.entry, method=self.method, screening=scr.to_json(),
+            extrapolated=_extrapolated(view, self._val()))
         if isinstance(term, DiscoveredMode):
             # The period and its 95 % CI (2 pi / w is monotone: the CI's ends map over).
             wn = term.pname["w"]
@@ -1681,80 +1756,46 @@ def discover_step(
             step.screening["period_ci95"] = [term.period(hi) if hi > 0 else math.nan,
                                              term.period(lo) if lo > 0 else math.inf]
             step.screening["time_unit"] = term.time_unit
-        step.reason = reason
         step.notes.extend(log)
-        after = _residuals(fitted.problem, res, fitter.val)
-        step.residuals = {"est": (before[0], after[0]), "val": (before[1], after[1])}
+        if self._before is None:
+            self._before = _residuals(self.sub, _ValuesOnly(self.sub.free_names,
+                                                            self.sub_values), self._val())
+        after = _residuals(view.problem, view.result, self._val())
+        step.residuals = {"est": (self._before[0], after[0]),
+                          "val": (self._before[1], after[1])}
         if step.extrapolated:
             step.notes.append(
                 f"validation drives {', '.join(step.extrapolated)} outside the range seen in "
                 "estimation: the discovered term is extrapolated there")
         step.seconds = time.perf_counter() - ts
-        say(f"  tried {term.name}: {expr}; {reason} [{step.seconds:.1f} s]")
-        steps.append(step)
-        if accepted:
-            ok.append((step, fitted))
+        return step, fitted, veto
 
-    def at_noise() -> bool:
-        if any(f.val_rmse <= NOISE_STOP * noise for _, f in ok):
-            say(f"  an accepted term is at {NOISE_STOP:g}x the noise level: entries left untried")
-            return True
-        return False
+    # What the sparse fits need of the loop's fitter (they take this object as theirs).
+    @property
+    def data(self) -> Dataset:
+        """The screened record (units, sample rate)."""
+        return self.record
 
-    for scr in screens[:n_entries]:
-        if not scr.picked:
-            continue
-        if at_noise():
-            break
-        ts = time.perf_counter()
-        picks = ", ".join(scr.candidates[i].spec for i in scr.picked)
-        say(f"  entry {scr.entry}: screened {picks}")
-        if method == "threshold":
-            fitted, log = _sparse_threshold(fitter, scr, index, cur, cur_prob, cur_free,
-                                            criterion, say)
-        else:
-            fitted, log = _sparse_l1(fitter, scr, index, cur, cur_prob, cur_free, criterion,
-                                     max_terms, say)
-        if fitted is None:
-            say(f"  entry {scr.entry}: no term survived")
-            continue
-        judge(fitted, scr, log, ts)
-    # Resonant modes (new states) after the terms: no term of the present states can
-    # make an oscillation, so they are tried whatever the terms scored, unless a term is
-    # already at the noise. Every mode entry is tried: one mode can stand in for another
-    # near the noise (an output mode for a load on the shaft, 1.05 against 1.0 times the
-    # noise on reference records); the choice below breaks such near-ties.
-    m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
-    for entry in [] if at_noise() else [e for e in modes if e in chosen]:
-        ts = time.perf_counter()
-        mscr = screen_mode(cur_prob, values, target=entry.split(":", 1)[1])
-        say(f"  entry {entry}: screened periods " + ", ".join(
-            f"{2 * math.pi / w:.3g} (z {z:g}, {e:.2f})" for w, z, _, e in mscr.starts))
-        fitted, log, dropped = _fit_mode(fitter, mscr, m_index, cur, cur_prob, values,
-                                         cur_free, criterion, say)
-        if fitted is not None:
-            judge(fitted, mscr, log, ts)
-        elif dropped is not None:  # reported, so the JSON shows what was tried and why not
-            judge(dropped[0], mscr, log, ts, veto=dropped[1])
-        else:
-            say(f"  entry {entry}: no mode refit")
-    if not ok:
-        return steps, None
-    # The best on selection, unless others are within the noise allowance of it: the
-    # selection part cannot tell those apart, so the information criterion on estimation
-    # decides among them (reference records: an input mode 0.5 % better on selection than
-    # the true output mode, an output mode 3 % worse than the true load; BIC chose the
-    # true one in 6 of 6).
-    best = min(f.val_rmse for _, f in ok)
-    tied = [t for t in ok if t[1].val_rmse ** 2 - best ** 2 <= noise_allowance(sel_noise,
-                                                                               noise_tol)]
-    step, fitted = min(tied, key=lambda t: t[1].crit)
-    step.accepted = True
-    step.reason = "accepted: " + step.reason
-    for other, _ in ok:
-        if other is not step:
-            how = ("within the noise allowance of the best on selection, higher "
-                   f"{criterion.upper()}" if any(other is t[0] for t in tied)
-                   else "a higher selection error")
-            other.reason = f"acceptable, not chosen ({how} than {step.effect}): {other.reason}"
-    return steps, (fitted.result, fitted.problem, fitted.free, fitted.term.name)
+    def values(self, res: FitResult) -> dict[str, float]:
+        """Start values from a fit (each record's own too)."""
+        return self.fitter.values(res)
+
+    def problem(self, *args: Any, **kw: Any) -> Any:
+        """The loop's problem (every record)."""
+        return self.fitter.problem(*args, **kw)
+
+    def run(self, *args: Any, **kw: Any) -> FitResult:
+        """The loop's fit (every record)."""
+        return self.fitter.run(*args, **kw)
+
+
+class _ValuesOnly:
+    """A fit's values seen through the names of one record's problem (for residuals)."""
+
+    def __init__(self, names: Sequence[str], values: np.ndarray,
+                 ci95: Mapping[str, Any] | None = None) -> None:
+        self.values = {n: float(v) for n, v in zip(names, values, strict=True)}
+        self.ci95 = dict(ci95 or {})
+
+    def x0_param(self, name: str) -> float:
+        return self.values[name]

@@ -8,16 +8,19 @@ The record is split in time order into three parts (default 50/25/25 %):
     repeat:
         stop if the selection residual and the estimation residual are both at the
             noise level (RMSE <= (1 + noise_tol) * noise level, or white by Ljung-Box)
-        rank the effects not yet in the model (hhra_phys.diagnose.analyse)
-        for the (top-ranked) candidates, anywhere (an Executor) or here:
-            add the effect; global search over its new parameters only, the
-            previous fit held (warm start); then IPOPT over all free parameters;
-            score the selection part by free-run simulation
-        accept the best candidate only if, on selection,
-            RMSE <= (1 - margin) * current RMSE,                      and
-            RMSE_cur^2 - RMSE^2 > ((1 + noise_tol)^2 - 1) * noise^2   (beyond noise and mismatch)
-            and the information criterion (BIC or AIC on estimation) falls
-    until nothing is accepted or max_effects are in
+        rank, in one list by first-order score, the library effects not yet in the
+            model (hhra_phys.diagnose.analyse) and the discovered terms and modes
+            (hhra_phys.discover.Discovery)
+        refit them in that order (library effects anywhere, an Executor, or here:
+            global search over the new parameters with the previous fit held, then
+            IPOPT over all free parameters; discovered ones by IPOPT through the
+            simulator), score each on selection, judge it by the one rule
+            (hhra_phys.selection.acceptance), and skip the rest of the round once a
+            candidate leaves both parts at the noise level (round_settled)
+        add the winner among the acceptable ones (hhra_phys.selection.choose: lowest
+            selection RMSE, near-ties within the noise allowance by the information
+            criterion); polish it; backward step over what came before
+    until nothing is accepted or max_effects additions are in
     score base and final on the test part
 
 Every candidate tried is a :class:`Step` with its evidence, fitted parameters,
@@ -50,6 +53,7 @@ from scipy.stats import chi2
 
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
+from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
@@ -69,152 +73,33 @@ from hhra_phys.multi import (
 from hhra_phys.outputs import jsonable
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
+from hhra_phys.selection import (
+    METRIC_KEYS,
+    NOISE_TOL,
+    Step,
+    backward_decision,
+    choose,
+    information_criterion,
+    judge,
+    round_settled,
+    split_record,
+    stops_at_noise,
+)
 from hhra_phys.simulate import Simulator
 
 __all__ = [
-    "information_criterion",
-    "acceptance",
-    "noise_allowance",
-    "Step",
     "LoopResult",
     "augment",
     "base_model_for",
-    "split_record",
     "selection_noise",
-    "at_noise_level",
     "noise_stop",
-    "stops_at_noise",
     "refit_candidate",
-    "backward_decision",
-    "NOISE_TOL",
 ]
 
-#: Structural-mismatch allowance of the stopping and acceptance rule (fraction of
-#: the noise level); measured on independently simulated records, docs/diagnosis.md.
-NOISE_TOL = 0.15
 #: IPOPT iteration limit of an accepted candidate's polish (the old loop's limit for
 #: every candidate); the base fit keeps the plain fit's limit.
 POLISH_ITER = 60
 
-METRIC_KEYS = ("rmse", "vaf", "mse", "itae")
-
-
-def information_criterion(result: FitResult, kind: str = "bic") -> float:
-    """BIC ``N ln(RSS/N) + k ln N`` or AIC ``N ln(RSS/N) + 2k`` on the estimation part.
-
-    ``k`` counts the free parameters including the fitted initial state.
-    """
-    data = result.settings["data"]
-    # A fit of several records lists them (samples of each estimation part in "n").
-    n = int(sum(d["n"] for d in data) if isinstance(data, list) else data["n_est"])
-    mse = float(result.metrics["est"]["mse"])
-    k = len(result.free)
-    if not (mse > 0 and math.isfinite(mse)):
-        return math.inf
-    pen = k * math.log(n) if kind == "bic" else 2.0 * k
-    if kind not in ("bic", "aic"):
-        raise ParameterError(f"criterion must be 'bic' or 'aic', got {kind!r}")
-    return n * math.log(mse) + pen
-
-
-def noise_allowance(noise: float, noise_tol: float) -> float:
-    """Selection variance that noise and structural mismatch explain,
-    ``((1 + noise_tol)^2 - 1) * noise^2`` [output unit^2] (0 when ``noise`` is not finite).
-
-    A candidate must remove more than this (:func:`acceptance`); two models whose
-    selection variances differ by less are not told apart by the selection part.
-    """
-    return ((1 + noise_tol) ** 2 - 1) * noise ** 2 if math.isfinite(noise) else 0.0
-
-
-def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_after: float,
-               margin: float, criterion: str = "bic", noise: float = math.nan,
-               noise_tol: float = 0.0) -> tuple[bool, str]:
-    """The loop's acceptance rule for a candidate (a library effect or a discovered term).
-
-    Accepted when all three hold: the selection RMSE falls by ``margin``
-    (``rmse_after <= (1 - margin) * rmse_before``), the information criterion on
-    estimation falls, and the variance removed exceeds what noise and structural
-    mismatch allow, ``rmse_before^2 - rmse_after^2 > ((1 + noise_tol)^2 - 1) * noise^2``
-    (MEASURED_NOTES point 8; no allowance when ``noise`` is not finite).
-
-    Parameters
-    ----------
-    rmse_before, rmse_after : float
-        Selection RMSE of the current model and of the candidate (output units).
-    crit_before, crit_after : float
-        Information criterion on estimation (:func:`information_criterion`).
-    margin : float
-        Required relative fall of the selection RMSE.
-    criterion : str
-        Name of the criterion (for the reason).
-    noise : float
-        Noise level of the selection residual (output units).
-    noise_tol : float
-        Tolerance of the noise allowance.
-
-    Returns
-    -------
-    accepted : bool
-    reason : str
-        The three comparisons in words.
-    """
-    vr = rmse_after if math.isfinite(rmse_after) else math.inf
-    gain_ok = vr <= (1 - margin) * rmse_before
-    crit_ok = crit_after < crit_before
-    # A model within (1 + noise_tol) of the noise explains everything an effect can
-    # claim; a candidate must remove more selection variance than that allowance.
-    allowance = noise_allowance(noise, noise_tol)
-    beyond_ok = rmse_before ** 2 - vr ** 2 > allowance
-    reason = (
-        f"selection RMSE {rmse_before:.4g} -> {vr:.4g} "
-        f"({'clear gain' if gain_ok else f'gain below {100 * margin:.0f} %'}; "
-        f"{'beyond' if beyond_ok else 'within'} the noise allowance "
-        f"{math.sqrt(allowance):.3g}); "
-        f"{criterion.upper()} {crit_before:.1f} -> {crit_after:.1f} "
-        f"({'agrees' if crit_ok else 'disagrees'})")
-    return gain_ok and crit_ok and beyond_ok, reason
-
-
-@dataclass
-class Step:
-    """One candidate effect tried in the loop."""
-
-    round: int
-    effect: str
-    evidence: dict[str, Any]
-    params: dict[str, float]
-    ci95: dict[str, list[float]]
-    est: dict[str, float]
-    val: dict[str, float]
-    criterion: float
-    criterion_before: float
-    val_rmse_before: float
-    accepted: bool = False
-    reason: str = ""
-    identifiable: bool = True
-    notes: list[str] = field(default_factory=list)
-    seconds: float = 0.0
-    #: ``"add"``: a candidate proposed in a round (forward step); ``"keep"`` or
-    #: ``"remove"``: the backward check of an effect accepted earlier (:func:`augment`'s
-    #: ``backward``), where ``val_rmse_before``/``criterion_before`` are the model
-    #: *without* the effect and ``val``/``criterion`` the model with it.
-    action: str = "add"
-    #: The backward check took the effect out of the model.
-    removed: bool = False
-
-    def to_json(self) -> dict[str, Any]:
-        """JSON-able dictionary (layout of the CLI's report)."""
-        return {
-            "round": self.round, "effect": self.effect, "evidence": self.evidence,
-            "params": self.params, "ci95": self.ci95,
-            "est": {k: self.est.get(k) for k in METRIC_KEYS},
-            "val": {k: self.val.get(k) for k in METRIC_KEYS},
-            "criterion": self.criterion, "criterion_before": self.criterion_before,
-            "val_rmse_before": self.val_rmse_before, "accepted": self.accepted,
-            "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
-            "seconds": self.seconds, "action": self.action, "removed": self.removed,
-        }
 
 
 @dataclass
@@ -278,41 +163,6 @@ class LoopResult:
             "skipped": dict(self.skipped),
             "settings": self.settings,
         })
-
-
-def split_record(data: Dataset, split: float, test: float) -> tuple[Dataset, Dataset,
-                                                                    Dataset | None]:
-    """The loop's estimation, selection and test parts (in time order).
-
-    Parameters
-    ----------
-    data : Dataset
-        The whole record, N samples.
-    split : float
-        Fraction of N for estimation (the first ``round(split*N)`` samples).
-    test : float
-        Fraction of N held out at the end for the test part; 0 gives the old
-        two-way split (selection = everything after estimation, no test part).
-
-    Returns
-    -------
-    est, sel, test : Dataset, Dataset, Dataset or None
-    """
-    if not 0 < split < 1:
-        raise ParameterError(f"split must be in (0, 1) so that selection data exist, got {split}")
-    if not 0 <= test < 1 - split:
-        raise ParameterError(
-            f"test must be in [0, 1 - split) = [0, {1 - split:g}) so that selection data "
-            f"exist, got {test}")
-    est, rest = data.split(split)
-    if test == 0:
-        return est, rest, None
-    n_test = int(round(test * data.n))
-    if not 0 < n_test < rest.n:
-        raise ParameterError(f"test={test} leaves no selection or no test samples in a "
-                             f"{data.n}-sample record")
-    sel, held = rest.split_at(rest.n - n_test)
-    return est, sel, held
 
 
 @dataclass(frozen=True)
@@ -602,14 +452,6 @@ def _records_noise(problem: MultiProblem, res: FitResult,
             "ljung_box_p": p, "white": p > 0.05}
 
 
-def at_noise_level(level: Mapping[str, Any], noise_tol: float) -> bool:
-    """Whether a residual (a :func:`selection_noise` dictionary) leaves nothing to model.
-
-    At the noise level: ``rmse <= (1 + noise_tol) * noise`` or white by Ljung-Box.
-    """
-    return bool(level["ratio"] <= 1 + noise_tol or level["white"])
-
-
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
                parts: str = "both") -> tuple[dict[str, Any], bool]:
     """The loop's noise-level stop: both non-test parts must be at the noise level.
@@ -645,20 +487,6 @@ def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
     level = selection_noise(problem, res, sel)
     level["estimation"] = selection_noise(problem, res, None)
     return level, stops_at_noise(level, noise_tol, parts)
-
-
-def stops_at_noise(level: Mapping[str, Any], noise_tol: float, parts: str = "both") -> bool:
-    """The decision of :func:`noise_stop` from its ``level`` dictionary.
-
-    ``"both"``: the selection part and ``level["estimation"]`` are at the noise
-    level (:func:`at_noise_level`); ``"selection"``: the selection part is.
-    """
-    if parts not in ("both", "selection"):
-        raise ParameterError(f"stop_on must be 'both' or 'selection', got {parts!r}")
-    stop = at_noise_level(level, noise_tol)
-    if parts == "both":
-        stop = stop and at_noise_level(level["estimation"], noise_tol)
-    return stop
 
 
 @dataclass(frozen=True)
@@ -793,54 +621,10 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
         pass
 
 
-def _decide(step: Step, rmse_cur: float, crit_cur: float, noise: float, margin: float,
-            noise_tol: float, criterion: str) -> bool:
-    """:func:`acceptance` for a tried step; writes ``step.reason``."""
-    ok, step.reason = acceptance(rmse_cur, float(step.val.get("rmse", math.inf)), crit_cur,
-                                 step.criterion, margin, criterion, noise, noise_tol)
-    return ok
-
-
 def _effect_params(model: Model, effect: str) -> list[str]:
     """Names of the parameters of the part called ``effect`` in ``model``."""
     part = next(p for p in model.parts if p.name == effect)
     return [p.name for p in part.parameters]
-
-
-def backward_decision(rmse_without: float, rmse_with: float, crit_without: float,
-                      crit_with: float, noise: float, margin: float, noise_tol: float,
-                      criterion: str = "bic") -> tuple[bool, str]:
-    """Whether an effect accepted earlier is taken out again (the backward step).
-
-    The forward rule read the other way: the effect stays only if it would be
-    accepted when proposed now to the model without it, i.e. :func:`acceptance`
-    with the model without it as "before" and the current model as "after". There
-    is no second threshold.
-
-    Parameters
-    ----------
-    rmse_without, rmse_with : float
-        Selection RMSE of the model without the effect (refitted) and of the
-        current model with it (output units).
-    crit_without, crit_with : float
-        Their information criteria on estimation (:func:`information_criterion`).
-    noise : float
-        Noise level of the selection residual of the model without it (output units).
-    margin, noise_tol : float
-        As in :func:`acceptance`.
-    criterion : str
-        Name of the criterion (for the reason).
-
-    Returns
-    -------
-    remove : bool
-        True when the effect would not be accepted now.
-    reason : str
-        :func:`acceptance`'s comparisons.
-    """
-    keep, reason = acceptance(rmse_without, rmse_with, crit_without, crit_with, margin,
-                              criterion, noise, noise_tol)
-    return not keep, reason
 
 
 def _backward_step(cfg: _Settings, cur: FitResult, cur_prob: Problem, cur_free: list[str],
@@ -920,12 +704,16 @@ def _backward_step(cfg: _Settings, cur: FitResult, cur_prob: Problem, cur_free: 
 
 
 class _DiscoveryFits:
-    """What :func:`hhra_phys.discover.discover_step` needs of the loop's fits."""
+    """What :class:`hhra_phys.discover.Discovery` needs of the loop's fits."""
 
     def __init__(self, cfg: _Settings) -> None:
         self.cfg = cfg
         self.data = cfg.data
         self.val = cfg.sel  # terms are chosen on the selection part, like effects
+
+    @staticmethod
+    def values(res: FitResult) -> dict[str, float]:
+        return _values(res)
 
     def problem(self, model: Model, free: Sequence[str], fixed: Mapping[str, float],
                 start: Mapping[str, float], x0: Mapping[str, float] | None = None) -> Problem:
@@ -983,8 +771,7 @@ def augment(
         effect's new ones too) and per-record initial states; selection and test
         scores are pooled over the records (per record in ``records`` of
         ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is
-        summed over them (:func:`~hhra_phys.diagnose.analyse`). Discovery runs on
-        one record only and is skipped (``skipped["discovery"]``).
+        summed over them (:func:`~hhra_phys.diagnose.analyse`).
     model : Model, optional
         Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
         output if the record's output is pressure).
@@ -996,15 +783,20 @@ def augment(
         (:attr:`LoopResult.test`). ``0`` restores the old two-way split, where the
         part after estimation both selects and reports (optimistic).
     candidates : sequence of str, optional
-        Library effects that may be added (default: all registered).
+        Library effects that may be added (default: all registered; ``[]``: none, so
+        that discovery alone proposes).
     max_effects : int
-        Most effects to add.
+        Most additions (library effects, user effects, discovered terms and modes alike);
+        0 adds nothing.
     top_k : int, optional
-        Candidates refitted per round, best ranked first. Default: all of them.
-        The ranking orders and explains; refits decide (MEASURED_NOTES point 4).
+        Library candidates refitted per round, best ranked first. Default: all of them
+        (until one settles the round, :func:`~hhra_phys.selection.round_settled`).
+        The ranking orders and explains; refits decide (a first-order ranking put the
+        effect that paid most far down on the public record, docs/diagnosis.md).
     pop_size, max_iter : int
         Global search of the base fit (default 100 x 200, as :func:`~hhra_phys.fit.fit`:
-        a loop is only as good as its base, MEASURED_NOTES point 7).
+        a loop is only as good as its base: a smaller base search left every candidate
+        judged against a weak base, docs/diagnosis.md).
     cand_pop, cand_iter : int, optional
         Global search over a candidate's new parameters (default: sized to their
         number, ``8 + 4*n_new`` points for ``10 + 5*n_new`` iterations).
@@ -1056,11 +848,14 @@ def augment(
         Without an executor, compile the next candidates' simulators in a
         background thread while the current one is refitted (default True).
     discover : bool
-        After the library rounds, look for a term outside the library
-        (:func:`hhra_phys.discover.discover_step`), accepted by the same rule.
+        In every round, beside the library's effects, propose terms and modes outside the
+        library (:class:`hhra_phys.discover.Discovery`): ranked with the effects by
+        first-order score, refitted and judged by the same rule (default True). With
+        several records they are screened on the record with the largest residual and
+        fitted to all.
     discover_kw : dict, optional
-        Options of :func:`~hhra_phys.discover.discover_step` (``method``,
-        ``n_entries``, ``max_terms``, ``entries``).
+        Options of :class:`~hhra_phys.discover.Discovery` (``method``, ``max_terms``,
+        ``entries``).
     validation : Dataset or sequence of Dataset, optional
         Whole records as the test part (then ``test`` is ignored and every record of
         ``data`` splits into estimation and selection only); runs the several-record
@@ -1094,13 +889,15 @@ def augment(
     -----
     A candidate is accepted when, on the selection part, its RMSE falls by at
     least ``margin``, the information criterion on estimation falls, and the
-    selection variance it removes exceeds the noise allowance above; the best
-    such candidate of a round is added. The loop stops when a round accepts
+    selection variance it removes exceeds the noise allowance above; of the acceptable
+    candidates of a round (every kind) the one :func:`~hhra_phys.selection.choose` picks
+    is added. The loop stops when a round accepts
     nothing, ``max_effects`` are in, or the estimation and selection residuals are
     both at the noise level (``rmse <= (1 + noise_tol) * noise`` or white by
     Ljung-Box, each with its own noise level).
     """
     say = progress or (lambda s: None)
+    discover_asked = discover
     if criterion not in ("bic", "aic"):
         raise ParameterError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
     if not 0 <= margin < 1:
@@ -1156,50 +953,60 @@ def augment(
     skipped: dict[str, str] = {}
     dropped: list[str] = []  # removed by the backward step, never proposed again
     levels: list[dict[str, Any]] = []
+    settled: list[dict[str, Any]] = []  # rounds whose rest was skipped (round_settled)
     est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     stop = "max_effects"
     compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
                 if executor is None and background and backend != "casadi" else None)
     try:
         rnd = 0
-        # Without removals (backward=False) this is one round per accepted effect,
-        # max_effects rounds at most; each removal takes a name out of the
-        # candidates for good, so the loop ends.
+        # One round per accepted candidate while nothing is removed; each removal takes
+        # a name out of the candidates for good, so the loop ends.
         while len(chosen) < max_effects:
             rnd += 1
             remaining = [n for n in names if n not in chosen and n not in dropped]
-            if not remaining:
+            if not remaining and not discover:
                 stop = "no candidates left"
                 break
             level, at_noise = noise_stop(cur_prob, cur, sel, tol, stop_on)
             levels.append(level)
             if at_noise:
-                e = level["estimation"]
-                stop = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
-                        f"{level['ratio']:.3f} x noise {level['noise']:.3g}, Ljung-Box p "
-                        f"{level['ljung_box_p']:.2g})")
-                if stop_on == "both":
-                    stop += (f", estimation residual too (RMSE {e['rmse']:.4g} = "
-                             f"{e['ratio']:.3f} x noise, Ljung-Box p {e['ljung_box_p']:.2g})")
+                stop = _noise_stop_text(level, stop_on)
                 say(f"round {rnd}: {stop}; stop")
                 break
-            diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
-                           effect_kw=effect_kw)
-            diagnoses.append(diag)
-            for ev in diag.evidence:
-                if ev.note.startswith("skipped"):
-                    skipped[ev.name] = ev.note.removeprefix("skipped: ")
-            names = [n for n in names if n not in skipped]
-            ranked = diag.ranked()
-            say(f"round {rnd}: ranking\n" + diag.summary())
             crit_cur = information_criterion(cur, criterion)
             rmse_cur = float(cur.metrics["val"]["rmse"])
-            jobs = [_Job(cfg, rnd, ev.name, dict((effect_kw or {}).get(ev.name, {})),
-                         cur_prob.model, tuple(cur_free), _values(cur), dict(cur.x0),
-                         ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range,
-                         tuple(n for n in cur_free if n not in base_free)
-                         if joint_search else ())
-                     for ev in (ranked if top_k is None else ranked[:top_k])]
+            queue: list[tuple[tuple[bool, float], str, Any]] = []
+            jobs: list[_Job] = []
+            if remaining:
+                diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
+                               effect_kw=effect_kw)
+                diagnoses.append(diag)
+                for ev in diag.evidence:
+                    if ev.note.startswith("skipped"):
+                        skipped[ev.name] = ev.note.removeprefix("skipped: ")
+                names = [n for n in names if n not in skipped]
+                ranked = diag.ranked()
+                say(f"round {rnd}: ranking\n" + diag.summary())
+                jobs = [_Job(cfg, rnd, ev.name, dict((effect_kw or {}).get(ev.name, {})),
+                             cur_prob.model, tuple(cur_free), _values(cur), dict(cur.x0),
+                             ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range,
+                             tuple(n for n in cur_free if n not in base_free)
+                             if joint_search else ())
+                        for ev in (ranked if top_k is None else ranked[:top_k])]
+                queue += [((not job.evidence["identifiable"], -float(job.evidence["score"])),
+                           "effect", job) for job in jobs]
+            if discover:
+                disc = _discovery(cfg, cur, cur_prob, cur_free, rnd, criterion,
+                                  discover_kw, say, skipped)
+                if disc is None:
+                    discover = False
+                else:
+                    queue += [((False, -p.score), "discovered", p) for p in disc.proposals()]
+            if not queue:
+                stop = "no candidates left"
+                break
+            queue.sort(key=lambda q: q[0])  # one ranking of every kind (stable: library order)
             if compiler is not None:
                 for job in jobs:
                     try:
@@ -1208,39 +1015,68 @@ def augment(
                         continue
                     compiler.submit(_warm_compile, cfg, m_c, 2 * _search_size(
                         len(new) + len(job.previous), cand_pop, cand_iter)[0])
-            outcomes = (map_stopping(executor, refit_candidate, jobs) if executor is not None
-                        else map(refit_candidate, jobs))
-            tried: list[tuple[Step, _Outcome]] = []
-            for job, out in zip(jobs, outcomes, strict=True):
-                if out.step is None:
-                    skipped[job.effect] = out.error
-                    names = [n for n in names if n != job.effect]
-                    say(f"  skipped {job.effect}: {out.error}")
-                    continue
-                step = out.step
-                ok = _decide(step, rmse_cur, crit_cur, float(level["noise"]), margin, tol,
-                             criterion)
-                say(f"  tried {step.effect}: {step.reason} [{step.seconds:.1f} s]")
+            library = iter(map_stopping(executor, refit_candidate, jobs)
+                           if executor is not None else map(refit_candidate, jobs))
+            noise_sel = float(level["noise"])
+            noise_est = float(level["estimation"]["noise"])
+            tried: list[tuple[Step, Any]] = []
+            for k, (_, kind, item) in enumerate(queue):
+                if kind == "effect":
+                    out = next(library)
+                    if out.step is None:
+                        skipped[item.effect] = out.error
+                        names = [n for n in names if n != item.effect]
+                        say(f"  skipped {item.effect}: {out.error}")
+                        continue
+                    step, payload, veto = out.step, (item, out), ""
+                else:
+                    got = disc.refit(item)
+                    if got is None:
+                        continue
+                    step, fitted, veto = got
+                    payload = fitted
+                ok = judge(step, rmse_cur, crit_cur, noise_sel, margin, tol, criterion)
+                if veto:
+                    ok, step.reason = False, f"dropped: {veto} ({step.reason})"
+                say(f"  tried {step.effect}"
+                    + (f": {step.expression}" if isinstance(step, DiscoveredStep) else "")
+                    + f"; {step.reason} [{step.seconds:.1f} s]")
                 steps.append(step)
                 if ok:
-                    tried.append((step, out))
+                    tried.append((step, payload))
+                if round_settled(step, noise_sel, noise_est, tol, ok) and k + 1 < len(queue):
+                    rest = [q[2].effect if q[1] == "effect" else f"discovery at {q[2].entry}"
+                            for q in queue[k + 1:]]
+                    note = (f"leaves both parts at the noise level, so no later candidate "
+                            f"can beat it by more than the noise allowance: not refitted "
+                            f"this round: {', '.join(rest)}")
+                    step.notes.append(note)
+                    settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
+                    say(f"  {step.effect} {note}")
+                    break
+            if hasattr(library, "close"):
+                library.close()  # cancels library refits queued but not started
             if not tried:
                 stop = "no candidate accepted"
                 say(f"round {rnd}: nothing accepted; stop")
                 break
-            best_step, best = min(tried, key=lambda t: t[0].val.get("rmse", math.inf))
-            best_step.accepted = True
-            best_step.reason = "accepted: " + best_step.reason
+            best_step, payload = choose(tried, noise_sel, tol, criterion)
             chosen.append(best_step.effect)
-            # Rebuild the accepted fit here from its values (wherever it ran), so the
-            # serial and distributed loops continue from the same numbers.
-            job = next(j for j in jobs if j.effect == best_step.effect)
-            model_c, _, _ = _candidate_model(job)
+            if isinstance(payload, tuple):
+                # Rebuild the accepted fit here from its values (wherever it ran), so the
+                # serial and distributed loops continue from the same numbers.
+                job, best = payload
+                model_c, _, _ = _candidate_model(job)
+                free_c, vals_c, x0_c = best.free, best.values, best.x0
+            else:
+                model_c = payload.problem.model
+                free_c = payload.free
+                vals_c, x0_c = _values(payload.result), dict(payload.result.x0)
             # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one
             # is polished to convergence before the next round.
-            cur_prob = _problem(cfg, model_c, best.free, {}, best.values, best.x0)
+            cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
             cur = _run(cfg, cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
-            cur_free = best.free
+            cur_free = list(free_c)
             say(f"round {rnd}: accepted {best_step.effect}")
             if backward and len(chosen) >= 2:
                 cur, cur_prob, cur_free, back, gone = _backward_step(
@@ -1255,23 +1091,6 @@ def augment(
     finally:
         if compiler is not None:
             compiler.shutdown(wait=True, cancel_futures=True)
-    # --- discovery: a term outside the library, the loop's last candidate -------------
-    # (not where the selection residual is already at the noise level: nothing to find)
-    discover = discover and _discovery_applies(cfg, skipped, say)
-    if discover and not stop.startswith("selection residual at the noise level"):
-        from hhra_phys.discover import discover_step
-
-        found, won = discover_step(_DiscoveryFits(cfg), cur, cur_prob, list(cur_free),
-                                   round_no=len(diagnoses) + 1, margin=margin,
-                                   criterion=criterion, progress=say,
-                                   sel_noise=float(selection_noise(cur_prob, cur, sel)["noise"]),
-                                   noise_tol=tol, **dict(discover_kw or {}))
-        steps.extend(found)
-        if won is not None:
-            cur, cur_prob, cur_free, term_name = won
-            chosen.append(term_name)
-            say(f"discovery: accepted {term_name}")
-    # ------------------------------------------------------------------------------------
     final_level, _ = noise_stop(cur_prob, cur, sel, tol)
     final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
         n for n in names if n not in chosen]) if names else None
@@ -1289,8 +1108,8 @@ def augment(
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
                 "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
                 "noise_tol": tol, "criterion": criterion, "backend": backend,
-                "discover": discover, "stop_on": stop_on, "joint_search": joint_search,
-                "backward": backward, "removed": list(dropped),
+                "discover": discover_asked, "stop_on": stop_on, "joint_search": joint_search,
+                "backward": backward, "removed": list(dropped), "settled": settled,
                 "executor": type(executor).__name__ if executor is not None else None,
                 "base_given": base is not None, "stop": stop,
                 "noise_levels": levels + [final_level],
@@ -1328,18 +1147,35 @@ def _substeps(problem: Problem | MultiProblem) -> int | tuple[tuple[float, int],
     return problem.sim.substeps
 
 
-def _discovery_applies(cfg: _Settings, skipped: dict[str, str],
-                       say: Callable[[str], None]) -> bool:
-    """Whether discovery can run; with several records (or whole validation records) it
-    cannot (said and recorded in ``skipped["discovery"]``)."""
-    if not isinstance(cfg.est, RecordSet):
-        return True
-    why = ("runs on one record only: discovery (hhra_phys.discover) fits its sparse terms "
-           "to one record split the loop's way, so it is skipped with several records or "
-           "whole validation records")
-    skipped["discovery"] = why
-    say(f"discovery skipped: {why}")
-    return False
+def _noise_stop_text(level: Mapping[str, Any], stop_on: str) -> str:
+    """The stop reason of :func:`noise_stop` in words."""
+    e = level["estimation"]
+    text = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
+            f"{level['ratio']:.3f} x noise {level['noise']:.3g}, Ljung-Box p "
+            f"{level['ljung_box_p']:.2g})")
+    if stop_on == "both":
+        text += (f", estimation residual too (RMSE {e['rmse']:.4g} = {e['ratio']:.3f} x noise, "
+                 f"Ljung-Box p {e['ljung_box_p']:.2g})")
+    return text
+
+
+def _discovery(cfg: _Settings, cur: FitResult, cur_prob: Any, cur_free: Sequence[str],
+               rnd: int, criterion: str, discover_kw: Mapping[str, Any] | None,
+               say: Callable[[str], None], skipped: dict[str, str]) -> Discovery | None:
+    """This round's discovery candidates (screened), or None when the model cannot be
+    screened (said and recorded in ``skipped["discovery"]``; a bad option is an error)."""
+    try:
+        return Discovery(_DiscoveryFits(cfg), cur, cur_prob, list(cur_free), round_no=rnd,
+                         criterion=criterion, progress=say, **dict(discover_kw or {}))
+    except ParameterError as exc:
+        if "cannot be simulated" not in str(exc):
+            raise
+        why = str(exc)
+    except Exception as exc:  # noqa: BLE001 - a screening failure ends discovery, not the loop
+        why = f"{type(exc).__name__}: {exc}"
+    skipped["discovery"] = f"screening failed in round {rnd}: {why}"
+    say(f"discovery skipped: {skipped['discovery']}")
+    return None
 
 
 def base_model_for(data: Dataset) -> tuple[Model, dict[str, tuple[float, float]]]:

@@ -191,8 +191,8 @@ def plot_loop(res: Any, data: Any, path: Path, hidden: str, overwrite: bool) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hhra_phys.loop import split_record
     from hhra_phys.outputs import atomic_path
+    from hhra_phys.selection import split_record
 
     check_output_path(path, overwrite=overwrite, suffixes=FIGURE_SUFFIXES)
     _, _, test = split_record(data, res.settings["split"], res.settings["test"])

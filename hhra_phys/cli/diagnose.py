@@ -52,13 +52,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("--report", metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
     p.add_argument("--max-effects", type=nonnegative_int, default=3,
-                   help="most effects to add (default 3)")
+                   help="most additions, library effects and discovered terms alike "
+                        "(default 3; 0 adds nothing)")
     p.add_argument("--top", type=positive_int, default=None,
                    help="candidates refitted per round, best ranked first, at least 1 "
                         "(default: all)")
     p.add_argument("--effects", default=None,
                    help="comma-separated effects to consider (default: all registered, the "
-                        "library's and those of --effects-from)")
+                        "library's and those of --effects-from); 'none': no library effect, "
+                        "so that discovery alone proposes")
     p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
     p.add_argument("--split", type=fraction, default=None,
                    help="estimation fraction of the record (default 0.5)")
@@ -75,8 +77,9 @@ def register(subparsers: Any) -> None:
                    help="structural-mismatch allowance over the noise level (default "
                         "hhra_phys.loop.NOISE_TOL, measured; see docs/diagnosis.md)")
     p.add_argument("--no-discover", action="store_true",
-                   help="do not look for a term outside the library after it (discovery, "
-                        "hhra_phys.discover, is on by default)")
+                   help="do not propose terms and modes outside the library (discovery, "
+                        "hhra_phys.discover, proposes beside the library in every round by "
+                        "default)")
     p.add_argument("--no-backward", action="store_true",
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
@@ -123,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
         with executor(args.workers, args.dask) as ex:
             res = augment(
                 records if several else data, model, validation=validation, split=split,
-                test=args.test, candidates=parse_names(args.effects),
+                test=args.test,
+                candidates=[] if args.effects == "none" else parse_names(args.effects),
                 max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
                 max_iter=args.iters, seed=args.seed, margin=args.margin,
                 noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,

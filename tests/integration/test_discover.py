@@ -4,7 +4,8 @@ Records with outside-library terms come from the independent reference model
 (:mod:`hhra_phys.reference.outside`) for the HHRA, and from a truth built of parts
 (a user's own two-tank model with an overflow of its upper tank, an unmeasured
 state) for the generic path. Short records, small populations; the loop is run
-with ``max_effects=0`` so the discovery step is what is tested (the library
+with no library effects (``candidates=[]``, one addition) so that discovery is what is
+tested (the library
 rounds are tested in test_diagnose.py).
 """
 
@@ -32,16 +33,17 @@ from hhra_phys.discover import (
     lasso_path,
 )
 from hhra_phys.fit import fit
-from hhra_phys.loop import acceptance, augment
+from hhra_phys.loop import augment
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.reference.outside import outside_record
 from hhra_phys.result import FitResult
+from hhra_phys.selection import acceptance
 
 sys.path.insert(0, str(Path(__file__).parent / "user_models"))
 import two_tank  # noqa: E402
 
 NOISE = 0.05
-LOOP = {"max_effects": 0, "pop_size": 20, "max_iter": 30}
+LOOP = {"candidates": [], "max_effects": 1, "pop_size": 20, "max_iter": 30}
 
 
 def _run(ds, model=None, **kw):
@@ -137,8 +139,9 @@ def _found(js, signal):
 
 
 def _cli(tmp_path, term, size, seed):
-    """``hhra-phys diagnose --max-effects 0`` on an outside-term record (record and search
-    seed ``seed``, as in experiments/discover.py): the JSON and the report's paths."""
+    """``hhra-phys diagnose --effects none --max-effects 1`` on an outside-term record
+    (record and search seed ``seed``, as in experiments/discover.py): the JSON and the
+    report's paths."""
     from hhra_phys.cli import main
     from hhra_phys.data import save
 
@@ -146,7 +149,7 @@ def _cli(tmp_path, term, size, seed):
     save(outside_record(term, size, seed=seed, noise_deg=NOISE), data)
     out, rep = tmp_path / f"d{seed}.json", tmp_path / f"d{seed}.md"
     assert main(["diagnose", str(data), "--json", str(out), "--report", str(rep),
-                 "--max-effects", "0", "--pop", "20", "--iters", "30",
+                 "--effects", "none", "--max-effects", "1", "--pop", "20", "--iters", "30",
                  "--seed", str(seed)]) == 0
     return json.loads(out.read_text()), rep
 

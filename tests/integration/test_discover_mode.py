@@ -35,7 +35,7 @@ from hhra_phys.reference.resonant import loaded_record, resonant_record
 from hhra_phys.result import FitResult
 
 NOISE = 0.05
-LOOP = {"max_effects": 0, "pop_size": 20, "max_iter": 30}
+LOOP = {"candidates": [], "max_effects": 1, "pop_size": 20, "max_iter": 30}
 
 
 def _nominal(model):

@@ -13,7 +13,7 @@ import itertools
 
 import pytest
 
-from hhra_phys.loop import Step, acceptance, backward_decision
+from hhra_phys.selection import Step, acceptance, backward_decision
 
 NOISE = 0.05
 

@@ -1,11 +1,11 @@
 """The loop's acceptance rule and its noise-level stop, case by case.
 
-A candidate (``hhra_phys.loop._decide``) is accepted only when all three hold: the
+A candidate (``hhra_phys.selection.judge``) is accepted only when all three hold: the
 selection RMSE falls by the margin, the information criterion on estimation falls, and the
 variance it removes exceeds what noise and structural mismatch allow,
 ``((1 + noise_tol)^2 - 1) * noise^2``. Each case below breaks exactly one of them. A
 round runs unless the estimation and the selection residuals are both at the noise level
-(``hhra_phys.loop.stops_at_noise``).
+(``hhra_phys.selection.stops_at_noise``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from __future__ import annotations
 import pytest
 
 from hhra_phys.errors import ParameterError
-from hhra_phys.loop import Step, _decide, stops_at_noise
+from hhra_phys.selection import Step, stops_at_noise
+from hhra_phys.selection import judge as _decide
 
 NOISE = 0.05
 
