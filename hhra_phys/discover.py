@@ -613,14 +613,18 @@ def _pursuit(S: np.ndarray, r: np.ndarray, k: int) -> tuple[list[int], list[floa
     return picked, explained, beta
 
 
-def screen(problem: Problem, values: np.ndarray, entries: Sequence[str] | None = None,
+def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = None,
            max_terms: int = 4) -> list[EntryScreen]:
     """First-order screening of every entry point, best first (module docstring).
 
     Parameters
     ----------
-    problem : Problem
-        The fitted problem (model and estimation record).
+    problem : Problem or MultiProblem
+        The fitted problem (model and estimation record, or records). With several records
+        the candidate terms are built on all of them (one scale per variable, over every
+        record), each record's columns are propagated through the model linearised at its
+        own fit, and the pursuit runs on the records' rows stacked: one screening of the
+        record set.
     values : array, shape (n_free,)
         Fitted free values.
     entries : sequence of str, optional
@@ -641,21 +645,32 @@ def screen(problem: Problem, values: np.ndarray, entries: Sequence[str] | None =
             raise ParameterError(f"unknown entry point {e!r}; entry points of this model: "
                                  f"{', '.join(allowed)}")
     values = np.asarray(values, dtype=float)
-    series, yhat = variable_series(problem, values)
-    if not np.isfinite(yhat).all():
-        raise ParameterError("the fitted model cannot be simulated on its record")
-    r = problem.data.y - yhat
-    P = problem.full(values)
-    Q = nuisance_basis(problem, values, yhat)
-    umax = float(np.max(np.abs(problem.data.u))) or 1.0
+    records = getattr(problem, "records", None)
+    blocks = ([(pr, problem.record_values(values, k)) for k, pr in enumerate(records)]
+              if records else [(problem, values)])
+    per: list[dict[str, Any]] = []
+    for pr, v in blocks:
+        series, yhat = variable_series(pr, v)
+        if not np.isfinite(yhat).all():
+            raise ParameterError("the fitted model cannot be simulated on its record")
+        Q = nuisance_basis(pr, v, yhat)
+        r = pr.data.y - yhat
+        per.append({"pr": pr, "P": pr.full(v), "Q": Q, "series": series, "n": yhat.size,
+                    "r_p": r - Q @ (Q.T @ r),
+                    "umax": float(np.max(np.abs(pr.data.u))) or 1.0})
+    pooled = {n: np.concatenate([b["series"][n] for b in per]) for n in per[0]["series"]}
     units = {s.name: s.unit for s in model.states}
+    r_p = np.concatenate([b["r_p"] for b in per])
+    edges = np.cumsum([0] + [b["n"] for b in per])
     out = []
-    r_p = r - Q @ (Q.T @ r)
     for e in entries:
-        cands, scales = term_library(series, e, units)
+        cands, scales = term_library(pooled, e, units)
         cols = np.column_stack([c.column for c in cands])
-        S = linear_response(problem, P, e, cols, umax)
-        S = S - Q @ (Q.T @ S)
+        parts = []
+        for k, b in enumerate(per):
+            S = linear_response(b["pr"], b["P"], e, cols[edges[k]:edges[k + 1]], b["umax"])
+            parts.append(S - b["Q"] @ (b["Q"].T @ S))
+        S = np.vstack(parts)
         S[~np.isfinite(S)] = 0.0
         picked, explained, beta = _pursuit(S, r_p, max_terms)
         out.append(EntryScreen(e, picked, explained, beta, cands, scales, S, r_p))
@@ -1587,8 +1602,9 @@ def _record_view(problem: Any, values: np.ndarray, data: Any) -> tuple[Problem, 
     """The one-record problem, values and record that screening looks at.
 
     One record: the problem itself. Several (a :class:`~hhra_phys.multi.MultiProblem`): the
-    record whose estimation residual carries the most energy (where the missing term shows
-    most); the refits that decide are still fitted to every record.
+    record whose estimation residual carries the most energy (where the missing physics shows
+    most): a mode's grid of periods is screened there (terms are screened on every record,
+    :func:`screen`); the refits that decide are fitted to every record.
     """
     records = getattr(problem, "records", None)
     if not records:
@@ -1665,7 +1681,7 @@ class Discovery:
                                      f"{', '.join(all_entries)}")
         terms = [e for e in chosen if e not in modes]
         screens: list[EntryScreen | ModeScreen] = list(
-            screen(self.sub, self.sub_values, entries=terms, max_terms=max_terms))
+            screen(cur_prob, values, entries=terms, max_terms=max_terms))
         screens += [screen_mode(self.sub, self.sub_values, target=e.split(":", 1)[1])
                     for e in chosen if e in modes]
         self._proposals = [Proposal(s.entry, float(s.score), s) for s in screens
@@ -1678,7 +1694,7 @@ class Discovery:
         self.noise = noise_level(self.sub.data.y - self.sub.simulate_values(self.sub_values))
         self._before: tuple[np.ndarray, np.ndarray] | None = None
         self.say(f"round {round_no}: discovery, entry points by first-order score"
-                 + (f" (screened on record {self.record_index + 1})"
+                 + (f" (modes screened on record {self.record_index + 1})"
                     if getattr(cur_prob, "records", None) else "") + ": "
                  + ", ".join(f"{p.entry} {p.score:.2f}" for p in self._proposals))
 

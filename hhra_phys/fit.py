@@ -382,6 +382,14 @@ WIDEN_MIN_GAIN = 1e-3
 #: 0.04-0.13 for the heavily damped rig whose group lies beyond its box, 0.86-0.93 for base
 #: fits lacking a sharp friction, 0.53-0.99 for the loop's candidate fits there.
 WIDEN_MAX_EXCESS = 0.5
+#: Predicted relative fall of the sum of squares (Gauss-Newton, :func:`_release_gains`) from
+#: letting one group out of its box above which the box is widened whatever the residual's
+#: excess over the noise: a group its box holds that far from the optimum is held by the
+#: guess, not pushed there by missing physics (a base fit lacking a sharp friction gained
+#: 1-2 % from its widened groups, docs/fitting.md). The loop's candidates need it: a found
+#: effect whose coefficient stops at a guessed bound (a gravity load at a third of its true
+#: size) leaves a residual far above the noise, and without the widening a stand-in follows.
+WIDEN_CLEAR_GAIN = 0.1
 
 
 def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
@@ -462,18 +470,21 @@ def widen_boxes(
     stages: list[Stage],
     history: list[float],
 ) -> tuple[Any, np.ndarray, list[dict[str, Any]]]:
-    """Widen default boxes whose edge a log-scaled free group ends at, and refit.
+    """Widen default boxes whose edge a free parameter ends at, and refit.
 
-    The rule of every fit path (:func:`fit_and_widen`): only default boxes (the model's
-    or ``default_bounds``, :attr:`Problem.default_boxes
-    <hhra_phys.problem.Problem.default_boxes>`) of log-scaled (positive) model
-    parameters are widened, never the user's explicit bounds, initial states or signed
-    parameters; one decade on that side per round, at most :data:`MAX_WIDEN_DECADES`
-    beyond the default box, only while the residual is mostly noise (at most
-    :data:`WIDEN_MAX_EXCESS` of the sum of squares above its noise level: otherwise the
-    model lacks something and the edge is a symptom of it), and only where moving the group
-    out of its box lowers the sum of squares by at least :data:`WIDEN_MIN_GAIN` (predicted
-    by a Gauss-Newton step, :func:`_release_gains`). Rounds
+    The rule of every fit path (:func:`fit_and_widen`; the loop's base, candidate and
+    backward refits are such fits): only default boxes (the model's, an effect's or
+    ``default_bounds``, :attr:`Problem.default_boxes
+    <hhra_phys.problem.Problem.default_boxes>`) of model parameters are widened, never the
+    user's explicit bounds or initial states; a log-scaled (positive) parameter by one
+    decade on that side per round, a signed (linear) one by moving that side ten times as
+    far from zero (a side at zero is a sign and stays), at most :data:`MAX_WIDEN_DECADES`
+    beyond the default box. A side is widened where moving the parameter out of its box
+    lowers the sum of squares by at least :data:`WIDEN_MIN_GAIN` (predicted by a
+    Gauss-Newton step, :func:`_release_gains`) while the residual is mostly noise (at most
+    :data:`WIDEN_MAX_EXCESS` of the sum of squares above its noise level), and by at least
+    :data:`WIDEN_CLEAR_GAIN` otherwise (with the model lacking something the edge is
+    usually a symptom of it; a release that pays that much is the box's doing). Rounds
     stop once a refit lowers the least-squares cost by less than :data:`WIDEN_MIN_GAIN`
     (relative). Each refit (``search``) starts its global search with the previous
     optimum in the population, so it cannot end worse.
@@ -507,25 +518,32 @@ def widen_boxes(
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
         if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
-        if excess > WIDEN_MAX_EXCESS:
-            break  # model error, not a group beyond its box: the edge warning stays
         box: dict[str, list[float]] = {}
         changes = []
         gains = _release_gains(problem, z, edges)
         for (i, side), predicted in zip(edges, gains, strict=True):
             par = problem.free_params[i]
             name = split_record_name(par.name)[0]
-            if par.scale != "log" or name not in origin or name in box:
+            if name not in origin or name in box:
                 continue
             k = 0 if side == "lower" else 1
-            if abs(np.log10([par.lower, par.upper][k] / origin[name][k])) >= (
-                    MAX_WIDEN_DECADES - 0.5):
+            edge, first = [par.lower, par.upper][k], origin[name][k]
+            # A signed parameter's side at zero is a sign (physics), not a guessed size.
+            if edge == 0 or first == 0 or edge * first < 0:
                 continue
-            if predicted < WIDEN_MIN_GAIN:
+            if abs(np.log10(edge / first)) >= MAX_WIDEN_DECADES - 0.5:
+                continue
+            # Model error, not a group beyond its box, unless the release clearly pays:
+            # then the edge warning stays.
+            if predicted < (WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS
+                            else WIDEN_CLEAR_GAIN):
                 continue
             before = [par.lower, par.upper]
             box[name] = list(before)
-            box[name][k] = before[0] / 10 if k == 0 else before[1] * 10
+            if par.scale == "log":
+                box[name][k] = before[0] / 10 if k == 0 else before[1] * 10
+            else:  # a signed size: that side ten times as far from zero
+                box[name][k] = 10 * before[k]
             changes.append({"name": name, "side": side, "round": round_,
                             "from": before, "to": list(box[name])})
         if not changes:

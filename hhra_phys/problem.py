@@ -245,9 +245,10 @@ class Problem:
                 lo, hi = (float(b) for b in box)
                 nominal = min(max(par.nominal, lo), hi)
                 par = par.with_(lower=lo, upper=hi, nominal=nominal)
-            if par.scale == "log" and name not in self.explicit_bounds:
+            if name not in self.explicit_bounds:
                 self.default_boxes[name] = (par.lower, par.upper)
-                if start and name in start:  # a given start, not a nominal off the box
+                if par.scale == "log" and start and name in start:  # a given start, not a
+                    # nominal off the box
                     par = self._box_for_start(par, float(start[name]))
             params.append(par)
         unknown = set(bounds or {}) - set(free)

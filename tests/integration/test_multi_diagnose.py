@@ -22,7 +22,7 @@ from hhra_phys.reference import reference_record
 
 #: The smallest loop that still runs every stage (base fit, one candidate, refit).
 TINY = {"pop_size": 8, "max_iter": 3, "max_effects": 1, "cand_pop": 6, "cand_iter": 2,
-        "candidates": ["coulomb_friction", "sensor_offset"]}
+        "candidates": ["coulomb_friction", "sensor_offset"], "discover": False}
 
 
 def _short(seed: int, duration: float, fs: float = 250.0, **kw):
@@ -43,7 +43,6 @@ def test_records_of_different_lengths_and_rates_layout_and_pooling():
     # estimation / selection / test per record, the loop's way (50/25/25 %)
     assert res.settings["data"]["n_est"] == 375 + 250
     assert res.settings["data"]["n_test"] == 188 + 125
-    assert "discovery" in d["skipped"] and "one record" in d["skipped"]["discovery"]
     for part in ("base", "final"):
         recs = d[part]["records"]
         assert [r["name"] for r in recs] == [a.name, b.name]
@@ -89,6 +88,29 @@ def test_whole_validation_records_are_the_test_part():
         augment([a, b], base=res.base, **TINY)
 
 
+def test_several_records_and_validation_discover_an_outside_term():
+    """Velocity-squared damping (outside the library) in two records, a third as the
+    validation record: discovery screens the records stacked and fits the term to both;
+    the validation record (the test part) confirms it. The mechanism is what is asserted
+    (the term enters at the velocity's rate, uses it, and predicts the unseen record
+    better); its shape is not: on these short records the screened terms were
+    ``p^3`` and ``omega`` (the base model's damping absorbs much of the drag), measured
+    0.129 -> 0.079 deg on the validation record (noise 0.05) before the assert."""
+    from hhra_phys.reference.outside import outside_record
+
+    recs = [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = augment(recs[:2], validation=[recs[2]], seed=1, candidates=[], max_effects=1,
+                      pop_size=20, max_iter=30, discover_kw={"entries": ["rate:omega"]})
+    d = res.to_json()
+    acc = [s for s in d["steps"] if s["accepted"]]
+    assert len(acc) == 1 and acc[0]["discovered"] and acc[0]["entry"] == "rate:omega"
+    assert "omega" in acc[0]["uses"] and d["chosen"] == [acc[0]["effect"]]
+    assert d["final"]["test"]["rmse"] < 0.8 * d["base"]["test"]["rmse"]
+    assert {"x0_theta_rec1", "x0_theta_rec2"} <= set(res.final.free)
+
+
 def test_python_figures_of_several_records(tmp_path):
     """The loop's figures draw a several-record result; a comparison's output plot refuses it."""
     from hhra_phys.compare import plot_outputs, run_comparison
@@ -121,7 +143,9 @@ def test_cli_diagnose_and_compare_several_records(tmp_path):
     d = json.loads(out.read_text())
     assert [r["name"] for r in d["base"]["records"]] == ["reference-seed8", "reference-seed9",
                                                          "reference-seed10"]
-    assert d["test"]["rmse"] is not None and "discovery" in d["skipped"]
+    assert d["test"]["rmse"] is not None and "discovery" not in d["skipped"]
+    # discovery proposes with several records and validation records too
+    assert any(s.get("discovered") for s in d["steps"]), [s["effect"] for s in d["steps"]]
     assert "Per record" in (tmp_path / "d.md").read_text()
     cj = tmp_path / "c.json"
     rc = main(["compare", str(pa), str(pb), "--methods", "ls,ffrls_hgwo,phys_ipopt", "--pop",

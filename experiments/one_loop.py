@@ -1,0 +1,184 @@
+"""The one loop on records its seams used to lose: does it choose the hidden effect, no stand-in?
+
+Four families of records from the independent reference implementations
+(:mod:`hhra_phys.reference`), 0.05 deg angle noise, the loop with its defaults (library and
+discovery proposing in every round, one rule, the backward step, box widening):
+
+``drag``
+    velocity-squared damping ``domega/dt -= size*omega*|omega|`` (outside the library);
+    success: the discovered terms chosen act at ``rate:omega``, use ``omega`` and hold an
+    odd square of it (``odd2(omega)``), no library effect is chosen.
+``gravity``
+    a gravity load far beyond the effect's default box (``g_grav_sin`` = ``size``,
+    ``g_grav_cos`` = ``-size/5``) on an actuator whose damping group lies beyond the base
+    model's default box; success: ``gravity_load`` alone is chosen.
+``deadzone_friction``
+    a valve dead zone (``i_dead`` 0.15) beside an exact (sharp) Coulomb friction of
+    ``size``; success: both are chosen (or the dead zone and a discovered term at
+    ``rate:omega`` using ``omega`` with a sign-like shape), nothing else.
+``clean``
+    the physics the model covers; success: nothing is chosen.
+
+Every family also needs the final test RMSE at most 1.5 times the noise (0.05 deg).
+
+    python experiments/one_loop.py [--families drag,gravity,deadzone_friction,clean]
+        [--seeds 1-5] [--duration 8] [--workers 1] [--out FILE.json]
+
+Prints a Markdown table per family and writes every row to ``--out`` (JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from typing import Any
+
+from hhra_phys.loop import augment
+from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
+from hhra_phys.reference import reference_record
+from hhra_phys.reference.outside import outside_record
+
+NOISE = 0.05
+#: Sizes of the study (not the tests' or the library's defaults).
+SIZES = {"drag": 600.0, "gravity": 300.0, "deadzone_friction": 25.0, "clean": 0.0}
+#: The gravity family's damping group, beyond the HHRA's default box [0.42, 42] 1/s.
+GRAVITY_DAMPING = 60.0
+FAMILIES = tuple(SIZES)
+
+
+def record(family: str, seed: int, duration: float):
+    """The record of one family and seed (reference implementations, 0.05 deg noise)."""
+    size = SIZES[family]
+    if family == "drag":
+        return outside_record("quadratic_drag", size, seed=seed, duration=duration,
+                              noise_deg=NOISE)
+    if family == "gravity":
+        return reference_record(seed, duration=duration, noise_deg=NOISE,
+                                params={"g_damping": GRAVITY_DAMPING},
+                                effects={"gravity_load": {"g_grav_sin": size,
+                                                          "g_grav_cos": -size / 5}})
+    if family == "deadzone_friction":
+        return reference_record(seed, duration=duration, noise_deg=NOISE, smooth=False,
+                                effects={"valve_deadzone": {"i_dead": 0.15},
+                                         "coulomb_friction": {"g_coulomb": size}})
+    return reference_record(seed, duration=duration, noise_deg=NOISE)
+
+
+def _sign_like(expr: str) -> bool:
+    return any(k in expr for k in ("sgn(omega)", "sat(omega)", "tanh(", "sgn"))
+
+
+def judge(family: str, res: Any) -> tuple[bool, str]:
+    """Whether the loop's outcome is a success for the family, and what it chose."""
+    js = res.to_json()
+    chosen = js["chosen"]
+    acc = [s for s in js["steps"] if s["accepted"] and not s.get("removed")]
+    disc = [s for s in acc if s.get("discovered") and s["effect"] in chosen]
+    lib = [c for c in chosen if not c.startswith("discovered_")]
+    test = (js.get("test") or {}).get("rmse")
+    at_noise = test is not None and test <= 1.5 * NOISE
+    if family == "clean":
+        ok = not chosen
+    elif family == "drag":
+        ok = (bool(disc) and not lib and all(
+            s["entry"] == "rate:omega" and "omega" in s["uses"]
+            and ("odd2(omega)" in s["screening"]["terms"]) for s in disc))
+    elif family == "gravity":
+        ok = chosen == ["gravity_load"]
+    else:
+        friction = "coulomb_friction" in lib or any(
+            s["entry"] == "rate:omega" and "omega" in s["uses"] and _sign_like(s["expression"])
+            for s in disc)
+        ok = ("valve_deadzone" in lib and friction
+              and set(lib) <= {"valve_deadzone", "coulomb_friction"} and len(chosen) == 2)
+    what = ", ".join(chosen) or "none"
+    return ok and (family == "clean" or at_noise), what
+
+
+def run(family: str, seed: int, duration: float, workers: int) -> dict[str, Any]:
+    """One loop: the row of the study."""
+    ds = record(family, seed, duration)
+    t0 = time.perf_counter()
+    ex = None
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        ex = ProcessPoolExecutor(workers)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = augment(ds, seed=seed, executor=ex)
+    finally:
+        if ex is not None:
+            ex.shutdown(cancel_futures=True)
+    ok, what = judge(family, res)
+    js = res.to_json()
+    return {
+        "family": family, "seed": seed, "size": SIZES[family], "duration": duration,
+        "success": ok, "chosen": js["chosen"],
+        "expressions": [s.get("expression", "") for s in js["steps"]
+                        if s["accepted"] and s.get("discovered")],
+        "removed": js["settings"]["removed"], "settled": js["settings"]["settled"],
+        "widened": js["final"].get("widened", []),
+        "final_params": {k: v for k, v in js["final"]["params"].items()
+                         if k.startswith(("g_grav", "g_coulomb", "i_dead", "g_damping"))},
+        "base_sel": js["base"]["val"]["rmse"], "final_sel": js["final"]["val"]["rmse"],
+        "base_test": (js["base"].get("test") or {}).get("rmse"),
+        "final_test": (js.get("test") or {}).get("rmse"),
+        "stop": js["settings"]["stop"], "seconds": time.perf_counter() - t0,
+        "what": what,
+    }
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",") if s]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--families", default=",".join(FAMILIES))
+    ap.add_argument("--seeds", default="1-5")
+    ap.add_argument("--duration", type=float, default=8.0)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args()
+    fams = [f for f in args.families.split(",") if f]
+    bad = [f for f in fams if f not in FAMILIES]
+    if bad:
+        ap.error(f"--families: unknown {', '.join(bad)}; known: {', '.join(FAMILIES)}")
+    try:
+        seeds = _seeds(args.seeds)
+    except ValueError:
+        ap.error(f"--seeds: give 'a-b' or 'a,b,c', got {args.seeds!r}")
+    if args.out:
+        check_output_path(args.out, overwrite=True)
+    rows: list[dict[str, Any]] = []
+    for fam in fams:
+        for seed in seeds:
+            row = run(fam, seed, args.duration, args.workers)
+            rows.append(row)
+            print(f"{fam} seed {seed}: {'ok' if row['success'] else 'MISS'} chose "
+                  f"{row['what']}; test {row['final_test']:.4g}; {row['seconds']:.0f} s",
+                  file=sys.stderr, flush=True)
+            if args.out:  # written after every row: a long study keeps what it measured
+                atomic_write_text(args.out, json.dumps(jsonable(rows), indent=1))
+    print("| family | size | seeds | success | chosen (per seed) | final test RMSE / noise "
+          "(median) | s per loop (median) |")
+    print("|---|---|---|---|---|---|---|")
+    for fam in fams:
+        rs = [r for r in rows if r["family"] == fam]
+        tests = sorted(r["final_test"] / NOISE for r in rs)
+        secs = sorted(r["seconds"] for r in rs)
+        print(f"| {fam} | {SIZES[fam]:g} | {len(rs)} | {sum(r['success'] for r in rs)}/"
+              f"{len(rs)} | {'; '.join(r['what'] for r in rs)} | "
+              f"{tests[len(tests) // 2]:.2f} | {secs[len(secs) // 2]:.0f} |")
+
+
+if __name__ == "__main__":
+    main()

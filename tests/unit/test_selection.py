@@ -1,0 +1,86 @@
+"""The one rule's tie rule (``choose``) and round settling (``round_settled``), case by case.
+
+Every number below is worked out by hand from the rule's definitions: the noise allowance is
+``((1 + noise_tol)^2 - 1) * noise^2``; candidates within it of the best selection RMSE are
+told apart by the information criterion; a round is settled by an acceptable candidate at
+``(1 + noise_tol)`` times the noise level on both parts.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hhra_phys.errors import ParameterError
+from hhra_phys.selection import Step, choose, noise_allowance, round_settled
+
+NOISE = 0.05
+TOL = 0.15
+
+
+def _step(name: str, sel: float, crit: float, est: float | None = None) -> Step:
+    return Step(1, name, {}, {}, {}, {"rmse": est if est is not None else sel},
+                {"rmse": sel}, crit, 0.0, 1.0, reason="r")
+
+
+def test_lowest_selection_wins_when_the_others_are_clearly_worse():
+    # 0.10^2 - 0.08^2 = 0.0036 > allowance 0.000806: no tie; the criterion is not asked
+    a, b = _step("a", 0.08, 50.0), _step("b", 0.10, -50.0)
+    assert noise_allowance(NOISE, TOL) == pytest.approx(0.000806, rel=1e-3)
+    step, payload = choose([(b, "B"), (a, "A")], NOISE, TOL)
+    assert step is a and payload == "A"
+    assert a.accepted and a.reason.startswith("accepted: ")
+    assert not b.accepted and "a higher selection error" in b.reason
+
+
+def test_near_tie_goes_to_the_lower_criterion():
+    # 0.060^2 - 0.055^2 = 0.000575 <= 0.000806: the selection part cannot tell them apart
+    a, b = _step("a", 0.055, 10.0), _step("b", 0.060, 5.0)
+    step, _ = choose([(a, 1), (b, 2)], NOISE, TOL)
+    assert step is b
+    assert "within the noise allowance" in a.reason and "higher BIC" in a.reason
+
+
+def test_no_noise_level_means_no_tie_allowance():
+    a, b = _step("a", 0.0550, 10.0), _step("b", 0.0551, 5.0)
+    step, _ = choose([(a, 1), (b, 2)], math.nan, TOL)
+    assert step is a  # without a noise level every difference counts
+
+
+def test_a_non_finite_selection_error_never_wins_a_tie():
+    a, b = _step("a", math.inf, -1e9), _step("b", 0.2, 0.0)
+    assert choose([(a, 1), (b, 2)], NOISE, TOL)[0] is b
+
+
+def test_choose_needs_a_candidate():
+    with pytest.raises(ParameterError):
+        choose([], NOISE, TOL)
+
+
+@pytest.mark.parametrize(
+    ("sel", "est", "accepted", "settled", "why"),
+    [
+        (0.055, 0.056, True, True, "both parts within 1.15 x noise"),
+        (0.055, 0.060, True, False, "estimation above 1.15 x noise (0.0575)"),
+        (0.060, 0.050, True, False, "selection above 1.15 x noise"),
+        (0.050, 0.050, False, False, "an unacceptable candidate settles nothing"),
+    ],
+)
+def test_round_settled(sel, est, accepted, settled, why):
+    assert round_settled(_step("x", sel, 0.0, est), NOISE, NOISE, TOL, accepted) is settled, why
+
+
+def test_round_settled_uses_each_parts_own_noise_level():
+    step = _step("x", 0.055, 0.0, est=0.11)
+    assert not round_settled(step, NOISE, NOISE, TOL, True)
+    assert round_settled(step, NOISE, 0.10, TOL, True)  # estimation noise 0.10: 0.11 <= 0.115
+    assert not round_settled(step, math.nan, 0.10, TOL, True)  # no noise level: no settling
+
+
+def test_settling_cannot_hide_a_clear_winner():
+    """The reason the skip is safe: a settled candidate's selection variance is within the
+    allowance of any candidate's best possible, the noise variance itself."""
+    best_possible = NOISE  # no model gets a part below its noise level
+    settled = (1 + TOL) * NOISE
+    assert settled ** 2 - best_possible ** 2 <= noise_allowance(NOISE, TOL) + 1e-15
