@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from hhra_phys.effects import make_effect
-from hhra_phys.model import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
 from hhra_phys.models.hhra.rig import default_input
 from hhra_phys.reference import simulate_reference
 from hhra_phys.simulate import Simulator

@@ -30,8 +30,6 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "api.md"
 PACKAGE = "hhra_phys"
 SKIP = ("hhra_phys.cli", "hhra_phys.data.")  # data: documented once, via its __all__
-#: Modules kept only so that old import paths work (they re-export moved names).
-MOVED = ("hhra_phys.physical", "hhra_phys.rig")
 
 
 def _modules() -> list[str]:
@@ -40,8 +38,6 @@ def _modules() -> list[str]:
     for info in pkgutil.walk_packages(pkg.__path__, PACKAGE + "."):
         parts = info.name.split(".")
         if any(p.startswith("_") for p in parts[1:]) or info.name.startswith(SKIP):
-            continue
-        if info.name in MOVED:
             continue
         names.append(info.name)
     return sorted(names)

@@ -3,7 +3,7 @@
 Parts (each can be run alone with ``--parts``):
 
 ``clean``     noise-free records of rigs whose truth lies away from the nominal values
-              (``hhra_phys.rig.perturbed_physical``): relative error of every group.
+              (``hhra_phys.models.hhra.rig.perturbed_physical``): relative error of every group.
 ``noisy``     records with the rig's default noise (0.05 deg), one perturbed truth per
               seed: validation VAF and RMSE (against the noise level), and how often the
               95 % confidence interval of each group contains the truth (coverage;

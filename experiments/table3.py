@@ -3,10 +3,11 @@
 Runs every registered comparison method (LS, RLS, FFRLS, PSO, GWO, H-GWO, FFRLS+H-GWO and any
 plug-ins, e.g. the physical-model fits) plus a few controls on
 
-* the simulated rig (:func:`hhra_phys.rig.simulate_rig`, the paper's 20 s at 250 Hz, 0.05 deg
-  encoder noise), one record per seed, split in halves (``rig_perturbed``: the same with the
-  truth drawn away from the model's nominal values by :func:`hhra_phys.rig.perturbed_physical`,
-  so that no method starts at the answer); and
+* the simulated rig (:func:`hhra_phys.models.hhra.rig.simulate_rig`, the paper's 20 s at
+  250 Hz, 0.05 deg encoder noise), one record per seed, split in halves (``rig_perturbed``:
+  the same with the truth drawn away from the model's nominal values by
+  :func:`hhra_phys.models.hhra.rig.perturbed_physical`, so that no method starts at the
+  answer); and
 * the public measured hydraulic-actuator record (valve opening -> oil pressure, sample units),
   split at sample 512 as its README says, once per seed (only the metaheuristics depend on it).
 

@@ -40,7 +40,9 @@ from hhra_phys.interrupt import interruptible, map_stopping
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
+from hhra_phys.multi import MultiProblem, pooled_score
 from hhra_phys.optim import minimize
+from hhra_phys.parameters import split_record_name
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
     MAX_WIDEN_DECADES,
     Problem,
@@ -64,9 +66,13 @@ __all__ = [
     "fit",
     "fit_many",
     "best_of",
+    "fit_records",
+    "fit_stacked",
+    "records_result",
 ]
 
 OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
+
 
 def default_model(
     data: Dataset, valve: str = "orifice"
@@ -243,7 +249,6 @@ def fit(
                      options=options, refine_options=refine_options, start=start,
                      seed_population=seed_population, progress=progress, callback=callback)
     if isinstance(data, (list, tuple)):
-        from hhra_phys.multi import fit_records, records_result
 
         if not 0 < split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {split}")
@@ -507,7 +512,6 @@ def widen_boxes(
         ``to`` (the box in physical units) and ``gain`` (the refit's relative fall of the
         least-squares cost).
     """
-    from hhra_phys.multi import split_record_name
 
     origin = getattr(problem, "default_boxes", {})
     widened: list[dict[str, Any]] = []
@@ -886,3 +890,154 @@ def best_of(results: Sequence[FitResult]) -> FitResult:
     if not results:
         raise ParameterError("best_of needs at least one result")
     return min(results, key=lambda r: r.metrics["est"].get("rmse", np.inf))
+
+
+# --- several records ------------------------------------------------------------------
+
+
+def fit_records(
+    records: Sequence[Dataset],
+    model: Model | None,
+    validation: Sequence[Dataset] | Dataset | None,
+    split: float,
+    problem_kwargs: Mapping[str, Any],
+    per_record: Sequence[str] | None = None,
+) -> tuple[MultiProblem, list[Dataset | None], list[Dataset]]:
+    """Build the stacked problem of a multi-record fit (used by :func:`hhra_phys.fit.fit`).
+
+    Returns the problem, the validation part of each estimation record (``None``
+    without a split) and the whole validation records; the search and the result
+    are :func:`~hhra_phys.fit.fit`'s. Without a model, the default model's
+    automatic bounds are merged over the records (the widest of each).
+    """
+    records = list(records)
+    for ds in records:
+        if not isinstance(ds, Dataset):
+            raise ParameterError(f"fit() takes Dataset records, got {type(ds).__name__}")
+    whole_val = ([validation] if isinstance(validation, Dataset)
+                 else list(validation or []))
+    if whole_val or split >= 1:
+        est, val_parts = records, [None] * len(records)
+    else:
+        if not 0 < split < 1:
+            raise ParameterError(f"split must be in (0, 1], got {split}")
+        pairs = [ds.split(split) for ds in records]
+        est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
+    kw = dict(problem_kwargs)
+    bounds = kw.pop("bounds", None)
+    defaults = dict(kw.pop("default_bounds", None) or {})
+    if model is None:
+        model, auto = default_model(records[0])
+        for ds in records[1:]:
+            for name, (lo, hi) in default_model(ds)[1].items():
+                old = auto.get(name, (lo, hi))
+                auto[name] = (min(old[0], lo), max(old[1], hi))
+        defaults = {**auto, **defaults}
+    names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
+    # Automatic and default boxes may be widened by the fit, the user's ``bounds`` not.
+    problem = MultiProblem(model, est, bounds=bounds, default_bounds=defaults,
+                           per_record=per_record, names=names, **kw)
+    return problem, val_parts, whole_val
+
+
+def _describe(ds: Dataset) -> dict[str, Any]:
+    return {"name": ds.name, "source": ds.source, "n": len(ds), "fs": float(ds.fs)}
+
+
+def records_result(
+    problem: MultiProblem,
+    z: np.ndarray,
+    stages: list[Any],
+    history: list[float],
+    val_parts: Sequence[Dataset | None],
+    whole_val: Sequence[Dataset],
+    settings: dict[str, Any],
+    seed: int | None,
+    datasheet: Any | None,
+    intervals: str,
+    t_start: float,
+) -> Any:
+    """The :class:`~hhra_phys.result.FitResult` of a multi-record fit at coordinates ``z``.
+
+    ``values``/``x0`` hold the shared parameters and the first record's own;
+    ``records`` one entry per estimation record (``name``, ``fs``, ``n_est``,
+    ``n_val``, ``x0``, ``values`` of its per-record parameters, ``est`` and
+    ``val`` metrics) and then one per whole validation record (``est`` empty);
+    ``metrics`` the pooled ``est`` and ``val`` (:func:`pooled_score`).
+    """
+    model = problem.model
+    v = problem.from_z(z)
+    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
+    records: list[dict[str, Any]] = []
+    est_y, est_sim, val_y, val_sim = [], [], [], []
+    for k, (pr, part) in enumerate(zip(problem.records, val_parts, strict=True)):
+        vk = problem.record_values(v, k)
+        x0 = pr.initial_states(vk)[0]
+        y_est = pr.simulate_values(vk)
+        entry: dict[str, Any] = {
+            "name": problem.names[k], "source": pr.data.source, "fs": float(pr.data.fs),
+            "n_est": len(pr.data), "n_val": len(part) if part is not None else 0,
+            "x0": dict(zip(model.state_names, x0.tolist(), strict=True)),
+            "values": {n: float(pr.full(vk)[model.params.index(n)])
+                       for n in problem.per_record},
+            "est": {kk: float(vv) for kk, vv in score(pr.data.y, y_est, pr.data.t).items()},
+            "val": {},
+        }
+        est_y.append(pr.data)
+        est_sim.append(y_est)
+        if part is not None:
+            y_val = pr.simulate_values(vk, data=part)
+            entry["val"] = {kk: float(vv) for kk, vv in score(part.y, y_val, part.t).items()}
+            val_y.append(part)
+            val_sim.append(y_val)
+        records.append(entry)
+    first = problem.records[0]
+    v0 = problem.record_values(v, 0)
+    for ds in whole_val:
+        y_val = first.simulate_values(v0, data=ds)
+        records.append({"name": ds.name or ds.source or "validation", "source": ds.source,
+                        "fs": float(ds.fs), "n_est": 0, "n_val": len(ds), "est": {},
+                        "val": {kk: float(vv) for kk, vv in score(ds.y, y_val, ds.t).items()}})
+        val_y.append(ds)
+        val_sim.append(y_val)
+    metrics = {"est": pooled_score(est_y, est_sim),
+               "val": pooled_score(val_y, val_sim) if val_y else {}}
+    values = model.params.as_dict(first.full(v0))
+    settings = dict(settings)
+    settings["per_record"] = list(problem.per_record)
+    settings["data"] = [_describe(pr.data) for pr in problem.records]
+    settings["validation"] = [_describe(ds) for ds in whole_val]
+    settings["seconds"] = time.perf_counter() - t_start
+    return assemble_result(problem, values, records[0]["x0"], metrics,
+                           (ci95, std, corr, warnings, interval_info), stages, history,
+                           settings, seed, datasheet, first.data.metadata, records=records)
+
+
+def fit_stacked(
+    problem: MultiProblem,
+    selection: Sequence[Dataset],
+    *,
+    optimizer: str = "hgwo",
+    refine: str = "ipopt",
+    pop_size: int = 100,
+    max_iter: int = 200,
+    seed: int | None = 0,
+    seed_population: bool = False,
+    refine_options: Mapping[str, Any] | None = None,
+    split: float = 0.5,
+) -> Any:
+    """Fit a ready :class:`MultiProblem` and score each record's own held-out part.
+
+    :func:`hhra_phys.fit.fit`'s search and refiners and :func:`records_result`,
+    with ``selection[k]`` the part held out of estimation record ``k`` (scored
+    with that record's own per-record parameters; ``val`` of its entry and,
+    pooled, of ``metrics``). The diagnosis loop's fits of several records.
+    """
+    t0 = time.perf_counter()
+    z, stages, history = _search_and_refine(
+        problem, optimizer, refine, pop_size, max_iter, seed, 1.0, None, refine_options,
+        None, seed_population, False, None)
+    settings = _settings(problem, optimizer, refine, pop_size, max_iter, 1.0, split,
+                         time.perf_counter() - t0)
+    return records_result(problem, z, stages, history, list(selection), [], settings, seed,
+                          None, "linear", t0)

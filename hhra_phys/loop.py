@@ -56,14 +56,13 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import fit
+from hhra_phys.fit import fit, fit_stacked
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.multi import (
     MultiProblem,
     RecordSet,
-    fit_stacked,
     per_record_params,
     pooled_score,
     record_name,
@@ -328,7 +327,7 @@ def _records_test_score(problem: MultiProblem, res: FitResult,
 
     Each record's test part is simulated with its own per-record values; whole
     validation records (``test.whole``) with the first record's, as
-    :func:`~hhra_phys.multi.records_result` scores them, and are appended to
+    :func:`~hhra_phys.fit.records_result` scores them, and are appended to
     ``res.records`` (``n_est`` 0) with their name.
     """
     v = _free_values(problem, res)

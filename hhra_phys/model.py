@@ -475,19 +475,3 @@ def _time_power(unit: str) -> int:
     if re.search(r"/\(?s\b", u):
         return 1
     return 0
-
-
-
-
-_MOVED = ("HHRAModel", "NOMINAL_GROUPS", "RAD2DEG", "CurrentCommand", "OrificeValve",
-          "LinearValve", "ChamberPressure", "RotaryMotion", "SpoolLag", "AngleOutput",
-          "PressureOutput", "group_parameter")
-
-
-def __getattr__(name: str) -> Any:
-    # The HHRA moved to hhra_phys.models.hhra; old imports from here keep working.
-    if name in _MOVED:
-        from hhra_phys.models import hhra
-
-        return getattr(hhra, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -28,7 +28,6 @@ So intervals come from all records together.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -39,7 +38,7 @@ from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
-from hhra_phys.parameters import Parameter
+from hhra_phys.parameters import Parameter, record_name, split_record_name
 from hhra_phys.problem import COSTS, Problem, default_free
 from hhra_phys.simulate import Simulator
 
@@ -47,29 +46,12 @@ __all__ = [
     "MultiProblem",
     "RecordSet",
     "check_records",
-    "fit_records",
-    "fit_stacked",
     "per_record_params",
     "pooled_score",
     "record_name",
-    "records_result",
     "split_record_name",
     "split_records",
 ]
-
-_REC = re.compile(r"^(?P<base>.+)_rec(?P<k>[1-9][0-9]*)$")
-
-
-def record_name(name: str, k: int) -> str:
-    """Name of parameter ``name`` of record ``k`` (counted from 1): ``<name>_rec<k>``."""
-    return f"{name}_rec{k}"
-
-
-def split_record_name(name: str) -> tuple[str, int | None]:
-    """``"x0_theta_rec2"`` -> ``("x0_theta", 2)``; a shared name -> ``(name, None)``."""
-    m = _REC.match(name)
-    return (m["base"], int(m["k"])) if m else (name, None)
-
 
 def _per_record_split(values: Mapping[str, float] | None, n: int, what: str
                       ) -> tuple[dict[str, float], list[dict[str, float]]]:
@@ -322,130 +304,6 @@ def pooled_score(records: Sequence[Dataset], outputs: Sequence[np.ndarray]) -> d
     return out
 
 
-def fit_records(
-    records: Sequence[Dataset],
-    model: Model | None,
-    validation: Sequence[Dataset] | Dataset | None,
-    split: float,
-    problem_kwargs: Mapping[str, Any],
-    per_record: Sequence[str] | None = None,
-) -> tuple[MultiProblem, list[Dataset | None], list[Dataset]]:
-    """Build the stacked problem of a multi-record fit (used by :func:`hhra_phys.fit.fit`).
-
-    Returns the problem, the validation part of each estimation record (``None``
-    without a split) and the whole validation records; the search and the result
-    are :func:`~hhra_phys.fit.fit`'s. Without a model, the default model's
-    automatic bounds are merged over the records (the widest of each).
-    """
-    from hhra_phys.fit import default_model
-
-    records = list(records)
-    for ds in records:
-        if not isinstance(ds, Dataset):
-            raise ParameterError(f"fit() takes Dataset records, got {type(ds).__name__}")
-    whole_val = ([validation] if isinstance(validation, Dataset)
-                 else list(validation or []))
-    if whole_val or split >= 1:
-        est, val_parts = records, [None] * len(records)
-    else:
-        if not 0 < split < 1:
-            raise ParameterError(f"split must be in (0, 1], got {split}")
-        pairs = [ds.split(split) for ds in records]
-        est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
-    kw = dict(problem_kwargs)
-    bounds = kw.pop("bounds", None)
-    defaults = dict(kw.pop("default_bounds", None) or {})
-    if model is None:
-        model, auto = default_model(records[0])
-        for ds in records[1:]:
-            for name, (lo, hi) in default_model(ds)[1].items():
-                old = auto.get(name, (lo, hi))
-                auto[name] = (min(old[0], lo), max(old[1], hi))
-        defaults = {**auto, **defaults}
-    names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
-    # Automatic and default boxes may be widened by the fit, the user's ``bounds`` not.
-    problem = MultiProblem(model, est, bounds=bounds, default_bounds=defaults,
-                           per_record=per_record, names=names, **kw)
-    return problem, val_parts, whole_val
-
-
-def _describe(ds: Dataset) -> dict[str, Any]:
-    return {"name": ds.name, "source": ds.source, "n": len(ds), "fs": float(ds.fs)}
-
-
-def records_result(
-    problem: MultiProblem,
-    z: np.ndarray,
-    stages: list[Any],
-    history: list[float],
-    val_parts: Sequence[Dataset | None],
-    whole_val: Sequence[Dataset],
-    settings: dict[str, Any],
-    seed: int | None,
-    datasheet: Any | None,
-    intervals: str,
-    t_start: float,
-) -> Any:
-    """The :class:`~hhra_phys.result.FitResult` of a multi-record fit at coordinates ``z``.
-
-    ``values``/``x0`` hold the shared parameters and the first record's own;
-    ``records`` one entry per estimation record (``name``, ``fs``, ``n_est``,
-    ``n_val``, ``x0``, ``values`` of its per-record parameters, ``est`` and
-    ``val`` metrics) and then one per whole validation record (``est`` empty);
-    ``metrics`` the pooled ``est`` and ``val`` (:func:`pooled_score`).
-    """
-    import time
-
-    from hhra_phys.fit import _intervals, assemble_result
-
-    model = problem.model
-    v = problem.from_z(z)
-    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
-    records: list[dict[str, Any]] = []
-    est_y, est_sim, val_y, val_sim = [], [], [], []
-    for k, (pr, part) in enumerate(zip(problem.records, val_parts, strict=True)):
-        vk = problem.record_values(v, k)
-        x0 = pr.initial_states(vk)[0]
-        y_est = pr.simulate_values(vk)
-        entry: dict[str, Any] = {
-            "name": problem.names[k], "source": pr.data.source, "fs": float(pr.data.fs),
-            "n_est": len(pr.data), "n_val": len(part) if part is not None else 0,
-            "x0": dict(zip(model.state_names, x0.tolist(), strict=True)),
-            "values": {n: float(pr.full(vk)[model.params.index(n)])
-                       for n in problem.per_record},
-            "est": {kk: float(vv) for kk, vv in score(pr.data.y, y_est, pr.data.t).items()},
-            "val": {},
-        }
-        est_y.append(pr.data)
-        est_sim.append(y_est)
-        if part is not None:
-            y_val = pr.simulate_values(vk, data=part)
-            entry["val"] = {kk: float(vv) for kk, vv in score(part.y, y_val, part.t).items()}
-            val_y.append(part)
-            val_sim.append(y_val)
-        records.append(entry)
-    first = problem.records[0]
-    v0 = problem.record_values(v, 0)
-    for ds in whole_val:
-        y_val = first.simulate_values(v0, data=ds)
-        records.append({"name": ds.name or ds.source or "validation", "source": ds.source,
-                        "fs": float(ds.fs), "n_est": 0, "n_val": len(ds), "est": {},
-                        "val": {kk: float(vv) for kk, vv in score(ds.y, y_val, ds.t).items()}})
-        val_y.append(ds)
-        val_sim.append(y_val)
-    metrics = {"est": pooled_score(est_y, est_sim),
-               "val": pooled_score(val_y, val_sim) if val_y else {}}
-    values = model.params.as_dict(first.full(v0))
-    settings = dict(settings)
-    settings["per_record"] = list(problem.per_record)
-    settings["data"] = [_describe(pr.data) for pr in problem.records]
-    settings["validation"] = [_describe(ds) for ds in whole_val]
-    settings["seconds"] = time.perf_counter() - t_start
-    return assemble_result(problem, values, records[0]["x0"], metrics,
-                           (ci95, std, corr, warnings, interval_info), stages, history,
-                           settings, seed, datasheet, first.data.metadata, records=records)
-
-
 def _label(ds: Dataset, k: int) -> str:
     return ds.name or ds.source or f"record {k}"
 
@@ -561,37 +419,3 @@ def split_records(
         return est, sel, held_whole
     held = [p[2] for p in parts]
     return est, sel, (RecordSet(held) if held[0] is not None else None)
-
-
-def fit_stacked(
-    problem: MultiProblem,
-    selection: Sequence[Dataset],
-    *,
-    optimizer: str = "hgwo",
-    refine: str = "ipopt",
-    pop_size: int = 100,
-    max_iter: int = 200,
-    seed: int | None = 0,
-    seed_population: bool = False,
-    refine_options: Mapping[str, Any] | None = None,
-    split: float = 0.5,
-) -> Any:
-    """Fit a ready :class:`MultiProblem` and score each record's own held-out part.
-
-    :func:`hhra_phys.fit.fit`'s search and refiners and :func:`records_result`,
-    with ``selection[k]`` the part held out of estimation record ``k`` (scored
-    with that record's own per-record parameters; ``val`` of its entry and,
-    pooled, of ``metrics``). The diagnosis loop's fits of several records.
-    """
-    import time
-
-    from hhra_phys.fit import _search_and_refine, _settings
-
-    t0 = time.perf_counter()
-    z, stages, history = _search_and_refine(
-        problem, optimizer, refine, pop_size, max_iter, seed, 1.0, None, refine_options,
-        None, seed_population, False, None)
-    settings = _settings(problem, optimizer, refine, pop_size, max_iter, 1.0, split,
-                         time.perf_counter() - t0)
-    return records_result(problem, z, stages, history, list(selection), [], settings, seed,
-                          None, "linear", t0)

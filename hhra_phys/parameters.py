@@ -8,6 +8,7 @@ order of the model's ``ParameterSet``.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -19,6 +20,8 @@ from hhra_phys.errors import ParameterError
 __all__ = [
     "Parameter",
     "ParameterSet",
+    "record_name",
+    "split_record_name",
 ]
 
 #: Relative tolerance of :meth:`ParameterSet.check_values` at a box edge: values
@@ -253,3 +256,17 @@ class ParameterSet:
             }
             for p in self._params
         ]
+
+
+_REC = re.compile(r"^(?P<base>.+)_rec(?P<k>[1-9][0-9]*)$")
+
+
+def record_name(name: str, k: int) -> str:
+    """Name of parameter ``name`` of record ``k`` (counted from 1): ``<name>_rec<k>``."""
+    return f"{name}_rec{k}"
+
+
+def split_record_name(name: str) -> tuple[str, int | None]:
+    """``"x0_theta_rec2"`` -> ``("x0_theta", 2)``; a shared name -> ``(name, None)``."""
+    m = _REC.match(name)
+    return (m["base"], int(m["k"])) if m else (name, None)

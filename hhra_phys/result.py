@@ -166,7 +166,7 @@ class FitResult:
         Seed of the global search.
     physical : dict or None
         Physical symbols recovered from the groups with a datasheet (see
-        :meth:`hhra_phys.physical.PhysicalParameters.from_groups`), if one was given.
+        :meth:`hhra_phys.models.hhra.physical.PhysicalParameters.from_groups`), if one was given.
     problem : Problem or None
         The live fitting problem (model, estimation data, simulator) the result
         came from; ``None`` for a result read with :meth:`load` (the model is then
@@ -325,7 +325,7 @@ class FitResult:
         Also of a per-record parameter of a multi-record fit,
         ``x0_<state>_rec<k>`` or ``<name>_rec<k>`` (record ``k`` from 1).
         """
-        from hhra_phys.multi import split_record_name
+        from hhra_phys.parameters import split_record_name
 
         base, k = split_record_name(name)
         if k is not None and k <= len(self.records):

@@ -15,7 +15,7 @@ from hhra_phys.cli import main
 from hhra_phys.data import Dataset, find_public_data
 from hhra_phys.errors import DataError, ParameterError
 from hhra_phys.metrics import mse
-from hhra_phys.rig import simulate_rig
+from hhra_phys.models.hhra.rig import simulate_rig
 
 # Tiny budgets on a narrower box: in [-5, 5]^6 only about 1 candidate in 200 is stable, so a
 # population of 10 may never find one (the method is then reported as failed).

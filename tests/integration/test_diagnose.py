@@ -21,8 +21,8 @@ import pytest
 from hhra_phys.diagnose import noise_level, output_delay, whiteness
 from hhra_phys.effects import make_effect
 from hhra_phys.loop import augment
+from hhra_phys.models.hhra.rig import simulate_rig
 from hhra_phys.reference import reference_record
-from hhra_phys.rig import simulate_rig
 
 NOISE = 0.05
 #: The large sizes of experiments/closed_loop.py.

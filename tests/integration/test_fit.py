@@ -13,6 +13,7 @@ import pytest
 from hhra_phys import HHRAModel
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.fit import fit, fit_many
+from hhra_phys.models.hhra.rig import perturbed_physical, simulate_rig
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part
 from hhra_phys.problem import Problem
@@ -23,7 +24,6 @@ from hhra_phys.refine import (
     refine_nlopt,
 )
 from hhra_phys.result import FitResult
-from hhra_phys.rig import perturbed_physical, simulate_rig
 
 GROUPS = ["g_valve", "g_compress", "g_leak", "g_torque", "g_damping"]
 

@@ -8,10 +8,10 @@ import pytest
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import default_model, fit
 from hhra_phys.likelihood import _Profiler, profile_parameter, threshold
+from hhra_phys.models.hhra.rig import simulate_rig
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.refine import CompiledLeastSquares
 from hhra_phys.result import FitResult
-from hhra_phys.rig import simulate_rig
 
 GROUPS = ["g_valve", "g_compress", "g_leak", "g_torque", "g_damping"]
 

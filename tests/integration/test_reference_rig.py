@@ -25,6 +25,7 @@ import pytest
 
 from hhra_phys.effects import LIBRARY, make_effect
 from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra.rig import default_input
 from hhra_phys.reference import (
     EFFECT_NAMES,
     REFERENCE_GROUPS,
@@ -34,7 +35,6 @@ from hhra_phys.reference import (
     reference_state_names,
     simulate_reference,
 )
-from hhra_phys.rig import default_input
 from hhra_phys.simulate import Simulator
 
 DT = 0.004

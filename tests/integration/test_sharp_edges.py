@@ -21,8 +21,8 @@ import pytest
 
 from hhra_phys.effects import BACKLASH_WIDTH, make_effect
 from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra.rig import default_input
 from hhra_phys.reference import reference_record, simulate_reference
-from hhra_phys.rig import default_input
 from hhra_phys.simulate import Simulator
 
 FS = 250.0

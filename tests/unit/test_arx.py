@@ -12,7 +12,7 @@ import scipy.signal
 from hhra_phys import arx
 from hhra_phys.errors import DataError, ParameterError
 from hhra_phys.models.hhra import HHRAModel
-from hhra_phys.physical import PhysicalParameters
+from hhra_phys.models.hhra.physical import PhysicalParameters
 
 # A stable ARX(3, 3, 1): poles 0.9 and 0.7 +- 0.2j.
 POLES = np.array([0.9, 0.7 + 0.2j, 0.7 - 0.2j])

@@ -15,9 +15,9 @@ from hhra_phys import control as hc
 from hhra_phys.arx import tustin_arx
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
+from hhra_phys.models.hhra.rig import simulate_rig
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part, smooth_sign
-from hhra_phys.rig import simulate_rig
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ from scipy.integrate import solve_ivp
 
 from hhra_phys.effects import make_effect
 from hhra_phys.integrate import METHODS, ORDER, advance, lu_solve
-from hhra_phys.model import NOMINAL_GROUPS, HHRAModel
-from hhra_phys.rig import default_input
+from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra.rig import default_input
 from hhra_phys.sensitivity import TrajectorySensitivity
 from hhra_phys.simulate import Simulator
 

@@ -18,7 +18,7 @@ from hhra_phys.models.hhra import (
     OrificeValve,
     RotaryMotion,
 )
-from hhra_phys.physical import PhysicalParameters
+from hhra_phys.models.hhra.physical import PhysicalParameters
 
 
 def test_default_parameters_are_the_rig_groups():
@@ -163,19 +163,6 @@ def test_parameter_vector_helpers():
         model.params.as_dict(np.ones(3))
     with pytest.raises(ParameterError, match="n_pop, 7"):
         model.params.check_population(np.ones((2, 3)))
-
-
-def test_old_import_paths_still_work():
-    """The HHRA moved to hhra_phys.models.hhra; scripts importing it from the old places run."""
-    from hhra_phys import models
-    from hhra_phys.model import NOMINAL_GROUPS as old_groups
-    from hhra_phys.model import HHRAModel as OldHHRA
-    from hhra_phys.physical import PhysicalParameters as OldPhysical
-    from hhra_phys.rig import simulate_rig as old_rig
-
-    assert OldHHRA is models.hhra.HHRAModel and old_groups is models.hhra.NOMINAL_GROUPS
-    assert OldPhysical is models.hhra.PhysicalParameters
-    assert old_rig is models.hhra.rig.simulate_rig
 
 
 def test_a_user_part_named_like_a_library_class_does_not_replace_it():

@@ -7,8 +7,8 @@ import pytest
 
 from hhra_phys import HHRAModel
 from hhra_phys.errors import ParameterError
-from hhra_phys.physical import PhysicalParameters
-from hhra_phys.rig import perturbed_physical, rig_model, simulate_rig
+from hhra_phys.models.hhra.physical import PhysicalParameters
+from hhra_phys.models.hhra.rig import perturbed_physical, rig_model, simulate_rig
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])

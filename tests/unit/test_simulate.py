@@ -7,7 +7,7 @@ import pytest
 
 from hhra_phys import HHRAModel, Simulator
 from hhra_phys.errors import ParameterError
-from hhra_phys.rig import default_input
+from hhra_phys.models.hhra.rig import default_input
 from hhra_phys.simulate import STATUS_DIVERGED, STATUS_OK, STATUS_UNSTABLE
 
 

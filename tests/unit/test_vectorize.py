@@ -11,8 +11,8 @@ import pytest
 from hhra_phys import HHRAModel, Simulator
 from hhra_phys.compile import compile_function
 from hhra_phys.errors import ParameterError
+from hhra_phys.models.hhra.rig import default_input, simulate_rig
 from hhra_phys.problem import Problem
-from hhra_phys.rig import default_input, simulate_rig
 from hhra_phys.simulate import STATUS_OK
 from hhra_phys.vectorize import SimdTarget, simd_target, supports
 

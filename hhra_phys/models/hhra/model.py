@@ -318,7 +318,8 @@ class HHRAModel(Model):
     supply pressure), plus ``xs`` [mA] with the spool lag. Input: valve current
     [mA] (zero-order hold). Default parameters: the identifiable groups
     ``g_torque, g_damping, g_spring, g_load, g_compress, g_leak, g_valve`` at the
-    values of the built-in simulated rig (:class:`hhra_phys.physical.PhysicalParameters`).
+    values of the built-in simulated rig
+    (:class:`hhra_phys.models.hhra.physical.PhysicalParameters`).
 
     Examples
     --------

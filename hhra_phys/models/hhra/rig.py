@@ -6,7 +6,7 @@ signal built from the 4th-order inverse-repeat M-sequence (here with several
 amplitude levels, see :func:`hhra_phys.excitation.irregular_steps`), the shaft
 angle measured in degrees by an encoder with seeded Gaussian noise and optional
 quantisation. The plant is the HHRA with the physical parameters of
-:class:`~hhra_phys.physical.PhysicalParameters` (a mid-size actuator on an
+:class:`~hhra_phys.models.hhra.physical.PhysicalParameters` (a mid-size actuator on an
 inertial load), optionally with undeclared effects added.
 
 The truth is simulated with four times the substeps the fitting simulator
@@ -247,7 +247,7 @@ def simulate_rig(
     if quantization:
         y = np.round(y / quantization) * quantization
     meta: dict[str, Any] = {
-        "generator": "hhra_phys.rig.simulate_rig",
+        "generator": "hhra_phys.models.hhra.rig.simulate_rig",
         "seed": seed,
         "noise_deg": noise,
         "quantization_deg": quantization,
