@@ -45,7 +45,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -87,6 +87,7 @@ from hhra_phys.selection import (
 from hhra_phys.simulate import Simulator
 
 __all__ = [
+    "LoopOptions",
     "LoopResult",
     "augment",
     "base_model_for",
@@ -723,57 +724,15 @@ class _DiscoveryFits:
         return _run(self.cfg, problem, optimizer, pop, iters, refine=refine, warm=warm)
 
 
-def augment(
-    data: Dataset | Sequence[Dataset],
-    model: Model | None = None,
-    *,
-    split: float = 0.5,
-    test: float = 0.25,
-    candidates: Sequence[str] | None = None,
-    max_effects: int = 3,
-    top_k: int | None = None,
-    pop_size: int = 100,
-    max_iter: int = 200,
-    cand_pop: int | None = None,
-    cand_iter: int | None = None,
-    seed: int = 0,
-    margin: float = 0.1,
-    noise_tol: float | None = None,
-    criterion: str = "bic",
-    free: Sequence[str] | None = None,
-    bounds: Mapping[str, tuple[float, float]] | None = None,
-    default_bounds: Mapping[str, tuple[float, float]] | None = None,
-    effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
-    backend: str = "auto",
-    ipopt_iter: int = 60,
-    progress: Callable[[str], None] | None = None,
-    initial_state: str = "fit",
-    base: FitResult | None = None,
-    executor: Executor | None = None,
-    background: bool = True,
-    discover: bool = True,
-    discover_kw: Mapping[str, Any] | None = None,
-    validation: Dataset | Sequence[Dataset] | None = None,
-    stop_on: str = "both",
-    joint_search: bool = False,
-    backward: bool = True,
-) -> LoopResult:
-    """Fit, diagnose and augment a physical model with library effects.
+@dataclass(frozen=True)
+class LoopOptions:
+    """Settings of the diagnosis loop (:func:`augment`), validated as a whole.
 
-    Parameters
+    Every field is also a keyword of :func:`augment`, which overrides the options it is
+    given (``augment(ds, options=LoopOptions(seed=3), max_effects=2)``).
+
+    Attributes
     ----------
-    data : Dataset or sequence of Dataset
-        The whole record, N samples, split in time order into estimation (the
-        first ``split*N``), selection (the next) and test (the last ``test*N``).
-        Several records (:mod:`hhra_phys.multi`): each is split so; every fit
-        (base and candidates) is a multi-record fit with shared parameters (an
-        effect's new ones too) and per-record initial states; selection and test
-        scores are pooled over the records (per record in ``records`` of
-        ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is
-        summed over them (:func:`~hhra_phys.diagnose.analyse`).
-    model : Model, optional
-        Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
-        output if the record's output is pressure).
     split : float
         Estimation fraction of the whole record (default 0.5).
     test : float
@@ -831,18 +790,8 @@ def augment(
         unconverged (selection RMSE 0.0518 against 0.0510), so that a stand-in won;
         the default stays 60. The accepted candidate is polished again
         (:data:`POLISH_ITER`).
-    progress : callable, optional
-        Called with a line of text at every step.
     initial_state : {"fit", "data", "zero"}
         Initial-state rule of every fit (:mod:`hhra_phys.problem`).
-    base : FitResult, optional
-        A fit of ``model`` on this record's estimation part to start from (e.g. the
-        result of ``hhra-phys fit`` with the same split); its free set is the base
-        free set. Default: fit it here.
-    executor : concurrent.futures.Executor, optional
-        Where the candidate refits of a round run (``ProcessPoolExecutor``, a Dask
-        ``Client.get_executor()``, ...). Default: here, one after another. The
-        results are the same either way for the same seed.
     background : bool
         Without an executor, compile the next candidates' simulators in a
         background thread while the current one is refitted (default True).
@@ -855,10 +804,6 @@ def augment(
     discover_kw : dict, optional
         Options of :class:`~hhra_phys.discover.Discovery` (``method``, ``max_terms``,
         ``entries``).
-    validation : Dataset or sequence of Dataset, optional
-        Whole records as the test part (then ``test`` is ignored and every record of
-        ``data`` splits into estimation and selection only); runs the several-record
-        loop, even for one record of ``data``.
     stop_on : {"both", "selection"}
         Noise-level stop (:func:`noise_stop`): stop when the estimation *and*
         selection residuals are at the noise level (default), or, the earlier rule,
@@ -880,6 +825,142 @@ def augment(
         a loop may run more rounds than ``max_effects``. Each check is a
         :class:`Step` with ``action`` ``"keep"`` or ``"remove"``.
 
+    """
+
+    split: float = 0.5
+    test: float = 0.25
+    candidates: tuple[str, ...] | None = None
+    max_effects: int = 3
+    top_k: int | None = None
+    pop_size: int = 100
+    max_iter: int = 200
+    cand_pop: int | None = None
+    cand_iter: int | None = None
+    seed: int = 0
+    margin: float = 0.1
+    noise_tol: float | None = None
+    criterion: str = "bic"
+    free: tuple[str, ...] | None = None
+    bounds: Mapping[str, tuple[float, float]] | None = None
+    default_bounds: Mapping[str, tuple[float, float]] | None = None
+    effect_kw: Mapping[str, Mapping[str, Any]] | None = None
+    backend: str = "auto"
+    ipopt_iter: int = 60
+    initial_state: str = "fit"
+    background: bool = True
+    discover: bool = True
+    discover_kw: Mapping[str, Any] | None = None
+    stop_on: str = "both"
+    joint_search: bool = False
+    backward: bool = True
+
+    def validate(self) -> LoopOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        def need(ok: bool, text: str) -> None:
+            if not ok:
+                raise ParameterError(text)
+
+        need(self.criterion in ("bic", "aic"),
+             f"criterion must be 'bic' or 'aic', got {self.criterion!r}")
+        need(0 <= self.margin < 1, f"margin must be in [0, 1), got {self.margin}")
+        need(self.noise_tol is None or self.noise_tol >= 0,
+             f"noise_tol must be >= 0, got {self.noise_tol}")
+        need(self.stop_on in ("both", "selection"),
+             f"stop_on must be 'both' or 'selection', got {self.stop_on!r}")
+        need(isinstance(self.max_effects, int) and self.max_effects >= 0,
+             f"max_effects must be an integer >= 0, got {self.max_effects!r}")
+        need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
+             f"top_k must be an integer >= 1 or None, got {self.top_k!r}")
+        for name in ("pop_size", "max_iter", "ipopt_iter"):
+            v = getattr(self, name)
+            need(isinstance(v, int) and v >= 1, f"{name} must be an integer >= 1, got {v!r}")
+        for name in ("cand_pop", "cand_iter"):
+            v = getattr(self, name)
+            need(v is None or (isinstance(v, int) and v >= 1),
+                 f"{name} must be an integer >= 1 or None, got {v!r}")
+        need(self.backend in ("auto", "native", "casadi"),
+             f"backend must be 'auto', 'native' or 'casadi', got {self.backend!r}")
+        need(self.initial_state in ("fit", "data", "zero"),
+             f"initial_state must be 'fit', 'data' or 'zero', got {self.initial_state!r}")
+        unknown = [n for n in (self.candidates or ()) if n not in EFFECTS]
+        need(not unknown, f"unknown effect {unknown[0]!r}; library: {', '.join(EFFECTS)}"
+             if unknown else "")
+        return self
+
+    @classmethod
+    def of(cls, options: LoopOptions | None = None, **overrides: Any) -> LoopOptions:
+        """``options`` (default: the defaults) with ``overrides`` applied, validated.
+
+        Raises
+        ------
+        ParameterError
+            An override that is not a setting (with the settings' names), or a bad value.
+        """
+        base = options if options is not None else cls()
+        names = {f.name for f in fields(cls)}
+        bad = sorted(set(overrides) - names)
+        if bad:
+            raise ParameterError(f"unknown loop setting(s) {', '.join(bad)}; settings: "
+                                 f"{', '.join(sorted(names))}")
+        for key in ("candidates", "free"):  # sequences are kept as tuples (hashable, frozen)
+            if overrides.get(key) is not None:
+                overrides[key] = tuple(overrides[key])
+        return replace(base, **overrides).validate()
+
+
+def augment(
+    data: Dataset | Sequence[Dataset],
+    model: Model | None = None,
+    *,
+    options: LoopOptions | None = None,
+    validation: Dataset | Sequence[Dataset] | None = None,
+    base: FitResult | None = None,
+    executor: Executor | None = None,
+    progress: Callable[[str], None] | None = None,
+    **settings: Any,
+) -> LoopResult:
+    """Fit, diagnose and augment a physical model with library effects and discovered terms.
+
+    Parameters
+    ----------
+    data : Dataset or sequence of Dataset
+        The whole record, N samples, split in time order into estimation (the
+        first ``split*N``), selection (the next) and test (the last ``test*N``).
+        Several records (:mod:`hhra_phys.multi`): each is split so; every fit
+        (base and candidates) is a multi-record fit with shared parameters (an
+        effect's new ones too) and per-record initial states; selection and test
+        scores are pooled over the records (per record in ``records`` of
+        ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is
+        summed over them (:func:`~hhra_phys.diagnose.analyse`).
+    model : Model, optional
+        Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
+        output if the record's output is pressure).
+    options : LoopOptions, optional
+        The loop's settings (default :class:`LoopOptions`'s).
+    validation : Dataset or sequence of Dataset, optional
+        Whole records as the test part (then ``test`` is ignored and every record of
+        ``data`` splits into estimation and selection only); runs the several-record
+        loop, even for one record of ``data``.
+    base : FitResult, optional
+        A fit of ``model`` on this record's estimation part to start from (e.g. the
+        result of ``hhra-phys fit`` with the same split); its free set is the base
+        free set. Default: fit it here.
+    executor : concurrent.futures.Executor, optional
+        Where the library candidates' refits of a round run (``ProcessPoolExecutor``, a
+        Dask ``Client.get_executor()``, ...). Default: here, one after another. The
+        results are the same either way for the same seed.
+    progress : callable, optional
+        Called with a line of text at every step.
+    **settings
+        Any field of :class:`LoopOptions` (``seed=3``, ``max_effects=2``, ...), overriding
+        ``options``; validated with it (:meth:`LoopOptions.validate`).
+
     Returns
     -------
     LoopResult
@@ -888,31 +969,25 @@ def augment(
     -----
     A candidate is accepted when, on the selection part, its RMSE falls by at
     least ``margin``, the information criterion on estimation falls, and the
-    selection variance it removes exceeds the noise allowance above; of the acceptable
+    selection variance it removes exceeds the noise allowance; of the acceptable
     candidates of a round (every kind) the one :func:`~hhra_phys.selection.choose` picks
-    is added. The loop stops when a round accepts
+    is added (:mod:`hhra_phys.selection`). The loop stops when a round accepts
     nothing, ``max_effects`` are in, or the estimation and selection residuals are
     both at the noise level (``rmse <= (1 + noise_tol) * noise`` or white by
     Ljung-Box, each with its own noise level).
     """
+    opts = LoopOptions.of(options, **settings)
+    (split, test, candidates, max_effects, top_k, pop_size, max_iter, cand_pop, cand_iter,
+     seed, margin, noise_tol, criterion, free, bounds, default_bounds, effect_kw, backend,
+     ipopt_iter, initial_state, background, discover, discover_kw, stop_on, joint_search,
+     backward) = (getattr(opts, f.name) for f in fields(LoopOptions))
     say = progress or (lambda s: None)
     discover_asked = discover
-    if criterion not in ("bic", "aic"):
-        raise ParameterError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
-    if not 0 <= margin < 1:
-        raise ParameterError(f"margin must be in [0, 1), got {margin}")
     tol = NOISE_TOL if noise_tol is None else float(noise_tol)
-    if not tol >= 0:
-        raise ParameterError(f"noise_tol must be >= 0, got {noise_tol}")
-    if stop_on not in ("both", "selection"):
-        raise ParameterError(f"stop_on must be 'both' or 'selection', got {stop_on!r}")
     est, sel, held = _loop_parts(data, split, test, validation, base)
     if isinstance(est, RecordSet):
         data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
     names = list(candidates) if candidates is not None else list(EFFECTS)
-    for n in names:
-        if n not in EFFECTS:
-            raise ParameterError(f"unknown effect {n!r}; library: {', '.join(EFFECTS)}")
     if model is None:
         from hhra_phys.models.hhra import HHRAModel
 
