@@ -29,6 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
+from dataclasses import dataclass, fields, replace
 from functools import partial
 from typing import Any
 
@@ -57,6 +58,7 @@ from hhra_phys.refine import (
 from hhra_phys.result import FitResult, uncertainty
 
 __all__ = [
+    "FitOptions",
     "MAX_WIDEN_DECADES",
     "at_edges",
     "fit_and_widen",
@@ -105,55 +107,15 @@ def _refiner_names(refine: str | Sequence[str] | None) -> list[str]:
     return out
 
 
-def fit(
-    data: Dataset | Sequence[Dataset] | None = None,
-    model: Model | None = None,
-    *,
-    optimizer: str = "hgwo",
-    refine: str | Sequence[str] | None = "ipopt",
-    free: Sequence[str] | None = None,
-    fixed: Mapping[str, float] | None = None,
-    bounds: Mapping[str, tuple[float, float]] | None = None,
-    split: float = 0.5,
-    validation: Dataset | Sequence[Dataset] | None = None,
-    cost: str = "itae",
-    initial_state: str = "fit",
-    pop_size: int = 100,
-    max_iter: int = 200,
-    seed: int | None = 0,
-    lam: float = 1.0,
-    options: Mapping[str, Any] | None = None,
-    refine_options: Mapping[str, Any] | None = None,
-    start: Mapping[str, float] | None = None,
-    datasheet: Any | None = None,
-    progress: bool = False,
-    callback: Callable[[Any], bool | None] | None = None,
-    problem: Problem | None = None,
-    seed_population: bool | None = None,
-    intervals: str = "linear",
-    per_record: Sequence[str] | None = None,
-    default_bounds: Mapping[str, tuple[float, float]] | None = None,
-    widen_bounds: bool = True,
-    allow_outside_box: bool = False,
-) -> FitResult:
-    """Fit a physical model to a record, or to several records at once.
+@dataclass(frozen=True)
+class FitOptions:
+    """Settings of a fit (:func:`fit`), validated as a whole.
 
-    Parameters
+    Every field is also a keyword of :func:`fit`, which overrides the options it is given
+    (``fit(ds, options=FitOptions(pop_size=30), seed=2)``).
+
+    Attributes
     ----------
-    data : Dataset or sequence of Dataset, optional
-        The whole record (default: the built-in simulated rig, seed 0), or a list
-        of records fitted jointly (:mod:`hhra_phys.multi`): shared parameters,
-        per-record initial states (``x0_<state>_rec<k>``) and per-record
-        parameters, each record split by ``split`` unless ``validation`` is
-        given; metrics per record in :attr:`FitResult.records`, pooled in
-        :attr:`FitResult.metrics`.
-    model : Model, optional
-        Model to fit (default: :func:`default_model`: the HHRA with the orifice
-        valve, a pressure output if the data's output is pressure, rescaled to
-        sample units for records without a sample time). With the default model a
-        single record is first converted to its units (mA, deg) where it declares
-        others, and implausible ranges are warned about
-        (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
     optimizer : {"hgwo", "gwo", "pso", "de", "none"}
         Global search (``"none"``: start the refiners from the nominal values or
         ``start``).
@@ -167,17 +129,13 @@ def fit(
         initial values of the model's fitted states, the HHRA's angle, are fitted).
     split : float
         Fraction of the record used for estimation; the rest is validation.
-    validation : Dataset or sequence of Dataset, optional
-        Separate validation record(s) (then ``data`` is all estimation); with
-        several records, whole validation records have their initial state
-        estimated and the first record's per-record parameters.
     pop_size, max_iter : int
         Global search population and iterations (paper: 100 and 200).
     seed : int or None
         Seed of the global search.
     lam : float
         H-GWO's mutation factor (module docstring); ignored by other methods.
-    options : dict, optional
+    optimizer_options : dict, optional
         Further optimiser options (``F``, ``w``, ...).
     refine_options : dict, optional
         Keyword arguments for the refiners (``hessian``, ``shooting``, ``max_iter``,
@@ -185,18 +143,8 @@ def fit(
     start : dict, optional
         Starting values (physical units) for the global search's first population
         and for ``optimizer="none"``.
-    datasheet : object, optional
-        Known physical symbols for the model's physical view
-        (:meth:`Model.physical_view <hhra_phys.model.Model.physical_view>`; for the
-        HHRA a :class:`~hhra_phys.models.hhra.physical.PhysicalParameters`); the
-        fitted parameters are then also reported as physical symbols. Simulated
-        rig data carries its own.
     progress : bool
         Show a progress bar during the global search.
-    callback : callable, optional
-        Called after every global iteration (see :func:`hhra_phys.optim.minimize`).
-    problem : Problem, optional
-        A ready problem (then ``model``, ``free`` ... are taken from it).
     seed_population : bool, optional
         Put the start values (``start``, or those of ``problem``) into the global
         search's first population (warm start). Default: when ``start`` is given.
@@ -222,6 +170,125 @@ def fit(
         Accept ``fixed`` values outside their parameter's box (checked by
         :class:`~hhra_phys.problem.Problem`; the CLI's ``--allow-outside-box``).
 
+    """
+
+    optimizer: str = "hgwo"
+    refine: str | tuple[str, ...] | None = "ipopt"
+    free: tuple[str, ...] | None = None
+    fixed: Mapping[str, float] | None = None
+    bounds: Mapping[str, tuple[float, float]] | None = None
+    split: float = 0.5
+    cost: str = "itae"
+    initial_state: str = "fit"
+    pop_size: int = 100
+    max_iter: int = 200
+    seed: int | None = 0
+    lam: float = 1.0
+    optimizer_options: Mapping[str, Any] | None = None
+    refine_options: Mapping[str, Any] | None = None
+    start: Mapping[str, float] | None = None
+    progress: bool = False
+    seed_population: bool | None = None
+    intervals: str = "linear"
+    per_record: tuple[str, ...] | None = None
+    default_bounds: Mapping[str, tuple[float, float]] | None = None
+    widen_bounds: bool = True
+    allow_outside_box: bool = False
+
+    def validate(self) -> FitOptions:
+        """Check the settings a fit checks before any work; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        if self.intervals not in ("linear", "profile"):
+            raise ParameterError(f"intervals must be 'linear' or 'profile', got "
+                                 f"{self.intervals!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got "
+                                 f"{self.optimizer!r}")
+        if not 0 < self.split <= 1:
+            raise ParameterError(f"split must be in (0, 1], got {self.split}")
+        for name in ("pop_size", "max_iter"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 0):
+                raise ParameterError(f"{name} must be an integer >= 0, got {v!r}")
+        return self
+
+    @classmethod
+    def of(cls, options: FitOptions | None = None, **overrides: Any) -> FitOptions:
+        """``options`` (default: the defaults) with ``overrides`` applied, validated.
+
+        Raises
+        ------
+        ParameterError
+            An override that is not a setting (with the settings' names), or a bad value.
+        """
+        base = options if options is not None else cls()
+        names = {f.name for f in fields(cls)}
+        bad = sorted(set(overrides) - names)
+        if bad:
+            raise ParameterError(f"unknown fit setting(s) {', '.join(bad)}; settings: "
+                                 f"{', '.join(sorted(names))}")
+        for key in ("free", "per_record"):
+            if overrides.get(key) is not None:
+                overrides[key] = tuple(overrides[key])
+        if isinstance(overrides.get("refine"), list):
+            overrides["refine"] = tuple(overrides["refine"])
+        return replace(base, **overrides).validate()
+
+
+def fit(
+    data: Dataset | Sequence[Dataset] | None = None,
+    model: Model | None = None,
+    *,
+    options: FitOptions | None = None,
+    validation: Dataset | Sequence[Dataset] | None = None,
+    problem: Problem | None = None,
+    datasheet: Any | None = None,
+    callback: Callable[[Any], bool | None] | None = None,
+    **settings: Any,
+) -> FitResult:
+    """Fit a physical model to a record, or to several records at once.
+
+    Parameters
+    ----------
+    data : Dataset or sequence of Dataset, optional
+        The whole record (default: the built-in simulated rig, seed 0), or a list
+        of records fitted jointly (:mod:`hhra_phys.multi`): shared parameters,
+        per-record initial states (``x0_<state>_rec<k>``) and per-record
+        parameters, each record split by ``split`` unless ``validation`` is
+        given; metrics per record in :attr:`FitResult.records`, pooled in
+        :attr:`FitResult.metrics`.
+    model : Model, optional
+        Model to fit (default: :func:`default_model`: the HHRA with the orifice
+        valve, a pressure output if the data's output is pressure, rescaled to
+        sample units for records without a sample time). With the default model a
+        single record is first converted to its units (mA, deg) where it declares
+        others, and implausible ranges are warned about
+        (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
+    options : FitOptions, optional
+        The fit's settings (default :class:`FitOptions`'s).
+    validation : Dataset or sequence of Dataset, optional
+        Separate validation record(s) (then ``data`` is all estimation); with
+        several records, whole validation records have their initial state
+        estimated and the first record's per-record parameters.
+    datasheet : object, optional
+        Known physical symbols for the model's physical view
+        (:meth:`Model.physical_view <hhra_phys.model.Model.physical_view>`; for the
+        HHRA a :class:`~hhra_phys.models.hhra.physical.PhysicalParameters`); the
+        fitted parameters are then also reported as physical symbols. Simulated
+        rig data carries its own.
+    callback : callable, optional
+        Called after every global iteration (see :func:`hhra_phys.optim.minimize`).
+    problem : Problem, optional
+        A ready problem (then ``model``, ``free`` ... are taken from it).
+    **settings
+        Any field of :class:`FitOptions` (``seed=3``, ``pop_size=30``, ...), overriding
+        ``options``; validated with it (:meth:`FitOptions.validate`).
+
     Returns
     -------
     FitResult
@@ -235,18 +302,19 @@ def fit(
         On Ctrl-C anywhere in the search or the refiners (also inside IPOPT and NLopt
         callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
+    opts = FitOptions.of(options, **settings)
+    (optimizer, refine, free, fixed, bounds, split, cost, initial_state, pop_size, max_iter,
+     seed, lam, optimizer_options, refine_options, start, progress, seed_population,
+     intervals, per_record, default_bounds, widen_bounds,
+     allow_outside_box) = (getattr(opts, f.name) for f in fields(FitOptions))
     t_start = time.perf_counter()
-    if intervals not in ("linear", "profile"):
-        raise ParameterError(f"intervals must be 'linear' or 'profile', got {intervals!r}")
     if data is None:
         from hhra_phys.models.hhra.rig import simulate_rig
 
         data = simulate_rig(seed=0)
-    if optimizer not in OPTIMIZERS:
-        raise ParameterError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
     search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
                      pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
-                     options=options, refine_options=refine_options, start=start,
+                     options=optimizer_options, refine_options=refine_options, start=start,
                      seed_population=seed_population, progress=progress, callback=callback)
     if isinstance(data, (list, tuple)):
 

@@ -103,7 +103,9 @@ def test_refiners_reach_the_minimum_from_a_perturbed_start(refine_case, refiner)
 
     Measured (seed 4, 6 s): the start costs 38 times the minimum; IPOPT (single and
     multiple shooting) and L-BFGS end at its cost to 2e-14 relative with every group
-    within 3e-8 of it; BOBYQA (derivative-free, 300 evaluations) within 0.9 % of its cost.
+    within 3e-8 of it; BOBYQA (derivative-free, 300 evaluations) within 0.9 % of its cost
+    with the NLopt build of that time, 3.1 % with NLopt 2.11.0 (2026-11-25: the same start,
+    budget and problem; its path depends on the build), so 5 % is asked.
     """
     problem, z0, reference = refine_case
     before = least_squares_cost(problem, z0)
@@ -116,7 +118,7 @@ def test_refiners_reach_the_minimum_from_a_perturbed_start(refine_case, refiner)
     assert st.cost_before == pytest.approx(before)
     assert before > 10 * reference.cost  # the start is far from the minimum
     if refiner == "LN_BOBYQA":
-        assert st.cost <= 1.02 * reference.cost
+        assert st.cost <= 1.05 * reference.cost
     else:
         assert st.cost == pytest.approx(reference.cost, rel=1e-6)
         groups = problem.from_z(st.z)[: len(GROUPS)]
