@@ -226,12 +226,18 @@ class InformationModel:
                        allow_outside_box=True,  # fixed: the fit's own values
                        start={n: vals[n] for n in self.free})
 
-    def peak(self, u: np.ndarray, values: dict[str, float] | None = None) -> float:
-        """Largest ``|y|`` simulated from rest with input ``u`` (``inf`` if it diverges)."""
+    def output(self, u: np.ndarray, values: dict[str, float] | None = None
+               ) -> np.ndarray | None:
+        """Output simulated from rest with input ``u`` (None if it diverges)."""
         vals = values or self.values
         p = np.array([vals[n] for n in self.model.params.names])
         y = self.sim.simulate(np.asarray(u, dtype=float), p, x0=self._x0)
-        return float(np.max(np.abs(y))) if np.isfinite(y).all() else math.inf
+        return y if np.isfinite(y).all() else None
+
+    def peak(self, u: np.ndarray, values: dict[str, float] | None = None) -> float:
+        """Largest ``|y|`` simulated from rest with input ``u`` (``inf`` if it diverges)."""
+        y = self.output(u, values)
+        return math.inf if y is None else float(np.max(np.abs(y)))
 
     def draws(self, n: int, seed: int | np.random.Generator | None) -> list[dict[str, float]]:
         """The fitted values and ``n`` parameter sets drawn from the fit's covariance.
@@ -500,11 +506,13 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
                      ) -> tuple[np.ndarray, float]:
     """The designed estimation part followed by a validation input of ``n_val`` samples.
 
-    The paper's irregular steps (or APRBS when a record is too short for them)
-    at the full ``max_input``, scaled down until the whole record, simulated from
-    rest with the fitted values and every draw, stays within ``output_limit``
-    (the designed part already does; with the input going to zero the angle stays
-    where the estimation part left it). Returns the record's input and its peak ``|y|``.
+    The designed part often ends near the output limit (it uses the range). So the
+    validation part first brings the output back towards 0 (a hold at half the
+    largest input, against the output's sign, until the simulated output is
+    nearest 0), then runs the paper's irregular steps (or APRBS) at the largest
+    scale, found by bisection, that keeps the whole record, simulated from rest
+    with the fitted values and every draw, within ``output_limit``. Returns the
+    record's input and its peak ``|y|``.
     """
     def peak_of(u: np.ndarray) -> float:
         peaks = [info.peak(u, vals) for vals in points]
@@ -516,20 +524,38 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
     # that hold is completed before the validation input starts.
     last = u_est.size - (np.flatnonzero(np.diff(u_est) != 0)[-1] + 1
                          if np.any(np.diff(u_est) != 0) else 0)
-    prefix = np.full(min(max(0, hold - last), n_val), u_est[-1])
-    rest = n_val - prefix.size
-    for attempt in range(12 if rest >= hold else 0):
-        v = _candidate("steps" if attempt < 6 else "aprbs", rng, rest, fs, max_input, hold)
+    head = np.concatenate([u_est, np.full(min(max(0, hold - last), n_val), u_est[-1])])
+    y = info.output(head)
+    room = n_val - (head.size - u_est.size) - hold  # leave at least one hold of steps
+    if y is not None and abs(y[-1]) > 0.25 * output_limit and room > hold:
+        # Back towards 0: the shortest whole number of holds after which |y| is smallest.
+        back = np.full(room, -np.sign(y[-1]) * 0.5 * max_input)
+        y_back = info.output(np.concatenate([head, back]))
+        if y_back is not None:
+            tail = np.abs(y_back[head.size:])
+            k = max(hold, int(math.ceil((int(np.argmin(tail)) + 1) / hold)) * hold)
+            head = np.concatenate([head, back[:min(k, room)]])
+    rest = u_est.size + n_val - head.size
+    best: tuple[float, np.ndarray, float] = (0.0, np.concatenate([head, np.zeros(rest)]), 0.0)
+    for attempt in range(8 if rest >= hold else 0):
+        v = _candidate("steps" if attempt < 4 else "aprbs", rng, rest, fs, max_input, hold)
         if v is None:
             continue
-        v = v.copy()
-        # Scale the validation input only: zero-mean steps keep it near the split state.
-        for _ in range(6):
-            u = np.concatenate([u_est, prefix, v])
+        lo, hi = 0.0, 1.0
+        for scale in [1.0] + [None] * 8:  # full scale, else bisection on the scale
+            scale = scale or 0.5 * (lo + hi)
+            u = np.concatenate([head, scale * v])
             pk = peak_of(u)
             if pk <= output_limit:
-                return u, pk
-            v *= 0.9 * output_limit / pk if math.isfinite(pk) else 0.5
-    # No validation input fits (or none is long enough): rest after the designed part.
-    u = np.concatenate([u_est, prefix, np.zeros(rest)])
-    return u, peak_of(u)
+                lo = scale
+                if scale > best[0]:
+                    best = (scale, u, pk)
+                if scale == 1.0:
+                    break
+            else:
+                hi = scale
+        if best[0] >= 0.5:
+            break
+    if best[0] == 0.0:  # no validation input fits: rest after the designed part
+        return best[1], peak_of(best[1])
+    return best[1], best[2]

@@ -94,6 +94,11 @@ def test_cli_design_writes_t_u_and_a_sidecar(fitted, tmp_path, capsys):
     assert np.max(np.abs(ds[:, 1])) <= np.max(np.abs(rec.u)) + 1e-9
     side = json.loads((tmp_path / "designed.json").read_text())
     assert side["limits_broken"] == []
+    # the fit used its whole record (--split 1): so is the design, and the command says so
+    assert side["split"] == 1.0 and side["designed"]["n_est"] == 750
+    assert side["fit_command"].startswith("hhra-phys fit RECORD.csv --split 1 --validate ")
+    assert side["fitted_record"]["n_est"] == rec.n
+    assert side["fit_command"] in capsys.readouterr().out
     assert set(side["designed"]["widths"]) == set(side["fitted_record"]["widths"])
     assert side["peak_output"] <= 40.0
     # bad input: an error naming the flag, before any design work
@@ -102,3 +107,44 @@ def test_cli_design_writes_t_u_and_a_sidecar(fitted, tmp_path, capsys):
     assert "--duration" in capsys.readouterr().err
     assert main(["design", str(fit_json), "--duration", "2", "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["design", str(fit_json), "--duration", "2", "--split", "1.5"])
+    assert exc.value.code == 2 and "--split" in capsys.readouterr().err
+
+
+def test_cli_design_is_made_for_the_part_the_default_fit_estimates_from(tmp_path, capsys):
+    """The default workflow in small: fit -> design -> rig -> fit, no extra flags.
+
+    The design knows the default fit estimates from the first half: it designs that
+    half, and the fit of the measured record shows the predicted widths.
+    """
+    from hhra_phys.data import save
+
+    truth = {k: v for k, v in perturbed_physical(17).groups().items() if k != "g_kp"}
+    for seed in (5, 6):
+        d = tmp_path / f"s{seed}"
+        d.mkdir()
+        rec = reference_record(seed=seed, params=truth, duration=8.0)
+        save(rec, d / "a.csv")
+        fast = ["--pop", "20", "--iters", "30", "--quiet"]
+        assert main(["fit", str(d / "a.csv"), "--json", str(d / "fit.json"), *fast]) == 0
+        capsys.readouterr()
+        assert main(["design", str(d / "fit.json"), "--duration", "8", "--draws", "1",
+                     "--seed", str(seed)]) == 0
+        printed = capsys.readouterr().out
+        side = json.loads((d / "design.json").read_text())  # default --out: beside the fit
+        assert side["split"] == 0.5 and side["designed"]["n_est"] == 1000
+        assert "hhra-phys fit RECORD.csv --split 0.5" in printed
+        assert side["fitted_record"]["n_est"] == 1000 and side["limits_broken"] == []
+        u = np.loadtxt(d / "design.csv", delimiter=",", skiprows=1)[:, 1]
+        assert u.size == 2000 and np.std(u[1000:]) > 0  # a validation input, not a rest
+        measured = reference_record(seed=100 + seed, params=truth, u=u, duration=8.0)
+        save(measured, d / "designed.csv")
+        assert main(["fit", str(d / "designed.csv"), "--json", str(d / "dfit.json"),
+                     *fast]) == 0
+        params = json.loads((d / "dfit.json").read_text())["params"]
+        realised = {g: (p["ci95"][1] - p["ci95"][0]) / p["value"] for g, p in params.items()
+                    if p["free"] and g.startswith("g_")}
+        gm = lambda w: float(np.exp(np.mean(np.log(list(w.values())))))  # noqa: E731
+        assert gm(side["designed"]["widths"]) == pytest.approx(gm(realised), rel=0.3)
+        assert gm(realised) < 0.7 * side["fitted_record"]["geomean"]
