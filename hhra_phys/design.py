@@ -507,9 +507,8 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
     """The designed estimation part followed by a validation input of ``n_val`` samples.
 
     The designed part often ends near the output limit (it uses the range). So the
-    validation part first brings the output back towards 0 (a hold at half the
-    largest input, against the output's sign, until the simulated output is
-    nearest 0), then runs the paper's irregular steps (or APRBS) at the largest
+    validation part first brings the output back towards 0 (a hold at the largest
+    input, against the output's sign, until the simulated output is nearest 0), then runs the paper's irregular steps (or APRBS) at the largest
     scale, found by bisection, that keeps the whole record, simulated from rest
     with the fitted values and every draw, within ``output_limit``. Returns the
     record's input and its peak ``|y|``.
@@ -529,7 +528,7 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
     room = n_val - (head.size - u_est.size) - hold  # leave at least one hold of steps
     if y is not None and abs(y[-1]) > 0.25 * output_limit and room > hold:
         # Back towards 0: the shortest whole number of holds after which |y| is smallest.
-        back = np.full(room, -np.sign(y[-1]) * 0.5 * max_input)
+        back = np.full(room, -np.sign(y[-1]) * max_input)
         y_back = info.output(np.concatenate([head, back]))
         if y_back is not None:
             tail = np.abs(y_back[head.size:])
