@@ -90,13 +90,14 @@ def fitted_record(res: Any, path: str | None) -> Any:
 
 
 def fit_split(res: Any) -> float:
-    """The estimation fraction the fit used: its ``split``, or 1 if it validated on other records.
+    """The estimation fraction the fit used: its ``split``, or 1 if it estimated from all samples.
 
     (A fit given validation records estimates from every sample of its records.)
     """
     described = res.settings.get("data")
     first = described[0] if isinstance(described, list) and described else described or {}
-    if first.get("n_est") and not first.get("n_val"):
+    n, n_est = first.get("n"), first.get("n_est")
+    if isinstance(n, int) and isinstance(n_est, int) and n_est >= n:
         return 1.0
     split = res.settings.get("split", 0.5)
     return float(split) if isinstance(split, int | float) and 0 < split <= 1 else 0.5

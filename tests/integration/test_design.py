@@ -148,3 +148,22 @@ def test_cli_design_is_made_for_the_part_the_default_fit_estimates_from(tmp_path
         gm = lambda w: float(np.exp(np.mean(np.log(list(w.values())))))  # noqa: E731
         assert gm(side["designed"]["widths"]) == pytest.approx(gm(realised), rel=0.3)
         assert gm(realised) < 0.7 * side["fitted_record"]["geomean"]
+
+
+def test_the_split_the_design_assumes_is_the_fits_own():
+    from types import SimpleNamespace
+
+    from hhra_phys.cli.design import fit_command, fit_split
+
+    def res(split, n, n_est, n_val):
+        return SimpleNamespace(settings={"split": split, "data": {"n": n, "n_est": n_est,
+                                                                 "n_val": n_val}})
+
+    assert fit_split(res(0.5, 5000, 2500, 2500)) == 0.5
+    assert fit_split(res(0.7, 5000, 3500, 1500)) == 0.7
+    assert fit_split(res(1.0, 5000, 5000, 0)) == 1.0
+    # validated on another record: every sample of this one was used for estimation
+    assert fit_split(res(0.5, 5000, 5000, 3000)) == 1.0
+    assert fit_command(0.5, "a.csv") == ("hhra-phys fit RECORD.csv --split 0.5 "
+                                         "--json RECORD-fit.json")
+    assert "--split 1 --validate a.csv" in fit_command(1.0, "a.csv")
