@@ -204,6 +204,9 @@ def main_workflow(args: argparse.Namespace) -> None:
         }
         atomic_write_text(out, json.dumps(jsonable(result), indent=1))
     print(json.dumps({k: v for k, v in result.items() if k != "rows"}, indent=1))
+    if args.plot:
+        first = work / f"seed{rows[0]['seed']}"
+        print(f"wrote {plot_workflow(args.plot, first, rows[0], args.overwrite)}")
     print("| seed | plain: realised (predicted) | designed: realised (predicted) | ratio "
           "(predicted) | predicted/realised designed |")
     print("|---|---|---|---|---|")
@@ -263,6 +266,46 @@ def main() -> None:
     atomic_write_text(out, json.dumps(jsonable(result), indent=1))
     if args.plot:
         plot(args.plot, rows[0], args.overwrite)
+
+
+def plot_workflow(path: str, d: Path, row: dict[str, object], overwrite: bool) -> Path:
+    """The plain and the designed record of one workflow seed, and both fits' widths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hhra_phys.data import load
+
+    p = check_output_path(path, overwrite=overwrite, what="figure")
+    fig, ax = plt.subplots(3, 1, figsize=(9, 8.5))
+    for a, name, label in ((ax[0], "a.csv", "plain record (the rig's own input)"),
+                           (ax[1], "designed.csv", "designed record")):
+        ds = load(d / name)
+        a.plot(ds.t, ds.u, lw=0.7, label="valve current [mA]")
+        b = a.twinx()
+        b.plot(ds.t, ds.y, color="C1", lw=0.8)
+        b.set_ylabel("angle [deg]", color="C1")
+        a.axvline(ds.t[ds.n // 2], color="k", ls="--", lw=0.8)
+        a.set_title(f"{label}, seed {row['seed']}: the fit estimates left of the dashed line")
+        a.set_ylabel("current [mA]")
+    ax[1].set_xlabel("time [s]")
+    a = ax[2]
+    groups = list(row["designed"]["widths"])
+    x = np.arange(len(groups))
+    bars = (("plain, realised", row["plain"]["widths"]),
+            ("designed, predicted", row["designed"]["predicted_widths"]),
+            ("designed, realised", row["designed"]["widths"]))
+    for k, (label, w) in enumerate(bars):
+        a.bar(x + (k - 1) * 0.27, [w[g] for g in groups], 0.27, label=label)
+    a.set_xticks(x, groups)
+    a.set_yscale("log")
+    a.set_ylabel("relative 95 % width")
+    a.legend()
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
 
 
 def plot(path: str, row: dict[str, object], overwrite: bool) -> Path:

@@ -75,6 +75,7 @@ __all__ = [
     "InformationModel",
     "criterion_value",
     "design_input",
+    "estimation_split",
     "shortest_hold",
 ]
 
@@ -157,6 +158,21 @@ class Design:
         if self.peak_output > lim["output_limit"]:
             bad.append(f"|y| reaches {self.peak_output:.4g} > {lim['output_limit']:.4g}")
         return bad
+
+
+def estimation_split(result: Any) -> float:
+    """The share of its record a fit estimated from: its ``split``, or 1 if it used it whole.
+
+    A fit given validation records estimates from every sample of its own
+    (``settings["data"]``: ``n_est == n``); the first record decides for several.
+    """
+    described = result.settings.get("data")
+    first = described[0] if isinstance(described, list) and described else described or {}
+    n, n_est = first.get("n"), first.get("n_est")
+    if isinstance(n, int) and isinstance(n_est, int) and n_est >= n:
+        return 1.0
+    split = result.settings.get("split", 0.5)
+    return float(split) if isinstance(split, int | float) and 0 < split <= 1 else 0.5
 
 
 def shortest_hold(u: np.ndarray) -> int:
@@ -354,7 +370,7 @@ def design_input(
     local_steps: int = 120,
     draws: int = 4,
     reference_input: np.ndarray | None = None,
-    split: float = 1.0,
+    split: float | None = None,
 ) -> Design:
     """Design the input that maximises the information about a fit's free parameters.
 
@@ -388,11 +404,13 @@ def design_input(
         (besides the fitted values).
     reference_input : ndarray, optional
         The fitted record's input (for the default ``max_input``).
-    split : float
+    split : float, optional
         Share of the record the fit will estimate from, ``0 < split <= 1``
-        (``hhra-phys fit --split``; module docstring). Below 1 the first
-        ``round(split * N)`` samples are designed and the rest is a validation
-        input within the same limits.
+        (``hhra-phys fit --split``; module docstring); default: the share the
+        fit designed from estimated from (:func:`estimation_split`: 0.5 for a
+        default fit, 1 for one made with ``split=1`` or validation records).
+        Below 1 the first ``round(split * N)`` samples are designed and the rest
+        is a validation input within the same limits.
 
     Returns
     -------
@@ -412,6 +430,8 @@ def design_input(
         if reference_input is None:
             raise ParameterError("max_input is needed when the fitted record's input is unknown")
         max_input = float(np.max(np.abs(reference_input)))
+    if split is None:
+        split = estimation_split(result)
     if not (isinstance(split, int | float) and 0.0 < split <= 1.0):
         raise ParameterError(f"split must be a fraction in (0, 1], got {split!r}")
     for name, value in (("duration", duration), ("max_input", max_input),
@@ -508,10 +528,11 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
 
     The designed part often ends near the output limit (it uses the range). So the
     validation part first brings the output back towards 0 (a hold at the largest
-    input, against the output's sign, until the simulated output is nearest 0), then runs the paper's irregular steps (or APRBS) at the largest
-    scale, found by bisection, that keeps the whole record, simulated from rest
-    with the fitted values and every draw, within ``output_limit``. Returns the
-    record's input and its peak ``|y|``.
+    input, against the output's sign, until the simulated output is nearest 0),
+    then runs the paper's irregular steps (or APRBS) at the largest scale, found
+    by bisection, that keeps the whole record, simulated from rest with the
+    fitted values and every draw, within ``output_limit``. Returns the record's
+    input and its peak ``|y|``.
     """
     def peak_of(u: np.ndarray) -> float:
         peaks = [info.peak(u, vals) for vals in points]

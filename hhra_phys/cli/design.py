@@ -90,17 +90,10 @@ def fitted_record(res: Any, path: str | None) -> Any:
 
 
 def fit_split(res: Any) -> float:
-    """The estimation fraction the fit used: its ``split``, or 1 if it estimated from all samples.
+    """The estimation fraction the fit used (:func:`hhra_phys.design.estimation_split`)."""
+    from hhra_phys.design import estimation_split
 
-    (A fit given validation records estimates from every sample of its records.)
-    """
-    described = res.settings.get("data")
-    first = described[0] if isinstance(described, list) and described else described or {}
-    n, n_est = first.get("n"), first.get("n_est")
-    if isinstance(n, int) and isinstance(n_est, int) and n_est >= n:
-        return 1.0
-    split = res.settings.get("split", 0.5)
-    return float(split) if isinstance(split, int | float) and 0 < split <= 1 else 0.5
+    return estimation_split(res)
 
 
 def fit_command(split: float, validate: str | None) -> str:

@@ -167,3 +167,18 @@ def test_the_split_the_design_assumes_is_the_fits_own():
     assert fit_command(0.5, "a.csv") == ("hhra-phys fit RECORD.csv --split 0.5 "
                                          "--json RECORD-fit.json")
     assert "--split 1 --validate a.csv" in fit_command(1.0, "a.csv")
+
+
+def test_the_python_api_designs_for_the_fits_own_split(fitted):
+    _, rec = fitted
+    res = fit(rec, pop_size=20, max_iter=20, seed=1)  # the default split, 0.5
+    d = design_input(res, 4.0, reference_input=rec.u, output_limit=40.0, seed=3, **FAST)
+    assert d.split == 0.5 and d.n_est == 500 and d.u.size == 1000 and d.check() == []
+    info = InformationModel(res)
+    assert d.widths == pytest.approx(info.widths(d.u[:500]), rel=1e-9)
+    # the whole record is more informative than its first half, which is what the fit uses
+    gm = lambda w: np.exp(np.mean(np.log(list(w.values()))))  # noqa: E731
+    assert gm(d.widths_whole) < gm(d.widths)
+    whole = design_input(res, 4.0, reference_input=rec.u, output_limit=40.0, seed=3, split=1,
+                         **FAST)
+    assert whole.split == 1.0 and whole.n_est == 1000 and whole.widths_whole == {}
