@@ -25,12 +25,36 @@ Run::
 
 Targets (issue 12): designed/paper width ratio <= 0.7 and the largest error at
 least halved; joint/one width ratio <= 0.8.
+
+``--workflow``: the default command-line workflow, as a user runs it (issue 23).
+For every seed, each step a separate ``hhra-phys`` process with no extra flags:
+
+1. ``hhra-phys simulate --generator reference --seed S --out a.csv`` (the
+   reference rig, its own values, the paper's input);
+2. ``hhra-phys fit a.csv --json fit.json`` (default split: estimation on the
+   first half);
+3. ``hhra-phys design fit.json --duration 20 --out design.csv`` (and its
+   side-car ``design.json``);
+4. the rig runs the designed input: the same reference truth, fresh noise
+   (seed ``1000 + S``), written as ``designed.csv``;
+5. ``hhra-phys fit designed.csv --json designed-fit.json``.
+
+Reported per seed: the geometric mean over the free groups of the relative
+95 % widths of both fits, their ratio (target <= 0.7), and the side-car's
+predictions of both (target: within 30 % of the realised widths). Run::
+
+    PYTHONPATH=$PWD nice -n 10 python experiments/design.py --workflow --seeds 1-5 \
+        --out experiments/out/design_workflow.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -79,9 +103,129 @@ def run_seed(seed: int, pop: int, iters: int, draws: int) -> dict[str, object]:
     return out
 
 
+def _cli(*args: str, cwd: Path) -> str:
+    """Run one ``hhra-phys`` command in its own process; its stdout (raises if it fails)."""
+    cmd = [sys.executable, "-m", "hhra_phys.cli", *args]
+    done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} exited {done.returncode}: {done.stderr[-2000:]}")
+    return done.stdout
+
+
+def _json_widths(path: Path) -> dict[str, float]:
+    """Relative 95 % widths ``(hi - lo)/value`` of the free groups in a fit JSON."""
+    params = json.loads(path.read_text())["params"]
+    return {g: (p["ci95"][1] - p["ci95"][0]) / p["value"] for g, p in params.items()
+            if p.get("free") and p.get("ci95") and g.startswith("g_")}
+
+
+def _gm(widths: dict[str, float]) -> float:
+    return float(np.exp(np.mean(np.log(list(widths.values())))))
+
+
+def workflow_seed(seed: int, work: Path, duration: float) -> dict[str, object]:
+    """The default CLI workflow on one seed (module docstring); the row of the table."""
+    from hhra_phys.data import load, save
+
+    d = work / f"seed{seed}"
+    d.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    _cli("simulate", "--generator", "reference", "--seed", str(seed), "--out", "a.csv",
+         "--overwrite", cwd=d)
+    _cli("fit", "a.csv", "--json", "fit.json", "--quiet", "--overwrite", cwd=d)
+    t1 = time.perf_counter()
+    printed = _cli("design", "fit.json", "--duration", f"{duration:g}", "--out", "design.csv",
+                   "--overwrite", cwd=d)
+    t2 = time.perf_counter()
+    plain = load(d / "a.csv")
+    truth = plain.metadata["truth"]
+    u = np.loadtxt(d / "design.csv", delimiter=",", skiprows=1)[:, 1]
+    # The rig: the plain record's truth (the reference's own values), fresh noise.
+    rec = reference_record(seed=1000 + seed, params=truth["params"], u=u,
+                           valve=truth["valve"], fs=plain.fs)
+    save(rec, d / "designed.csv", overwrite=True)
+    _cli("fit", "designed.csv", "--json", "designed-fit.json", "--quiet", "--overwrite", cwd=d)
+    side = json.loads((d / "design.json").read_text())
+    plain_w, designed_w = _json_widths(d / "fit.json"), _json_widths(d / "designed-fit.json")
+    row = {
+        "seed": seed,
+        "plain": {"widths": plain_w, "geomean": _gm(plain_w),
+                  "predicted": side["fitted_record"]["geomean"]},
+        "designed": {"widths": designed_w, "geomean": _gm(designed_w),
+                     "predicted": side["designed"]["geomean"],
+                     "predicted_widths": side["designed"]["widths"]},
+        "ratio": _gm(designed_w) / _gm(plain_w),
+        "ratio_predicted": side["designed"]["geomean"] / side["fitted_record"]["geomean"],
+        "split": side["split"], "family": side["family"], "peak_output": side["peak_output"],
+        "limits_broken": side["limits_broken"], "fit_command": side["fit_command"],
+        "seconds": {"fit": t1 - t0, "design": t2 - t1, "total": time.perf_counter() - t0},
+        "printed": printed,
+    }
+    for key in ("plain", "designed"):
+        row[key]["predicted_over_realised"] = row[key]["predicted"] / row[key]["geomean"]
+    return row
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"5"`` -> 0..4 (the paper study), ``"1-5"`` -> 1..5, ``"1,3"`` -> 1, 3."""
+    if "-" in text:
+        lo, hi = text.split("-")
+        return list(range(int(lo), int(hi) + 1))
+    if "," in text:
+        return [int(x) for x in text.split(",")]
+    return list(range(int(text)))
+
+
+def main_workflow(args: argparse.Namespace) -> None:
+    """``--workflow``: the default CLI workflow on every seed, and its table."""
+    out = check_output_path(args.out, overwrite=args.overwrite)
+    work = Path(tempfile.mkdtemp(prefix="hhra-design-workflow-"))
+    rows = []
+    t0 = time.perf_counter()
+    for seed in parse_seeds(args.seeds):
+        row = workflow_seed(seed, work, args.duration)
+        rows.append(row)
+        p, d = row["plain"], row["designed"]
+        print(f"seed {seed}: plain {p['geomean']:.4g} (predicted {p['predicted']:.4g}), "
+              f"designed {d['geomean']:.4g} (predicted {d['predicted']:.4g}); ratio "
+              f"{row['ratio']:.3f} (predicted {row['ratio_predicted']:.3f}); "
+              f"{row['family']}, peak {row['peak_output']:.1f} deg, "
+              f"broken: {row['limits_broken'] or 'none'}; {row['seconds']['total']:.0f} s",
+              flush=True)
+        # Written after every seed: a run cut short still leaves its finished seeds.
+        result = {
+            "mode": "workflow", "seeds": [r["seed"] for r in rows], "duration": args.duration,
+            "seconds": time.perf_counter() - t0,
+            "ratio_geomean": float(np.exp(np.mean(np.log([r["ratio"] for r in rows])))),
+            "ratio_worst": max(r["ratio"] for r in rows),
+            "prediction_error_worst": max(abs(r[k]["predicted_over_realised"] - 1)
+                                          for r in rows for k in ("plain", "designed")),
+            "rows": rows,
+        }
+        atomic_write_text(out, json.dumps(jsonable(result), indent=1))
+    print(json.dumps({k: v for k, v in result.items() if k != "rows"}, indent=1))
+    if args.plot:
+        first = work / f"seed{rows[0]['seed']}"
+        print(f"wrote {plot_workflow(args.plot, first, rows[0], args.overwrite)}")
+    print("| seed | plain: realised (predicted) | designed: realised (predicted) | ratio "
+          "(predicted) | predicted/realised designed |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        p, d = r["plain"], r["designed"]
+        print(f"| {r['seed']} | {p['geomean']:.4f} ({p['predicted']:.4f}) | "
+              f"{d['geomean']:.4f} ({d['predicted']:.4f}) | {r['ratio']:.3f} "
+              f"({r['ratio_predicted']:.3f}) | {d['predicted_over_realised']:.3f} |")
+    shutil.rmtree(work, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--workflow", action="store_true",
+                    help="the default CLI workflow (module docstring); --seeds as 1-5")
+    ap.add_argument("--duration", type=float, default=20.0,
+                    help="--workflow: the designed record's length [s] (default 20)")
+    ap.add_argument("--seeds", default="5",
+                    help="N (seeds 0..N-1), A-B or A,B,... (default 5)")
     ap.add_argument("--pop", type=int, default=100)
     ap.add_argument("--iters", type=int, default=200)
     ap.add_argument("--draws", type=int, default=4)
@@ -89,10 +233,13 @@ def main() -> None:
     ap.add_argument("--plot", default=None, help="figure of the first seed's inputs and widths")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args()
+    if args.workflow:
+        main_workflow(args)
+        return
     out = check_output_path(args.out, overwrite=args.overwrite)
     rows = []
     t0 = time.perf_counter()
-    for seed in range(args.seeds):
+    for seed in parse_seeds(args.seeds):
         row = run_seed(seed, args.pop, args.iters, args.draws)
         rows.append(row)
         p, d, j = row["paper"], row["designed"], row["joint"]
@@ -104,7 +251,7 @@ def main() -> None:
               f"limits broken: {row['design']['limits_broken'] or 'none'}", flush=True)
     gm = lambda xs: float(np.exp(np.mean(np.log(xs))))  # noqa: E731
     result = {
-        "seeds": args.seeds, "pop": args.pop, "iters": args.iters, "draws": args.draws,
+        "seeds": parse_seeds(args.seeds), "pop": args.pop, "iters": args.iters, "draws": args.draws,
         "seconds": time.perf_counter() - t0,
         "width_ratio_designed": gm([r["designed"]["width"] / r["paper"]["width"] for r in rows]),
         "width_ratio_joint": gm([r["joint"]["width"] / r["paper"]["width"] for r in rows]),
@@ -119,6 +266,46 @@ def main() -> None:
     atomic_write_text(out, json.dumps(jsonable(result), indent=1))
     if args.plot:
         plot(args.plot, rows[0], args.overwrite)
+
+
+def plot_workflow(path: str, d: Path, row: dict[str, object], overwrite: bool) -> Path:
+    """The plain and the designed record of one workflow seed, and both fits' widths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hhra_phys.data import load
+
+    p = check_output_path(path, overwrite=overwrite, what="figure")
+    fig, ax = plt.subplots(3, 1, figsize=(9, 8.5))
+    for a, name, label in ((ax[0], "a.csv", "plain record (the rig's own input)"),
+                           (ax[1], "designed.csv", "designed record")):
+        ds = load(d / name)
+        a.plot(ds.t, ds.u, lw=0.7, label="valve current [mA]")
+        b = a.twinx()
+        b.plot(ds.t, ds.y, color="C1", lw=0.8)
+        b.set_ylabel("angle [deg]", color="C1")
+        a.axvline(ds.t[ds.n // 2], color="k", ls="--", lw=0.8)
+        a.set_title(f"{label}, seed {row['seed']}: the fit estimates left of the dashed line")
+        a.set_ylabel("current [mA]")
+    ax[1].set_xlabel("time [s]")
+    a = ax[2]
+    groups = list(row["designed"]["widths"])
+    x = np.arange(len(groups))
+    bars = (("plain, realised", row["plain"]["widths"]),
+            ("designed, predicted", row["designed"]["predicted_widths"]),
+            ("designed, realised", row["designed"]["widths"]))
+    for k, (label, w) in enumerate(bars):
+        a.bar(x + (k - 1) * 0.27, [w[g] for g in groups], 0.27, label=label)
+    a.set_xticks(x, groups)
+    a.set_yscale("log")
+    a.set_ylabel("relative 95 % width")
+    a.legend()
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
 
 
 def plot(path: str, row: dict[str, object], overwrite: bool) -> Path:

@@ -41,6 +41,16 @@ random parameters, and free piecewise-constant inputs on the ``min_hold`` grid;
 a candidate whose simulated output leaves the range is scaled down once to fit.
 The best piecewise-constant candidate is then improved by a seeded local search
 over the levels of its holds.
+
+The part the fit estimates from (``split``): a fit of a record estimates from its
+first ``round(split * N)`` samples and validates on the rest (``hhra-phys fit``'s
+``--split``, 0.5 by default). Information in the validation part does not narrow
+the fit's intervals, so the design searches only the estimation part (from rest)
+and the predicted widths are those of a fit of that part. The validation part is
+filled with the paper's irregular multi-level steps (or APRBS) within the same
+limits, so the record can be fitted as it is and validated on an input unlike the
+one it was estimated from. ``split=1`` designs the whole record (then fit it with
+``--split 1`` and validate on another record).
 """
 
 from __future__ import annotations
@@ -65,6 +75,7 @@ __all__ = [
     "InformationModel",
     "criterion_value",
     "design_input",
+    "estimation_split",
     "shortest_hold",
 ]
 
@@ -96,13 +107,21 @@ class Design:
         Family of the design (``"free"`` after the local search).
     widths : dict of str to float
         Predicted relative 95 % interval width of each free model parameter at
-        the fitted values (``hi/lo`` spread divided by the value).
+        the fitted values (``hi/lo`` spread divided by the value), for a fit of
+        the estimation part (the first ``n_est`` samples).
     limits : dict
         ``max_input``, ``min_hold`` [s], ``output_limit``, ``duration`` [s].
     peak_output : float
         Largest ``|y|`` over the fitted values and the draws, from rest at 0.
     evaluations : int
         Candidate inputs evaluated.
+    split : float
+        Share of the record the fit will estimate from (1: the whole record).
+    n_est : int
+        Samples of the estimation part (``round(split * N)``, as
+        :meth:`~hhra_phys.data.Dataset.split` cuts); 0 means all of them.
+    widths_whole : dict of str to float
+        The widths if the whole record were used for estimation (``--split 1``).
     """
 
     u: np.ndarray
@@ -115,6 +134,9 @@ class Design:
     peak_output: float
     evaluations: int = 0
     history: list[float] = field(default_factory=list)
+    split: float = 1.0
+    n_est: int = 0
+    widths_whole: dict[str, float] = field(default_factory=dict)
 
     @property
     def t(self) -> np.ndarray:
@@ -136,6 +158,21 @@ class Design:
         if self.peak_output > lim["output_limit"]:
             bad.append(f"|y| reaches {self.peak_output:.4g} > {lim['output_limit']:.4g}")
         return bad
+
+
+def estimation_split(result: Any) -> float:
+    """The share of its record a fit estimated from: its ``split``, or 1 if it used it whole.
+
+    A fit given validation records estimates from every sample of its own
+    (``settings["data"]``: ``n_est == n``); the first record decides for several.
+    """
+    described = result.settings.get("data")
+    first = described[0] if isinstance(described, list) and described else described or {}
+    n, n_est = first.get("n"), first.get("n_est")
+    if isinstance(n, int) and isinstance(n_est, int) and n_est >= n:
+        return 1.0
+    split = result.settings.get("split", 0.5)
+    return float(split) if isinstance(split, int | float) and 0 < split <= 1 else 0.5
 
 
 def shortest_hold(u: np.ndarray) -> int:
@@ -204,6 +241,19 @@ class InformationModel:
                        bounds=self.bounds, initial_state="fit", simulator=self.sim,
                        allow_outside_box=True,  # fixed: the fit's own values
                        start={n: vals[n] for n in self.free})
+
+    def output(self, u: np.ndarray, values: dict[str, float] | None = None
+               ) -> np.ndarray | None:
+        """Output simulated from rest with input ``u`` (None if it diverges)."""
+        vals = values or self.values
+        p = np.array([vals[n] for n in self.model.params.names])
+        y = self.sim.simulate(np.asarray(u, dtype=float), p, x0=self._x0)
+        return y if np.isfinite(y).all() else None
+
+    def peak(self, u: np.ndarray, values: dict[str, float] | None = None) -> float:
+        """Largest ``|y|`` simulated from rest with input ``u`` (``inf`` if it diverges)."""
+        y = self.output(u, values)
+        return math.inf if y is None else float(np.max(np.abs(y)))
 
     def draws(self, n: int, seed: int | np.random.Generator | None) -> list[dict[str, float]]:
         """The fitted values and ``n`` parameter sets drawn from the fit's covariance.
@@ -320,6 +370,7 @@ def design_input(
     local_steps: int = 120,
     draws: int = 4,
     reference_input: np.ndarray | None = None,
+    split: float | None = None,
 ) -> Design:
     """Design the input that maximises the information about a fit's free parameters.
 
@@ -353,6 +404,13 @@ def design_input(
         (besides the fitted values).
     reference_input : ndarray, optional
         The fitted record's input (for the default ``max_input``).
+    split : float, optional
+        Share of the record the fit will estimate from, ``0 < split <= 1``
+        (``hhra-phys fit --split``; module docstring); default: the share the
+        fit designed from estimated from (:func:`estimation_split`: 0.5 for a
+        default fit, 1 for one made with ``split=1`` or validation records).
+        Below 1 the first ``round(split * N)`` samples are designed and the rest
+        is a validation input within the same limits.
 
     Returns
     -------
@@ -372,17 +430,24 @@ def design_input(
         if reference_input is None:
             raise ParameterError("max_input is needed when the fitted record's input is unknown")
         max_input = float(np.max(np.abs(reference_input)))
+    if split is None:
+        split = estimation_split(result)
+    if not (isinstance(split, int | float) and 0.0 < split <= 1.0):
+        raise ParameterError(f"split must be a fraction in (0, 1], got {split!r}")
     for name, value in (("duration", duration), ("max_input", max_input),
                         ("output_limit", output_limit), ("min_hold", min_hold)):
         if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
             raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
     info = InformationModel(result, fs)
     fs = info.fs
-    n = int(round(duration * fs))
+    n_total = int(round(duration * fs))
+    # The fit cuts its estimation part as Dataset.split does: round(split * N) samples.
+    n = n_total if split >= 1.0 else int(round(split * n_total))
     hold = max(1, int(math.ceil(min_hold * fs - 1e-9)))
-    if n < 2 * hold or n < 20 * (len(info.free) + 1):
+    if n < 2 * hold or n < 20 * (len(info.free) + 1) or (n < n_total and n_total - n < hold):
         raise ParameterError(f"duration {duration} s is too short for min_hold {min_hold} s "
-                             f"and {len(info.free)} free parameters")
+                             f"and {len(info.free)} free parameters"
+                             + (f" with split {split}" if split < 1 else ""))
     rng = np.random.default_rng(seed)
     points = info.draws(draws, rng)
     counter = {"n": 0}
@@ -441,9 +506,76 @@ def design_input(
                 edges = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
         best["free"] = (value, peak, u, family)
     value, peak, u, family = min(best.values(), key=lambda b: b[0])
+    u_est = u
+    if n < n_total:
+        u, peak = _with_validation(info, u_est, n_total - n, points, rng, fs, max_input, hold,
+                                   output_limit)
     return Design(
         u=u, fs=fs, criterion=criterion, value=value, family=family,
-        widths=info.widths(u), peak_output=peak, evaluations=counter["n"], history=history,
+        widths=info.widths(u_est), peak_output=peak, evaluations=counter["n"], history=history,
         limits={"max_input": float(max_input), "min_hold": float(min_hold),
                 "output_limit": float(output_limit), "duration": float(duration)},
+        split=float(min(split, 1.0)), n_est=n,
+        widths_whole=info.widths(u) if n < n_total else {},
     )
+
+
+def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
+                     points: list[dict[str, float]], rng: np.random.Generator, fs: float,
+                     max_input: float, hold: int, output_limit: float
+                     ) -> tuple[np.ndarray, float]:
+    """The designed estimation part followed by a validation input of ``n_val`` samples.
+
+    The designed part often ends near the output limit (it uses the range). So the
+    validation part first brings the output back towards 0 (a hold at the largest
+    input, against the output's sign, until the simulated output is nearest 0),
+    then runs the paper's irregular steps (or APRBS) at the largest scale, found
+    by bisection, that keeps the whole record, simulated from rest with the
+    fitted values and every draw, within ``output_limit``. Returns the record's
+    input and its peak ``|y|``.
+    """
+    def peak_of(u: np.ndarray) -> float:
+        peaks = [info.peak(u, vals) for vals in points]
+        if not math.isfinite(peaks[0]):
+            return math.inf
+        return max(pk for pk in peaks if math.isfinite(pk))
+
+    # The record's end may have cut the designed part's last hold; the record goes on, so
+    # that hold is completed before the validation input starts.
+    last = u_est.size - (np.flatnonzero(np.diff(u_est) != 0)[-1] + 1
+                         if np.any(np.diff(u_est) != 0) else 0)
+    head = np.concatenate([u_est, np.full(min(max(0, hold - last), n_val), u_est[-1])])
+    y = info.output(head)
+    room = n_val - (head.size - u_est.size) - hold  # leave at least one hold of steps
+    if y is not None and abs(y[-1]) > 0.25 * output_limit and room > hold:
+        # Back towards 0: the shortest whole number of holds after which |y| is smallest.
+        back = np.full(room, -np.sign(y[-1]) * max_input)
+        y_back = info.output(np.concatenate([head, back]))
+        if y_back is not None:
+            tail = np.abs(y_back[head.size:])
+            k = max(hold, int(math.ceil((int(np.argmin(tail)) + 1) / hold)) * hold)
+            head = np.concatenate([head, back[:min(k, room)]])
+    rest = u_est.size + n_val - head.size
+    best: tuple[float, np.ndarray, float] = (0.0, np.concatenate([head, np.zeros(rest)]), 0.0)
+    for attempt in range(8 if rest >= hold else 0):
+        v = _candidate("steps" if attempt < 4 else "aprbs", rng, rest, fs, max_input, hold)
+        if v is None:
+            continue
+        lo, hi = 0.0, 1.0
+        for scale in [1.0] + [None] * 8:  # full scale, else bisection on the scale
+            scale = scale or 0.5 * (lo + hi)
+            u = np.concatenate([head, scale * v])
+            pk = peak_of(u)
+            if pk <= output_limit:
+                lo = scale
+                if scale > best[0]:
+                    best = (scale, u, pk)
+                if scale == 1.0:
+                    break
+            else:
+                hi = scale
+        if best[0] >= 0.5:
+            break
+    if best[0] == 0.0:  # no validation input fits: rest after the designed part
+        return best[1], peak_of(best[1])
+    return best[1], best[2]

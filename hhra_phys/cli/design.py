@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from hhra_phys.cli._common import report_error
+from hhra_phys.cli._common import fraction, report_error
 from hhra_phys.design import CRITERIA, MIN_HOLD_S, OUTPUT_LIMIT_DEG, InformationModel
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
@@ -27,15 +27,26 @@ def register(subparsers: Any) -> None:
             "D-optimal (or A-/E-optimal) experiment design from a fit: the input that maximises "
             "the Fisher information of the free parameters, from the exact sensitivities, "
             "averaged over parameter draws from the fit's covariance, within the input, "
-            "switching-time and output limits. Writes t,u at the fit's sample rate and a JSON "
-            "side-car (same name, .json) with the predicted 95 % interval widths for the "
-            "designed input and for the fitted record's input."
+            "switching-time and output limits. The design is made for the part of the record "
+            "the fit of it will estimate from (--split, by default the fit's own, 0.5 for "
+            "'hhra-phys fit'): that part is designed and the rest is a validation input. "
+            "Writes t,u at the fit's sample rate and a JSON side-car (same name, .json) with "
+            "the predicted 95 % interval widths for the designed input and for the fitted "
+            "record's input (each for the part its fit estimates from), and prints the "
+            "command that fits the record measured with the designed input."
         ),
     )
     p.add_argument("fit", metavar="FIT.json", help="a fit result written by 'hhra-phys fit --json'")
     p.add_argument("--duration", type=float, required=True, metavar="S",
                    help="length of the designed record [s]")
-    p.add_argument("--out", required=True, metavar="FILE.csv", help="the designed input (t,u)")
+    p.add_argument("--out", default=None, metavar="FILE.csv",
+                   help="the designed input (t,u) (default: design.csv beside FIT.json)")
+    p.add_argument("--split", type=fraction, default=None, metavar="F",
+                   help="estimation fraction of the fit that will be made of the designed "
+                        "record, as 'hhra-phys fit --split' (default: the fit's own split, 0.5 "
+                        "for a default fit; 1 if it validated on other records): the first F "
+                        "of the record is designed, the rest is a validation input; 1 designs "
+                        "the whole record (fit it with --split 1 --validate OTHER.csv)")
     p.add_argument("--max-input", type=float, default=None, metavar="I",
                    help="largest |u| (default: the largest |u| of the fitted record)")
     p.add_argument("--output-limit", type=float, default=OUTPUT_LIMIT_DEG, metavar="Y",
@@ -78,6 +89,21 @@ def fitted_record(res: Any, path: str | None) -> Any:
     return None
 
 
+def fit_split(res: Any) -> float:
+    """The estimation fraction the fit used (:func:`hhra_phys.design.estimation_split`)."""
+    from hhra_phys.design import estimation_split
+
+    return estimation_split(res)
+
+
+def fit_command(split: float, validate: str | None) -> str:
+    """The ``hhra-phys fit`` command of the record measured with a designed input."""
+    cmd = f"hhra-phys fit RECORD.csv --split {split:g}"
+    if split >= 1:
+        cmd += f" --validate {validate or 'OTHER.csv'}"
+    return cmd + " --json RECORD-fit.json"
+
+
 def _geomean(widths: dict[str, float]) -> float:
     vals = [w for w in widths.values() if w > 0 and math.isfinite(w)]
     return float(np.exp(np.mean(np.log(vals)))) if vals else float("nan")
@@ -89,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     from hhra_phys.result import FitResult
 
     try:
+        if args.out is None:
+            args.out = str(Path(args.fit).with_name("design.csv"))
         if not str(args.out).lower().endswith(".csv"):
             raise ParameterError(f"--out {args.out}: the designed input is written as .csv")
         out = check_output_path(args.out, overwrite=args.overwrite, what="designed input")
@@ -101,16 +129,21 @@ def run(args: argparse.Namespace) -> int:
         if args.draws < 0:
             raise ParameterError(f"--draws must be >= 0, got {args.draws}")
         res = FitResult.load(args.fit)
+        split = fit_split(res) if args.split is None else float(args.split)
         record = fitted_record(res, args.data)
         if record is None and args.max_input is None:
             raise ParameterError("the fitted record is not available (give --data FILE) and "
                                  "--max-input is not given: no input limit to design within")
         print(f"designing a {args.duration:g} s input ({args.criterion}-optimal, "
-              f"{args.draws} draws) for {', '.join(InformationModel(res).free)}", file=sys.stderr)
+              f"{args.draws} draws) for {', '.join(InformationModel(res).free)}, "
+              + ("the whole record for estimation" if split >= 1 else
+                 f"the first {split:g} of it for estimation (--split {split:g})"),
+              file=sys.stderr)
         design = design_input(res, args.duration, max_input=args.max_input,
                               output_limit=args.output_limit, min_hold=args.min_hold,
                               criterion=args.criterion, seed=args.seed, draws=args.draws,
-                              reference_input=None if record is None else record.u)
+                              reference_input=None if record is None else record.u,
+                              split=split)
     except (HHRAError, OSError) as exc:
         return report_error("design", exc)
     broken = design.check()
@@ -119,9 +152,13 @@ def run(args: argparse.Namespace) -> int:
         if abs(record.fs - design.fs) > 1e-9 * design.fs:
             print(f"note: the fitted record is sampled at {record.fs} Hz, the design at "
                   f"{design.fs} Hz; its widths are predicted at its own rate", file=sys.stderr)
-        w = InformationModel(res, record.fs).widths(record.u)
+        # The part of the fitted record its fit estimated from (its split), as for the design.
+        own = fit_split(res)
+        n_own = record.n if own >= 1 else int(round(own * record.n))
+        w = InformationModel(res, record.fs).widths(record.u[:n_own])
         fitted = {"name": record.name or record.source, "duration": float(record.duration),
-                  "widths": w, "geomean": _geomean(w)}
+                  "split": own, "n_est": n_own, "widths": w, "geomean": _geomean(w)}
+    validate = None if record is None else (record.source or None)
     buf = io.StringIO()
     np.savetxt(buf, np.column_stack([design.t, design.u]), delimiter=",", header="t,u",
                comments="", fmt="%.10g")
@@ -139,11 +176,18 @@ def run(args: argparse.Namespace) -> int:
         "peak_output": design.peak_output,
         "evaluations": design.evaluations,
         "limits_broken": broken,
-        "designed": {"duration": design.limits["duration"], "widths": design.widths,
+        "split": design.split,
+        "designed": {"duration": design.limits["duration"], "split": design.split,
+                     "n_est": design.n_est, "widths": design.widths,
                      "geomean": _geomean(design.widths)},
+        "designed_whole": ({"widths": design.widths_whole,
+                            "geomean": _geomean(design.widths_whole)}
+                           if design.widths_whole else None),
+        "fit_command": fit_command(design.split, validate),
         "fitted_record": fitted,
         "width": "relative 95 % interval width (hi - lo) / value, predicted from the Fisher "
-                 "information at the fitted values",
+                 "information at the fitted values for a fit of the estimation part (the first "
+                 "n_est samples; the fitted record's with its fit's split)",
     }
     atomic_write_text(side, json.dumps(jsonable(report), indent=1))
     print(f"{'parameter':<12} {'designed':>10} {'fitted rec.':>12}")
@@ -153,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"geometric mean of the relative 95 % widths: {_geomean(design.widths):.4g}"
           + (f" (fitted record's input: {fitted['geomean']:.4g})" if fitted else ""))
     print(f"wrote {out}\nwrote {side}")
+    est = ("the whole record" if design.split >= 1 else
+           f"its first {design.n_est / design.fs:g} s (the rest validates)")
+    print(f"the widths are those of a fit that estimates from {est}; run {out.name} on the rig "
+          f"and fit the record (RECORD.csv) with:\n  {fit_command(design.split, validate)}")
     if broken:
         print(f"hhra-phys design: error: the design breaks limits: {'; '.join(broken)}",
               file=sys.stderr)
