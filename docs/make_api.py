@@ -7,13 +7,15 @@ Usage::
     python docs/make_api.py --out FILE
 
 Every public module of ``hhra_phys`` (not the ``cli`` package, whose reference is
-``hhra-phys COMMAND --help``, nor the modules kept only for old import paths) gets a
-section with its docstring, then its public classes (with their public methods and
-properties) and functions, each with its signature and docstring. Public means: listed
-in the module's curated ``__all__``; a module without one is an error, so that nothing
-becomes public API by accident. The output depends only on the code, so
-``--check`` (run by ``tests/test_guide.py``) tells whether it was regenerated after the
-docstrings changed.
+``hhra-phys COMMAND --help``) gets a section with the first paragraph of its docstring,
+then its public classes (with their public methods and properties) and functions, each
+with its signature and the summary paragraph of its docstring: a map of the API to find
+things in (:data:`MAX_LINES` at most); the whole docstrings, with parameters, shapes and
+units, are one ``help(...)`` away. Public means: listed in the module's curated
+``__all__``; a module without one is an error, so that nothing becomes public API by
+accident. The output depends only on the code, so ``--check`` (run by
+``tests/integration/test_guide.py``) tells whether it was regenerated after the docstrings
+changed, and fails when the reference grows past :data:`MAX_LINES`.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+#: Longest reference: a map to find things in, not a copy of every docstring.
+MAX_LINES = 3000
 DEFAULT_OUT = HERE / "api.md"
 PACKAGE = "hhra_phys"
 SKIP = ("hhra_phys.cli", "hhra_phys.data.")  # data: documented once, via its __all__
@@ -65,8 +69,10 @@ def _signature(obj: object) -> str:
 
 
 def _doc(obj: object) -> str:
-    doc = inspect.getdoc(obj) or "(no docstring)"
-    return "```text\n" + doc.strip() + "\n```\n"
+    """The summary paragraph of ``obj``'s docstring (up to its first blank line)."""
+    doc = (inspect.getdoc(obj) or "(no docstring)").strip()
+    first = doc.split("\n\n", 1)[0]
+    return " ".join(line.strip() for line in first.splitlines()) + "\n"
 
 
 def _members(cls: type) -> list[tuple[str, object]]:
@@ -85,6 +91,8 @@ def render() -> str:
         "# API reference",
         "",
         "Generated from the docstrings by `python docs/make_api.py`; do not edit by hand.",
+        "Each entry is the summary line of its docstring; `help(name)` in Python shows the",
+        "whole docstring (parameters with shapes and units, returns, notes).",
         "The user's guide is [guide.md](guide.md).",
         "",
     ]
@@ -95,15 +103,19 @@ def render() -> str:
         lines += [f"## {mname}", "", _doc(module)]
         for name, obj in _public(module):
             if inspect.isclass(obj):
+                if lines[-1]:
+                    lines.append("")
                 lines += [f"### class `{name}{_signature(obj)}`", "", _doc(obj)]
                 for mem, val in _members(obj):
                     if isinstance(val, property):
-                        lines += [f"#### property `{name}.{mem}`", "", _doc(val)]
+                        lines.append(f"- property `{mem}`: {_doc(val).strip()}")
                     else:
                         fn = val.__func__ if isinstance(val, (classmethod, staticmethod)) else val
-                        lines += [f"#### `{name}.{mem}{_signature(fn)}`", "", _doc(fn)]
+                        lines.append(f"- `{mem}{_signature(fn)}`: {_doc(fn).strip()}")
+                lines.append("")
             else:
-                lines += [f"### `{name}{_signature(obj)}`", "", _doc(obj)]
+                lines.append(f"- `{name}{_signature(obj)}`: {_doc(obj).strip()}")
+        lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -113,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 if the file is not current")
     args = ap.parse_args(argv)
     text = render()
+    n = len(text.splitlines())
+    if n > MAX_LINES:
+        print(f"the API reference has {n} lines, more than {MAX_LINES}: the public API "
+              "(__all__ of the modules) has grown too large", file=sys.stderr)
+        return 1
     if args.check:
         current = args.out.read_text() if args.out.exists() else ""
         if current != text:

@@ -9,8 +9,8 @@ model provides (``model.signal_names()``) and the input.
 
 Where (entry points, :func:`entry_points`)
     ``input`` (added to the input the model's parts see), ``output`` (added to the
-    output ``y``) and ``rate:<state>`` for every state (added to its time
-    derivative).
+    output ``y``) and ``rate:<state>`` for every state but a position whose rate is a
+    velocity state (added to its time derivative).
 
 What (term library, :func:`term_library`)
     For every variable ``v`` (states, the measured input ``u``, named signals;
@@ -403,8 +403,16 @@ class DiscoveredTerm(_AtEntry):
 
 
 def entry_points(model: Model) -> list[str]:
-    """Candidate entry points of ``model``: ``input``, ``output``, ``rate:<state>``."""
-    return ["input", "output", *[f"rate:{s}" for s in model.state_names]]
+    """Candidate entry points of ``model``: ``input``, ``output``, ``rate:<state>``.
+
+    The rate of a position whose rate is a velocity state (``d theta/dt = omega``,
+    :func:`velocity_pairs`) is no entry: that equation is the definition of the velocity,
+    not a balance a missing force or flow enters. Terms there stood in for what belonged
+    at the velocity's rate (a drag written as ``d theta/dt += -0.41*omega*|omega|``; a
+    term that took the place of a hidden resonance; docs/diagnosis.md).
+    """
+    kinematic = set(velocity_pairs(model).values())
+    return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
 
 
 def _signal_function(model: Model, dt: float) -> tuple[list[str], ca.Function | None]:
