@@ -56,7 +56,7 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import fit, fit_stacked
+from hhra_phys.fit import MAX_WIDEN_DECADES, at_edges, fit, fit_stacked
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
@@ -521,6 +521,8 @@ class _Outcome:
     x0: dict[str, float] = field(default_factory=dict)
     free: list[str] = field(default_factory=list)
     error: str = ""
+    #: Boxes of the candidate's parameters widened during its refit (kept on acceptance).
+    boxes: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def _search_size(n_new: int, pop: int | None, iters: int | None) -> tuple[int, int]:
@@ -562,11 +564,29 @@ def refit_candidate(job: _Job) -> _Outcome:
         fixed = {n: job.values[n] for n in job.free if n not in searched}
         all_free = list(job.free) + new
         pop, iters = _search_size(len(searched), job.cand_pop, job.cand_iter)
-        p1 = _problem(cfg, model_c, searched, fixed, job.values, job.x0)
-        r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
-        p2 = _problem(cfg, model_c, all_free, {}, _values(r1), r1.x0,
-                      simulator=getattr(p1, "simulators", p1.sim))
-        r2 = _run(cfg, p2, "none", 0, 0)
+        p2, r2 = _search_candidate(cfg, model_c, searched, fixed, all_free, job, pop, iters)
+        # A new parameter that ends at the edge of its (guessed) box: the box, not the data,
+        # stopped it (a gravity load found at a third of its size, which a stand-in then
+        # made up for). Its side is widened and the candidate searched again, as often as a
+        # fit widens (MAX_WIDEN_DECADES); kept when it fits estimation better.
+        boxes: dict[str, tuple[float, float]] = {}
+        widened_notes: list[str] = []
+        for _ in range(MAX_WIDEN_DECADES):
+            wide = _edge_boxes(p2, r2, new)
+            if not wide:
+                break
+            cfg_w = replace(cfg, default_bounds={**cfg.default_bounds, **boxes, **wide})
+            p2w, r2w = _search_candidate(cfg_w, model_c, searched, fixed, all_free, job, pop,
+                                         iters)
+            gain = float(r2.metrics["est"]["mse"]) - float(r2w.metrics["est"]["mse"])
+            widened_notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
+                              f"and the candidate searched again"
+                              + ("" if gain > 0 else " (no better: kept as it was)")
+                              for n, (lo, hi) in wide.items()]
+            if not gain > 0:
+                break
+            boxes.update(wide)
+            p2, r2 = p2w, r2w
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
         return _Outcome(None, error=f"its refit failed: {type(exc).__name__}: {exc}")
     crit = information_criterion(r2, cfg.criterion)
@@ -590,8 +610,45 @@ def refit_candidate(job: _Job) -> _Outcome:
                 f"selection drives the output to [{vrange[0]:.3g}, {vrange[1]:.3g}] "
                 f"{cfg.data.output_unit or ''}, outside the estimation range "
                 f"[{lo:.3g}, {hi:.3g}]: this position-dependent effect is extrapolated there")
+    step.notes.extend(widened_notes)
     step.seconds = time.perf_counter() - ts
-    return _Outcome(step, _values(r2), dict(r2.x0), all_free)
+    return _Outcome(step, _values(r2), dict(r2.x0), all_free, boxes=boxes)
+
+
+def _search_candidate(cfg: _Settings, model: Model, searched: list[str],
+                      fixed: dict[str, float], all_free: list[str], job: _Job, pop: int,
+                      iters: int) -> tuple[Problem, FitResult]:
+    """A candidate's two stages: global search over ``searched`` (the rest held at the
+    previous fit), then IPOPT over ``all_free``; the second stage's problem and fit."""
+    p1 = _problem(cfg, model, searched, fixed, job.values, job.x0)
+    r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
+    p2 = _problem(cfg, model, all_free, {}, _values(r1), r1.x0,
+                  simulator=getattr(p1, "simulators", p1.sim))
+    return p2, _run(cfg, p2, "none", 0, 0)
+
+
+def _edge_boxes(problem: Problem, res: FitResult, names: Sequence[str]
+                ) -> dict[str, tuple[float, float]]:
+    """Widened boxes of the parameters ``names`` that end at a box edge: that side a decade
+    further (log scale) or ten times as far from zero (linear; a side at zero is a sign and
+    stays). Boxes the user gave (explicit bounds) are never widened."""
+    z = problem.to_z(_free_values(problem, res))
+    out: dict[str, tuple[float, float]] = {}
+    for i, side in at_edges(problem, z):
+        par = problem.free_params[i]
+        if par.name not in names or par.name in getattr(problem, "explicit_bounds", ()):
+            continue
+        lo, hi = par.lower, par.upper
+        if par.scale == "log":
+            lo, hi = (lo / 10, hi) if side == "lower" else (lo, hi * 10)
+        elif side == "lower" and lo < 0:
+            lo = 10 * lo
+        elif side == "upper" and hi > 0:
+            hi = 10 * hi
+        else:
+            continue
+        out[par.name] = (lo, hi)
+    return out
 
 
 def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
@@ -1141,6 +1198,8 @@ def augment(
                 # serial and distributed loops continue from the same numbers.
                 job, best = payload
                 model_c, _, _ = _candidate_model(job)
+                if best.boxes:  # its widened boxes stay with it
+                    cfg = replace(cfg, default_bounds={**cfg.default_bounds, **best.boxes})
                 free_c, vals_c, x0_c = best.free, best.values, best.x0
             else:
                 model_c = payload.problem.model
