@@ -675,19 +675,28 @@ MUTATIONS: tuple[Mutation, ...] = (
 # test files named for each were picked by their names only. Kept apart from MUTATIONS so the
 # two kill rates are reported separately (``--list-set second``); docs/testing.md has both.
 
-CYL_TESTS = ("tests/integration/test_cylinder.py",)
+# The oracle files (tests/unit/test_oracles_*.py, written after the first run for its
+# survivors) come first in each tuple, so -x stops at them; docs/testing.md has the first
+# run's figures with the tests named before them.
+CYL_TESTS = ("tests/unit/test_oracles_cylinder.py", "tests/integration/test_cylinder.py")
 SIMD_TESTS = ("tests/unit/test_simulate.py", "tests/unit/test_vectorize.py")
-RULE_TESTS = ("tests/unit/test_loop_rule.py", "tests/unit/test_loop_backward.py")
-DISC_TESTS = ("tests/integration/test_discover.py",)
-MULTI_TESTS = ("tests/integration/test_multi.py", "tests/integration/test_multi_diagnose.py")
-DESIGN_TESTS = ("tests/integration/test_design.py",)
-TIME_TESTS = ("tests/unit/test_units.py", "tests/unit/test_data.py",
-              "tests/unit/test_data_loaders.py", "tests/unit/test_cli_args.py")
-ARX_TESTS = ("tests/unit/test_arx.py",)
-CONTROL_TESTS = ("tests/unit/test_control.py",)
+RULE_TESTS = ("tests/unit/test_oracles_loop.py", "tests/unit/test_loop_rule.py",
+              "tests/unit/test_loop_backward.py")
+DISC_TESTS = ("tests/unit/test_oracles_discover.py", "tests/unit/test_oracles_modes.py",
+              "tests/integration/test_discover.py")
+MULTI_TESTS = ("tests/unit/test_oracles_multi.py", "tests/integration/test_multi.py",
+               "tests/integration/test_multi_diagnose.py")
+DESIGN_TESTS = ("tests/unit/test_oracles_design.py", "tests/integration/test_design.py")
+TIME_TESTS = ("tests/unit/test_oracles_time.py", "tests/unit/test_units.py",
+              "tests/unit/test_data.py", "tests/unit/test_data_loaders.py",
+              "tests/unit/test_cli_args.py")
+ARX_TESTS = ("tests/unit/test_oracles_arx.py", "tests/unit/test_arx.py")
+CONTROL_TESTS = ("tests/unit/test_oracles_control.py", "tests/unit/test_control.py")
 WIDEN_TESTS = ("tests/integration/test_widen.py",)
 VALVE_TESTS = ("tests/unit/test_model.py", "tests/unit/test_effects.py")
-EFFECTS2_TESTS = ("tests/unit/test_effects.py", "tests/unit/test_effect_signatures.py")
+#: The reference rig's right-hand-side comparison per effect (first run: not named, 2 survived).
+EFFECTS2_TESTS = ("tests/unit/test_effects.py", "tests/unit/test_effect_signatures.py",
+                  "tests/integration/test_reference_rig.py")
 METRICS2_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py")
 OPTIM2_TESTS = ("tests/unit/test_optim.py", "tests/unit/test_optim_steps.py")
 
@@ -762,10 +771,10 @@ SECOND_HAND: tuple[Mutation, ...] = (
     _m("multi-pooled-noise-unsquared", "records' noise pooled from sigma, not sigma^2",
        "sigma = float(np.sqrt(sum(rk.size * noise_level(rk) ** 2 for rk in rs) / r.size))",
        "sigma = float(np.sqrt(sum(rk.size * noise_level(rk) for rk in rs) / r.size))",
-       MULTI_TESTS + RULE_TESTS),
+       RULE_TESTS + MULTI_TESTS),
     _m("multi-ljung-box-dof", "pooled Ljung-Box degrees of freedom: the largest, not the sum",
        'sum(w["lags"] for w in tests)))', 'max(w["lags"] for w in tests)))',
-       MULTI_TESTS + RULE_TESTS),
+       RULE_TESTS + MULTI_TESTS),
     _m("multi-per-record-shared", "per-record parameters are stacked as one shared value",
        'specific = par.name in own or par.name.startswith("x0_")',
        'specific = par.name.startswith("x0_")', MULTI_TESTS),
