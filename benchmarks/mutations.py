@@ -12,6 +12,13 @@ file name, so the list survives files being moved::
     python benchmarks/mutations.py                       # every mutation
     python benchmarks/mutations.py --only hgwo-no-de-step metrics-mse-sum
     python benchmarks/mutations.py --group optim metrics --json out/mutations.json
+    python benchmarks/mutations.py --list-set second --pytest-args='-m "not slow"'
+
+Two lists: :data:`MUTATIONS` (written with the tests) and :data:`SECOND_HAND` (written from
+the package code alone, without reading the tests first); ``--list-set`` picks
+``first`` (default), ``second`` or ``all``, so each list's kill rate is reported on its own.
+``--pytest-args`` appends arguments to every pytest run (e.g. ``-m "not slow"`` for the
+suite ``.ci/run`` runs by default).
 
 Before the mutations, the tests named by the selected mutations run once on an unmutated copy:
 if they fail there, every mutation would look killed, so the script stops.
@@ -662,6 +669,252 @@ MUTATIONS: tuple[Mutation, ...] = (
 )
 
 
+# --- the second hand's list ------------------------------------------------------------------
+# Written from the package code alone, without reading the tests or the list above, so that
+# its kill rate measures the tests against bugs their authors did not list (issue 23). The
+# test files named for each were picked by their names only. Kept apart from MUTATIONS so the
+# two kill rates are reported separately (``--list-set second``); docs/testing.md has both.
+
+# The oracle files (tests/unit/test_oracles_*.py, written after the first run for its
+# survivors) come first in each tuple, so -x stops at them; docs/testing.md has the first
+# run's figures with the tests named before them.
+CYL_TESTS = ("tests/unit/test_oracles_cylinder.py", "tests/integration/test_cylinder.py")
+SIMD_TESTS = ("tests/unit/test_simulate.py", "tests/unit/test_vectorize.py")
+RULE_TESTS = ("tests/unit/test_oracles_loop.py", "tests/unit/test_loop_rule.py",
+              "tests/unit/test_loop_backward.py")
+DISC_TESTS = ("tests/unit/test_oracles_discover.py", "tests/unit/test_oracles_modes.py",
+              "tests/integration/test_discover.py")
+MULTI_TESTS = ("tests/unit/test_oracles_multi.py", "tests/integration/test_multi.py",
+               "tests/integration/test_multi_diagnose.py")
+DESIGN_TESTS = ("tests/unit/test_oracles_design.py", "tests/integration/test_design.py")
+TIME_TESTS = ("tests/unit/test_oracles_time.py", "tests/unit/test_units.py",
+              "tests/unit/test_data.py", "tests/unit/test_data_loaders.py",
+              "tests/unit/test_cli_args.py")
+ARX_TESTS = ("tests/unit/test_oracles_arx.py", "tests/unit/test_arx.py")
+CONTROL_TESTS = ("tests/unit/test_oracles_control.py", "tests/unit/test_control.py")
+WIDEN_TESTS = ("tests/integration/test_widen.py",)
+VALVE_TESTS = ("tests/unit/test_model.py", "tests/unit/test_effects.py")
+#: The reference rig's right-hand-side comparison per effect (first run: not named, 2 survived).
+EFFECTS2_TESTS = ("tests/unit/test_effects.py", "tests/unit/test_effect_signatures.py",
+                  "tests/integration/test_reference_rig.py")
+METRICS2_TESTS = ("tests/unit/test_metrics.py", "tests/unit/test_metrics_hand.py")
+OPTIM2_TESTS = ("tests/unit/test_optim.py", "tests/unit/test_optim_steps.py")
+
+SECOND_HAND: tuple[Mutation, ...] = (
+    # -- the cylinder model: chamber volumes and groups ---------------------------------------
+    _m("cyl-one-dead-volume", "total oil volume counts the lines' dead volume once, not per side",
+       "return self.A_p * self.stroke + 2.0 * self.V_dead",
+       "return self.A_p * self.stroke + self.V_dead", CYL_TESTS),
+    _m("cyl-compliance-half", "hydraulic capacitance V_t/(2 beta_e) (one chamber's volume rule)",
+       "return self.V_t / (4.0 * self.beta_e)", "return self.V_t / (2.0 * self.beta_e)",
+       CYL_TESTS),
+    _m("cyl-beta-from-groups", "bulk modulus solved from c_compress with 2 A_p instead of 4 A_p",
+       'beta_e = g["c_compress"] * self.V_t * self.p_s / (4.0 * self.A_p)',
+       'beta_e = g["c_compress"] * self.V_t * self.p_s / (2.0 * self.A_p)', CYL_TESTS),
+    _m("cyl-area-no-rod", "annulus area forgets the rod: pi/4 bore^2",
+       "return 0.25 * math.pi * (self.bore**2 - self.rod**2)",
+       "return 0.25 * math.pi * self.bore**2", CYL_TESTS),
+    _m("cyl-tf-no-damping-leak", "transfer function's s coefficient forgets c_damping*L",
+       '"c": g["c_spring"] + g["c_damping"] * leak + g["c_force"] * g["c_compress"],',
+       '"c": g["c_spring"] + g["c_force"] * g["c_compress"],', CYL_TESTS),
+    # -- SIMD packing of initial states and parameters ----------------------------------------
+    _m("simd-pack-x0-untransposed", "vector layout of the initial states without the transpose",
+       "X.reshape(X.shape[0], groups, width).transpose(1, 0, 2).reshape(-1, width)",
+       "X.reshape(groups, X.shape[0], width).reshape(-1, width)", SIMD_TESTS),
+    _m("simd-pack-params-untransposed", "vector layout of the parameters without the transpose",
+       "P.reshape(groups, width, -1).transpose(0, 2, 1).reshape(-1, width)",
+       "P.reshape(groups, -1, width).reshape(-1, width)", SIMD_TESTS),
+    _m("simd-cost-unpack", "vector cost's final augmented states read back without the transpose",
+       "xa = xa.reshape(groups, nx + 2, width).transpose(1, 0, 2).reshape(nx + 2, -1)",
+       "xa = xa.reshape(nx + 2, groups, width).reshape(nx + 2, -1)", SIMD_TESTS),
+    _m("simd-output-lanes", "vector outputs read back as (groups, width, chunk)",
+       "outs[0]).reshape(groups, self.chunk, width)[:, :m].transpose(0, 2, 1)",
+       "outs[0]).reshape(groups, width, self.chunk)[:, :, :m]", SIMD_TESTS),
+    _m("simd-fmin-is-fmax", "lane-wise fmin selects the larger value",
+       "return hv_select(b.v != b.v, a, hv_select(a.v <= b.v, a, b));",
+       "return hv_select(b.v != b.v, a, hv_select(a.v >= b.v, a, b));", SIMD_TESTS),
+    _m("simd-lanes-unpack-order", "interleaved lanes unpacked with block and sample axes swapped",
+       "arr.transpose(3, 0, 2, 1).reshape(n_members, nb * self.block)",
+       "arr.transpose(3, 0, 1, 2).reshape(n_members, nb * self.block)", SIMD_TESTS),
+    # -- the loop: information criterion, noise allowance, backward step ----------------------
+    _m("loop-bic-log10", "BIC penalty k*log10(N) instead of k*ln(N)",
+       'pen = k * math.log(n) if kind == "bic" else 2.0 * k',
+       'pen = k * math.log10(n) if kind == "bic" else 2.0 * k', RULE_TESTS),
+    _m("loop-ic-no-n", "information criterion ln(RSS/N) + pen, the N factor forgotten",
+       "return n * math.log(mse) + pen", "return math.log(mse) + pen", RULE_TESTS),
+    _m("loop-ic-k-without-x0", "k does not count the fitted initial state",
+       "k = len(result.free)\n",
+       'k = len([f for f in result.free if not f.startswith("x0_")])\n', RULE_TESTS),
+    _m("loop-allowance-no-minus-one", "noise allowance (1+tol)^2 noise^2, the -1 forgotten",
+       "return ((1 + noise_tol) ** 2 - 1) * noise ** 2 if",
+       "return (1 + noise_tol) ** 2 * noise ** 2 if", RULE_TESTS),
+    _m("loop-allowance-noise-unsquared", "noise allowance ((1+tol)^2-1)*noise (not noise^2)",
+       "return ((1 + noise_tol) ** 2 - 1) * noise ** 2 if",
+       "return ((1 + noise_tol) ** 2 - 1) * noise if", RULE_TESTS),
+    _m("loop-gain-margin-sign", "clear gain read as rmse_after <= (1 + margin) * rmse_before",
+       "gain_ok = vr <= (1 - margin) * rmse_before",
+       "gain_ok = vr <= (1 + margin) * rmse_before", RULE_TESTS),
+    _m("loop-beyond-diff-squared", "variance removed computed as (rmse_before - rmse_after)^2",
+       "beyond_ok = rmse_before ** 2 - vr ** 2 > allowance",
+       "beyond_ok = (rmse_before - vr) ** 2 > allowance", RULE_TESTS),
+    _m("loop-backward-swapped", "backward step calls the rule with the two models swapped",
+       "keep, reason = acceptance(rmse_without, rmse_with, crit_without, crit_with, margin,",
+       "keep, reason = acceptance(rmse_with, rmse_without, crit_with, crit_without, margin,",
+       RULE_TESTS),
+    _m("loop-backward-from-three", "backward step only once three effects are accepted",
+       "if backward and len(chosen) >= 2:", "if backward and len(chosen) > 2:",
+       RULE_TESTS + ("tests/integration/test_diagnose.py",)),
+    _m("loop-at-noise-and", "at the noise level only when small AND white (not or)",
+       'return bool(level["ratio"] <= 1 + noise_tol or level["white"])',
+       'return bool(level["ratio"] <= 1 + noise_tol and level["white"])', RULE_TESTS),
+    # -- per-record parameters and the pooled noise of several records ------------------------
+    _m("multi-pooled-noise-unsquared", "records' noise pooled from sigma, not sigma^2",
+       "sigma = float(np.sqrt(sum(rk.size * noise_level(rk) ** 2 for rk in rs) / r.size))",
+       "sigma = float(np.sqrt(sum(rk.size * noise_level(rk) for rk in rs) / r.size))",
+       RULE_TESTS + MULTI_TESTS),
+    _m("multi-ljung-box-dof", "pooled Ljung-Box degrees of freedom: the largest, not the sum",
+       'sum(w["lags"] for w in tests)))', 'max(w["lags"] for w in tests)))',
+       RULE_TESTS + MULTI_TESTS),
+    _m("multi-per-record-shared", "per-record parameters are stacked as one shared value",
+       'specific = par.name in own or par.name.startswith("x0_")',
+       'specific = par.name.startswith("x0_")', MULTI_TESTS),
+    _m("multi-record-values-first", "every record reports the first record's own values",
+       '"values": {n: float(pr.full(vk)[model.params.index(n)])',
+       '"values": {n: float(problem.full(v)[model.params.index(n)])', MULTI_TESTS),
+    # -- discovery: printed coefficients and the load-mode rule -------------------------------
+    _m("disc-print-lin-scale", "printed linear coefficient multiplied by the scale, not divided",
+       '"lin": (a / s[0], f"{args[0]}")', '"lin": (a * s[0], f"{args[0]}")', DISC_TESTS),
+    _m("disc-print-sq-scale", "printed square coefficient divided by s, not s^2",
+       '"sq": (a / s[0] ** 2, f"{args[0]}^2")', '"sq": (a / s[0], f"{args[0]}^2")', DISC_TESTS),
+    _m("disc-print-sat-width", "printed tanh width s*2 instead of s/2",
+       'f"tanh({args[0]}/{g.format(s[0] / 2)})"', 'f"tanh({args[0]}/{g.format(s[0] * 2)})"',
+       DISC_TESTS),
+    _m("disc-print-prod-scale", "printed product coefficient divided by one scale only",
+       '((a / (s[0] * s[1]), f"{args[0]}*{args[1]}")', '((a / s[0], f"{args[0]}*{args[1]}")',
+       DISC_TESTS),
+    _m("disc-load-mode-count", "load mode claimed with as many resonances as without it",
+       "if len(both) <= len(own):", "if len(both) < len(own):",
+       DISC_TESTS + ("tests/integration/test_discover_mode.py",)),
+    _m("disc-separation-one-sided", "mode separation checked only above the own resonance",
+       "if max(w / w_own, w_own / w) < MODE_SEPARATION:", "if w / w_own < MODE_SEPARATION:",
+       DISC_TESTS + ("tests/integration/test_discover_mode.py",)),
+    # -- design: Fisher information, marginalisation, input limit -----------------------------
+    _m("design-fisher-sigma", "Fisher information J^T J / sigma (not sigma^2)",
+       "info = J.T @ J / self.sigma**2", "info = J.T @ J / self.sigma", DESIGN_TESTS),
+    _m("design-conditional", "initial angle conditioned on (inverse of the parameter block) "
+       "instead of marginalised",
+       "cov = np.linalg.inv(info)", "cov = np.linalg.inv(info[:len(self.free), :len(self.free)])",
+       DESIGN_TESTS),
+    _m("design-max-input-signed", "default input limit max(u), not max|u|",
+       "max_input = float(np.max(np.abs(reference_input)))",
+       "max_input = float(np.max(reference_input))", DESIGN_TESTS),
+    _m("design-e-smallest", "E-criterion takes the smallest eigenvalue",
+       "return float(w[-1]) if w[0] > 0 else math.inf",
+       "return float(w[0]) if w[0] > 0 else math.inf", DESIGN_TESTS),
+    _m("design-widths-variance", "predicted widths from the variance, the square root forgotten",
+       "sd[:m] = np.sqrt(np.clip(np.diag(cov), 0, None))",
+       "sd[:m] = np.clip(np.diag(cov), 0, None)", DESIGN_TESTS),
+    _m("design-draws-variance", "covariance draws scaled by eigenvalues, not their roots",
+       "L = V * np.sqrt(np.clip(w, 0, None))", "L = V * np.clip(w, 0, None)", DESIGN_TESTS),
+    # -- time-unit conversion -----------------------------------------------------------------
+    _m("time-us-factor", "--time-unit us divides by 1000, like ms",
+       'TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6}',
+       'TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-3}', TIME_TESTS),
+    _m("time-mrad-factor", "mrad to deg factor 1.8/pi (ten times too large)",
+       '"mrad": 0.18 / math.pi', '"mrad": 1.8 / math.pi', TIME_TESTS),
+    _m("time-dt-over-n", "sample period (t[-1]-t[0])/N instead of /(N-1)",
+       "return float((self.t[-1] - self.t[0]) / (self.n - 1))",
+       "return float((self.t[-1] - self.t[0]) / self.n)", TIME_TESTS),
+    _m("time-axis-from-one", "time axis built from fs starts at dt, not 0",
+       "return np.arange(n, dtype=np.float64) / float(fs), False",
+       "return np.arange(1, n + 1, dtype=np.float64) / float(fs), False", TIME_TESTS),
+    # -- ARX path: continuous poles, FFRLS ----------------------------------------------------
+    _m("arx-cpoles-factor", "continuous poles s = (1/T)(z-1)/(z+1): the factor 2 forgotten",
+       "return 2.0 / dt * (z - 1.0) / (z + 1.0)", "return 1.0 / dt * (z - 1.0) / (z + 1.0)",
+       ARX_TESTS),
+    _m("arx-ffrls-gain-no-xi", "FFRLS gain P phi / (1 + phi^T P phi): xi forgotten",
+       "gain = pf / (xi[k] + f @ pf)", "gain = pf / (1.0 + f @ pf)", ARX_TESTS),
+    _m("arx-ffrls-cov-times-xi", "FFRLS covariance multiplied by xi instead of divided",
+       "cov = (cov - np.outer(gain, pf)) / xi[k]", "cov = (cov - np.outer(gain, pf)) * xi[k]",
+       ARX_TESTS),
+    _m("arx-forget-offset", "forgetting factor's first update uses xi(1), not xi(0)",
+       "return 1.0 - (1.0 - xi_init) * xi0 ** np.arange(n)",
+       "return 1.0 - (1.0 - xi_init) * xi0 ** np.arange(1, n + 1)", ARX_TESTS),
+    _m("arx-tustin-inverse-b", "inverse Tustin b = abc[1] T^2/2 (not /4)",
+       '"b": float(abc[1] * dt**2 / 4.0 / a)', '"b": float(abc[1] * dt**2 / 2.0 / a)',
+       ARX_TESTS),
+    # -- control export: operating point, closed-loop figures ---------------------------------
+    _m("ctl-op-velocity-rad", "operating point's velocity [deg/s] used as rad/s",
+       '"omega": math.radians(float(named.get("velocity", 0.0))),',
+       '"omega": float(named.get("velocity", 0.0)),', CONTROL_TESTS),
+    _m("ctl-rms-is-std", "tracking RMS computed as the standard deviation (mean removed)",
+       'return {"rms": float(np.sqrt(np.mean(e**2))),', 'return {"rms": float(np.std(e)),',
+       CONTROL_TESTS),
+    _m("ctl-settle-offbyone", "settling time is the last sample outside the band",
+       "settle = float(t[outside[-1] + 1])", "settle = float(t[outside[-1]])", CONTROL_TESTS),
+    _m("ctl-sse-sign", "steady-state error y - r instead of r - y",
+       '"steady_state_error": float(np.mean(self.r[-k:] - self.y[-k:])),',
+       '"steady_state_error": float(np.mean(self.y[-k:] - self.r[-k:])),', CONTROL_TESTS),
+    _m("ctl-inverse-tustin-dt", "ARX inverse Tustin with sT instead of sT/2",
+       "plus, minus = np.array([dt / 2, 1.0]), np.array([-dt / 2, 1.0])",
+       "plus, minus = np.array([dt, 1.0]), np.array([-dt, 1.0])", CONTROL_TESTS),
+    # -- the box widening's release rule ------------------------------------------------------
+    _m("widen-outward-sign", "release rule reads 'outward' with the sides swapped",
+       'outward = dz[cols.index(i)] * (1.0 if side == "upper" else -1.0) > 0',
+       'outward = dz[cols.index(i)] * (1.0 if side == "lower" else -1.0) > 0', WIDEN_TESTS),
+    _m("widen-excess-no-n", "excess over noise compares sigma^2 (not N sigma^2) with the SSR",
+       "max(0.0, 1.0 - r.size * noise_level(r) ** 2 / total)",
+       "max(0.0, 1.0 - noise_level(r) ** 2 / total)", WIDEN_TESTS),
+    # -- valve law, effects -------------------------------------------------------------------
+    _m("valve-drop-sign", "orifice pressure drop 1 + sign(I) p",
+       "drop = 1 - smooth_sign(cmd, sign_eps) * p", "drop = 1 + smooth_sign(cmd, sign_eps) * p",
+       VALVE_TESTS),
+    _m("valve-sqrt-normaliser", "signed-root normaliser forgets -sqrt(delta) (0.1 % gain error)",
+       "norm = 1.0 / (math.sqrt(1.0 + delta) - math.sqrt(delta))",
+       "norm = 1.0 / math.sqrt(1.0 + delta)", VALVE_TESTS),
+    _m("eff-backlash-full-play", "backlash contact at the whole play, not half of it",
+       'half = 0.5 * ctx.p["play"] / RAD2DEG', 'half = ctx.p["play"] / RAD2DEG', EFFECTS2_TESTS),
+    _m("eff-gravity-swapped", "gravity load's cos and sin groups swapped",
+       'ctx.add_rate("omega", -(ctx.p["g_grav_cos"] * ca.cos(th)\n'
+       '                                + ctx.p["g_grav_sin"] * ca.sin(th)))',
+       'ctx.add_rate("omega", -(ctx.p["g_grav_cos"] * ca.sin(th)\n'
+       '                                + ctx.p["g_grav_sin"] * ca.cos(th)))', EFFECTS2_TESTS),
+    _m("eff-stribeck-exp-abs", "Stribeck curve exp(-|w/v|) instead of exp(-(w/v)^2)",
+       'ca.exp(-(w / ctx.p["v_stribeck"]) ** 2)', 'ca.exp(-ca.fabs(w / ctx.p["v_stribeck"]))',
+       EFFECTS2_TESTS),
+    _m("eff-deadzone-even", "dead zone's negative branch added instead of subtracted",
+       "ctx.u = self._relu(c - d) - self._relu(-c - d)",
+       "ctx.u = self._relu(c - d) + self._relu(-c - d)", EFFECTS2_TESTS),
+    # -- metrics ------------------------------------------------------------------------------
+    _m("met-vaf-mse", "VAF from the mean squared error, not the error's variance",
+       "value = (1.0 - np.var(yy - yh, axis=-1) / var_y) * 100.0",
+       "value = (1.0 - np.mean((yy - yh) ** 2, axis=-1) / var_y) * 100.0", METRICS2_TESTS),
+    _m("met-itae-step-n", "ITAE's time step (t[-1]-t[0])/N",
+       "step = (tt[-1] - tt[0]) / (n - 1) if n > 1 else 0.0",
+       "step = (tt[-1] - tt[0]) / n if n > 1 else 0.0", METRICS2_TESTS),
+    _m("met-fit-scale-n-1", "FIT's norm of y - mean(y) from var * (N-1)",
+       'scale = np.sqrt(_spread(yy, "FIT") * yy.size)',
+       'scale = np.sqrt(_spread(yy, "FIT") * (yy.size - 1))', METRICS2_TESTS),
+    # -- optimisers ---------------------------------------------------------------------------
+    _m("opt-gwo-a-to-one", "GWO's a falls from 2 to 1 only",
+       "return 2.0 - 2.0 * t / max(horizon, 1)", "return 2.0 - t / max(horizon, 1)",
+       OPTIM2_TESTS),
+    _m("opt-de-cr-half", "DE crossover rate 0.5*rand instead of 0.5*(1+rand)",
+       "rate = 0.5 * (1.0 + u[:, d : d + 1]) if cr is None else cr",
+       "rate = 0.5 * u[:, d : d + 1] if cr is None else cr", OPTIM2_TESTS),
+    _m("opt-pso-social-pbest", "PSO's social term pulls toward the personal best",
+       "+ self.c2 * r[1] * (self.x_best - x)", "+ self.c2 * r[1] * (self.pbest - x)",
+       OPTIM2_TESTS),
+    _m("opt-hgwo-beta-leader", "H-GWO mutation around the beta wolf, not the alpha",
+       "mutant = self.lam * self.leaders[0] + self.F * (x[r[:, 0]] - x[r[:, 1]])",
+       "mutant = self.lam * self.leaders[1] + self.F * (x[r[:, 0]] - x[r[:, 1]])",
+       OPTIM2_TESTS),
+    _m("opt-box-uniform-upper", "initial population spread by the upper bound, not the width",
+       "return self.lower + rng.random((n, self.dim)) * self.width",
+       "return self.lower + rng.random((n, self.dim)) * self.upper", OPTIM2_TESTS),
+)
+
+
 @dataclass
 class Outcome:
     """Result of one mutation run."""
@@ -693,9 +946,14 @@ def locate(snippet: str, root: Path = ROOT) -> tuple[Path | None, str]:
     return hits[0][0], ""
 
 
+#: Extra pytest arguments of every run (``--pytest-args``).
+PYTEST_EXTRA: list[str] = []
+
+
 def _pytest(copy: Path, tests: tuple[str, ...], timeout: float) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")
-    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *PYTEST_EXTRA,
+           *tests]
     return subprocess.run(
         cmd, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout, check=False
     )
@@ -791,12 +1049,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--timeout", type=float, default=300.0, metavar="S", help="seconds per test run"
     )
+    parser.add_argument(
+        "--list-set", choices=("first", "second", "all"), default="first",
+        help="which list: first (MUTATIONS, default), second (SECOND_HAND) or all",
+    )
+    parser.add_argument(
+        "--pytest-args", default="", metavar="ARGS",
+        help='arguments appended to every pytest run, e.g. \'-m "not slow"\'',
+    )
     args = parser.parse_args(argv)
+    PYTEST_EXTRA[:] = shlex.split(args.pytest_args)
 
-    ids = [m.id for m in MUTATIONS]
+    every = [*MUTATIONS, *SECOND_HAND]
+    ids = [m.id for m in every]
     if len(set(ids)) != len(ids):
-        raise SystemExit("duplicate mutation ids in MUTATIONS")
-    chosen = list(MUTATIONS)
+        raise SystemExit("duplicate mutation ids in MUTATIONS and SECOND_HAND")
+    chosen = {"first": list(MUTATIONS), "second": list(SECOND_HAND), "all": every}[args.list_set]
+    ids = [m.id for m in chosen]
     if args.only:
         unknown = sorted(set(args.only) - set(ids))
         if unknown:

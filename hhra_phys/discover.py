@@ -348,7 +348,10 @@ class DiscoveredTerm(_AtEntry):
         total: Any = 0.0
         for j, spec in enumerate(self.terms):
             fam, args = _parse(spec)
-            q = [get(a) / self.scales[self.variables.index(a)] for a in args]
+            # sin and cos take the angle itself, as the screened column and the printed
+            # expression do (scaling it by max|angle| would change the function).
+            q = [get(a) if fam in ("sin", "cos") else get(a) / self.scales[self.variables.index(a)]
+                 for a in args]
             knot: Any = 0.0
             if fam.startswith("hinge"):
                 knot = p[self.knot_name(j)] / self.scales[self.variables.index(args[0])]
