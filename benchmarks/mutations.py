@@ -559,9 +559,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "loop-best-is-worst",
         "the loop accepts the worst of the passing candidates",
-        'best = min(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
-        'best = max(tried, key=lambda t: t[0].val.get("rmse", math.inf))',
-        LOOP_TESTS,
+        "best = min(sel(s) for s, _ in candidates)",
+        "best = max(sel(s) for s, _ in candidates)",
+        ("tests/unit/test_selection.py", *LOOP_TESTS),
     ),
     # -- reliability: interrupts, widening, checks of values and units ---------------------------
     _m(
@@ -631,10 +631,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     _m(
         "discover-tie-by-selection",
-        "of several acceptable discoveries the lowest selection error wins, even within noise",
-        "step, fitted = min(tied, key=lambda t: t[1].crit)",
-        "step, fitted = min(ok, key=lambda t: t[1].val_rmse)",
-        (MODE_TESTS,),
+        "of several acceptable candidates the lowest selection error wins, even within noise",
+        "step, payload = min(tied, key=lambda c: (c[0].criterion, sel(c[0])))",
+        "step, payload = min(candidates, key=lambda c: sel(c[0]))",
+        ("tests/unit/test_selection.py", MODE_TESTS),
     ),
     # -- several records: diagnosis and comparison --------------------------------------------
     _m(

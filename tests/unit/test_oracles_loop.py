@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hhra_phys.loop import (
+from hhra_phys.loop import selection_noise
+from hhra_phys.selection import (
     acceptance,
     at_noise_level,
     backward_decision,
     information_criterion,
     noise_allowance,
-    selection_noise,
 )
 
 
