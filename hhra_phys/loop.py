@@ -15,8 +15,9 @@ The record is split in time order into three parts (default 50/25/25 %):
             global search over the new parameters with the previous fit held, then
             IPOPT over all free parameters; discovered ones by IPOPT through the
             simulator), score each on selection, judge it by the one rule
-            (hhra_phys.selection.acceptance), and skip the rest of the round once a
-            candidate leaves both parts at the noise level (round_settled)
+            (hhra_phys.selection.acceptance), and skip the rest of a kind (library or
+            discovered) once one of its candidates leaves both parts at the noise level
+            (round_settled)
         add the winner among the acceptable ones (hhra_phys.selection.choose: lowest
             selection RMSE, near-ties within the noise allowance by the information
             criterion); polish it; backward step over what came before
@@ -1151,7 +1152,18 @@ def augment(
             noise_sel = float(level["noise"])
             noise_est = float(level["estimation"]["noise"])
             tried: list[tuple[Step, Any]] = []
-            for k, (_, kind, item) in enumerate(queue):
+            # A candidate at the noise level on both parts settles the round for its kind
+            # (library effects, discovered terms and modes): the kind's later candidates are
+            # not refitted. The other kind goes on until one of its own settles, so that a
+            # library effect and a discovered term that both reach the noise meet in the tie
+            # rule (choose) instead of the first-ranked taking the round.
+            settlers: dict[str, Step] = {}
+            not_refitted: dict[str, list[str]] = {}
+            for _, kind, item in queue:
+                if kind in settlers:
+                    not_refitted.setdefault(kind, []).append(
+                        item.effect if kind == "effect" else f"discovery at {item.entry}")
+                    continue
                 if kind == "effect":
                     out = next(library)
                     if out.step is None:
@@ -1175,16 +1187,17 @@ def augment(
                 steps.append(step)
                 if ok:
                     tried.append((step, payload))
-                if round_settled(step, noise_sel, noise_est, tol, ok) and k + 1 < len(queue):
-                    rest = [q[2].effect if q[1] == "effect" else f"discovery at {q[2].entry}"
-                            for q in queue[k + 1:]]
-                    note = (f"leaves both parts at the noise level, so no later candidate "
-                            f"can beat it by more than the noise allowance: not refitted "
-                            f"this round: {', '.join(rest)}")
-                    step.notes.append(note)
-                    settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
-                    say(f"  {step.effect} {note}")
-                    break
+                if round_settled(step, noise_sel, noise_est, tol, ok):
+                    settlers[kind] = step
+            for kind, rest in not_refitted.items():
+                step = settlers[kind]
+                what = "library effect" if kind == "effect" else "discovered candidate"
+                note = (f"leaves both parts at the noise level, so no later {what} can beat "
+                        f"it by more than the noise allowance: not refitted this round: "
+                        f"{', '.join(rest)}")
+                step.notes.append(note)
+                settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
+                say(f"  {step.effect} {note}")
             if hasattr(library, "close"):
                 library.close()  # cancels library refits queued but not started
             if not tried:

@@ -13,7 +13,9 @@ candidates here, so that they are compared by the same numbers:
   criterion on estimation, the lowest wins;
 - :func:`round_settled`: once a candidate leaves both parts at the noise level, no later
   candidate of the round can beat it by more than the allowance, so the round's remaining
-  refits are skipped;
+  refits of its kind are skipped (the other kind goes on until one of its own settles, so
+  that the tie rule, not the ranking, decides between a library effect and a discovered
+  term);
 - :func:`backward_decision`: an accepted part stays only if it would be accepted now;
 - :func:`stops_at_noise` / :func:`at_noise_level`: the loop stops when both the estimation
   and the selection residual are at the noise level.
