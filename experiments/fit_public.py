@@ -1,4 +1,4 @@
-"""Physical fit of the public measured hydraulic-actuator record (../shared/data).
+"""Physical fit of the public measured hydraulic-actuator record (docs/data.md).
 
 The record (Sjoberg et al. 1995) drives a robot arm's hydraulic actuator: input valve
 opening, output oil pressure, 1024 samples of unknown period; the usual split is 512/512.
@@ -30,7 +30,7 @@ from hhra_phys.data import load_public_actuator
 from hhra_phys.fit import default_free, default_model, fit
 from hhra_phys.plots import plot_fit
 
-ARX_BASELINE = 0.999  # best linear ARX, validation free-run RMSE (../shared/data/README.md)
+ARX_BASELINE = 0.999  # best linear ARX, validation free-run RMSE (docs/data.md)
 
 
 def run(seeds: int, pop: int, iters: int) -> dict[str, Any]:

@@ -1,12 +1,13 @@
 """A group outside its default box: does widening the box automatically recover it?
 
-MEASURED_NOTES 12: an actuator whose damping group is 28 times the nominal value (the
-default box spans a factor of 10 each way) made ``hhra-phys fit`` stop at the box edge,
-push the leakage to its edge too, and miss the transfer function's ``b/c`` by 23 %,
-while the validation error looked fine. This study simulates such a rig (the viscous
-friction ``B_c`` raised until ``g_damping`` is 28x nominal), fits it with and without the
-automatic widening of :func:`hhra_phys.fit.fit` (``widen_bounds``), and reports per seed
-the widened sides, the error of ``b/c`` and of every group, and the validation RMSE.
+In a probe of an earlier version (docs/fitting.md), an actuator whose damping group is
+28 times the nominal value (the default box spans a factor of 10 each way) made
+``hhra-phys fit`` stop at the box edge, push the leakage to its edge too, and miss the
+transfer function's ``b/c`` by 23 %, while the validation error looked fine. This study
+simulates such a rig (the viscous friction ``B_c`` raised until ``g_damping`` is 28x
+nominal), fits it with and without the automatic widening of :func:`hhra_phys.fit.fit`
+(``widen_bounds``), and reports per seed the widened sides, the error of ``b/c`` and of
+every group, and the validation RMSE.
 
     python experiments/widen_box.py [--seeds 5] [--duration 8] [--pop 30] [--iters 40]
                                     [--path fit|loop|records]
@@ -31,7 +32,7 @@ from hhra_phys.models.hhra.model import NOMINAL_GROUPS, HHRAModel
 from hhra_phys.models.hhra.physical import PhysicalParameters
 from hhra_phys.models.hhra.rig import simulate_rig
 
-#: How many times the nominal damping group the simulated actuator has (MEASURED_NOTES 12).
+#: How many times the nominal damping group the simulated actuator has (docs/fitting.md).
 DAMPING_FACTOR = 28.0
 
 

@@ -1229,7 +1229,7 @@ def fit_ffrls_hgwo(
     Notes
     -----
     H-GWO's mutation pulls toward ``lam * X_alpha``, i.e. toward the coordinate origin (see
-    ``PAPER_NOTES`` section 3). Here the coordinates are the raw coefficients, as in the paper,
+    ``docs/benchmarks.md``). Here the coordinates are the raw coefficients, as in the paper,
     so the pull points toward zero coefficients, which lie outside the box when ``zeta_s < 1``
     (the excess is re-drawn inside the box).
     """

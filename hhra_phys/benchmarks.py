@@ -4,7 +4,7 @@ Every function maps an ``(n, d)`` array of points to ``(n,)`` costs. :func:`get_
 wraps one of them with its box, dimension and known minimum in a :class:`Benchmark`, and
 builds the *shifted* variants used to check for a bias toward the coordinate origin.
 
-Corrections to the paper's Table 1 (see the project's reading notes, section 4):
+Corrections to the paper's Table 1 (``docs/model.md``, "The paper's errata and our readings"):
 
 * f5 Ackley keeps the printed range [-30, 30] (the usual suite has [-32, 32]);
 * f6 Griewank uses ``1/4000`` (the paper prints ``1/40000``);

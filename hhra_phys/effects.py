@@ -80,7 +80,7 @@ def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
 
 
 #: Default switching width of the friction's smooth sign [rad/s]: seal friction
-#: reverses within a few thousandths of a rad/s (MEASURED_NOTES 9). The stiffness it
+#: reverses within a few thousandths of a rad/s (``docs/model.md``). The stiffness it
 #: adds at rest, ``level/width``, is what the simulator's ROS2 integrator is for.
 FRICTION_WIDTH = 0.005
 

@@ -15,8 +15,8 @@ exact CasADi derivatives; compute Gauss-Newton confidence intervals; score
 estimation and validation data by free-run simulation.
 
 H-GWO's ``lam``. The paper's mutation ``lam*X_alpha + F*(X_r1 - X_r2)`` with
-``lam = 0.25`` pulls every mutant toward the coordinate origin (PAPER_NOTES
-section 3). The fitting pipeline therefore uses ``lam = 1`` (standard
+``lam = 0.25`` pulls every mutant toward the coordinate origin (measured in
+``docs/benchmarks.md``). The fitting pipeline therefore uses ``lam = 1`` (standard
 DE/best/1) by default; ``lam`` is exposed (CLI ``--lam``) and
 ``experiments/fit_rig.py`` compares the two.
 

@@ -9,7 +9,7 @@
 Fitting coordinates. Positive groups spanning decades use ``z = log10(value in
 SI units)``; signed parameters (offsets, loads) use ``z = value / s`` with ``s``
 half the width of their box. The coordinates are absolute on purpose: H-GWO's
-mutation ``lam * X_alpha`` pulls toward ``z = 0`` (PAPER_NOTES section 3), and
+mutation ``lam * X_alpha`` pulls toward ``z = 0`` (``docs/benchmarks.md``), and
 coordinates centred on the nominal values or the box centre would turn that pull
 into a bias toward them whatever the data say. Here ``z = 0`` is one SI unit,
 unrelated to either (and the fitting pipeline uses ``lam = 1`` by default,

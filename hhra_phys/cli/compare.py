@@ -151,7 +151,7 @@ def _load(args: argparse.Namespace) -> Any:
             raise ParameterError(f"{', '.join(given)}: options of a DATA file; the built-in "
                                  "records need none")
     if args.public or word in PUBLIC_WORDS:
-        return load_public_actuator(), 512  # the usual split of that record (its README)
+        return load_public_actuator(), 512  # the usual split of that record (docs/data.md)
     if not args.data or word in RIG_WORDS:
         if not args.duration > 0:
             raise ParameterError(f"--duration must be positive, got {args.duration}")

@@ -8,7 +8,7 @@ are in :mod:`hhra_phys.arx`.
 Initial conditions of the ARX free runs: the estimation part starts at rest at its first
 measured output (past outputs ``y[0]``, past inputs 0); the validation part starts from the
 measured samples just before the split (the usual "simulate from measured initial conditions";
-with it the public record reproduces the baselines in ``shared/data/README.md``). After that
+with it the public record reproduces the baselines in ``docs/data.md``). After that
 the output depends on the measured input only. Plug-in methods say in
 ``info["initial_condition"]`` how they start.
 """

@@ -17,7 +17,7 @@ from hhra_phys.data.formats import PathLike, load_mat
 
 __all__ = ["PUBLIC_ACTUATOR_FILE", "find_public_data", "load_public_actuator"]
 
-#: File name of the public hydraulic-actuator record (see ``/work/shared/data/README.md``).
+#: File name of the public hydraulic-actuator record (described in ``docs/data.md``).
 PUBLIC_ACTUATOR_FILE = "hydraulic_actuator.mat"
 
 

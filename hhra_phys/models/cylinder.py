@@ -664,8 +664,9 @@ def perturbed_physical(
 
     Multiplies the mass ``m``, friction ``B_p``, bulk modulus ``beta_e``, valve
     gain ``k_x`` and leakage ``C_tp`` by log-uniform factors of magnitude in
-    ``[min_factor, spread]``, each up or down at random (MEASURED_NOTES point 2:
-    recovery tests with the truth at the box centre would flatter the fit).
+    ``[min_factor, spread]``, each up or down at random (recovery tests with the truth at the
+    nominal values or the box centre would flatter a search drawn to its coordinate origin:
+    ``docs/benchmarks.md``, "What the tables show", point 6).
     """
     return perturb_fields(base or CylinderPhysical(), ("m", "B_p", "beta_e", "k_x", "C_tp"),
                           seed, spread, min_factor)

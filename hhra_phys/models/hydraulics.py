@@ -3,7 +3,7 @@
 The valve laws in normalised pressure (the HHRA and the cylinder write the load
 pressure over the supply pressure, ``p = P_L/p_s``) and the random perturbation of a
 physical parameter set that recovery tests use to put the truth away from the nominal
-values (MEASURED_NOTES point 2).
+values and the box centre, toward which a search can be drawn (``docs/benchmarks.md``).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The package's model (:mod:`hhra_phys.model`, :mod:`hhra_phys.parts`,
 :mod:`hhra_phys.effects`) is assembled from CasADi parts and integrated with a
 fixed-step RK4 (:mod:`hhra_phys.simulate`). A simulated rig built from that same
 code cannot reveal an error in its equations: the data would carry the error too
-(MEASURED_NOTES point 14). This module writes the model a second time, from the
+(see ``docs/model.md``). This module writes the model a second time, from the
 equations in ``docs/model.md`` and the documented formulas of the effects, and
 integrates it with :func:`scipy.integrate.solve_ivp` at tight tolerances under an
 exact zero-order hold. It imports nothing from the package's model code; only

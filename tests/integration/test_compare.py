@@ -202,5 +202,5 @@ def test_cli_public_record_reproduces_the_readme_baseline(tmp_path: Path):
     assert main(argv) == 0
     report = json.loads(out.read_text())
     assert report["split_index"] == 512
-    # shared/data/README.md: ARX(3,2,1) validation free-run RMSE 1.013
+    # the record's published baseline (docs/data.md): ARX(3,2,1) validation free-run RMSE 1.013
     assert report["methods"]["ls"]["val"]["rmse"] == pytest.approx(1.013, abs=5e-4)

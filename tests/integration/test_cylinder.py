@@ -2,8 +2,8 @@
 
 The plant in :mod:`hhra_phys.reference.cylinder` is written in physical SI variables
 with SciPy and shares no code with the package model, so agreement checks the
-normalisation, the group mapping and the signs of the valve law (MEASURED_NOTES
-point 14: data from the model's own equations cannot catch their bugs).
+normalisation, the group mapping and the signs of the valve law (data from the model's
+own equations cannot catch their bugs: docs/model.md, "An independent reference").
 """
 
 from __future__ import annotations

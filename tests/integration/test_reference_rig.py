@@ -2,7 +2,7 @@
 
 The package's own simulated rig generates data with the package's model and
 integrator, so an error in the equations passes every test built on it
-(MEASURED_NOTES point 14: a wrong sign argument in the orifice law did). These
+(a wrong sign argument in the orifice law once did: docs/model.md). These
 tests compare the package with :mod:`hhra_phys.reference`, written a second time
 from ``docs/model.md`` and the effects' documented formulas, in NumPy/SciPy only:
 
@@ -340,7 +340,8 @@ def test_trajectory_matches_reference(name: str, references: dict[str, np.ndarra
 # Hz). On the stiff set the stability check fails for them (spectral radius x
 # substep 2.42 > rho_max 2.0 at 99 % supply pressure): a single parameter vector
 # is then simulated with substeps chosen for its own parameters, with a warning
-# (MEASURED_NOTES point 13; it used to return all NaN without a word).
+# (docs/model.md, "Single parameter vectors follow their parameters"; it used to return all
+# NaN without a word).
 @pytest.mark.parametrize("name", ["nominal", "perturbed", "soft", "stiff"])
 def test_trajectory_with_default_substeps(name: str, references: dict[str, np.ndarray]) -> None:
     model = HHRAModel()
@@ -458,7 +459,7 @@ def test_reference_record_is_like_the_rig() -> None:
                                rtol=1e-3)
 
 
-#: A truth away from the nominal values and from the box centre (MEASURED_NOTES 2).
+#: A truth away from the nominal values and from the box centre (docs/benchmarks.md, point 6).
 RECOVERY_TRUTH = dict({k: v for k, v in REFERENCE_GROUPS.items() if k != "g_kp"},
                       g_torque=120.0, g_damping=7.5, g_compress=68.0, g_leak=3.8, g_valve=42.0)
 RECOVERY_NOISE = 0.05

@@ -2,9 +2,10 @@
 
 Each test copies the optimiser's random generator just before an ``ask()`` (``replay``), draws
 the same random numbers from the copy in the order the optimiser consumes them, and recomputes
-the expected batch with plain NumPy/Python from the published formulas (``PAPER_NOTES.md``
-section 3). Nothing expected here comes from calling the code under test: the only thing
-shared with it is the order of the random draws, which each ``*_by_hand`` helper states.
+the expected batch with plain NumPy/Python from the published formulas (the paper's Section 3,
+read as in ``docs/benchmarks.md``, "Choices where the paper is ambiguous"). Nothing expected
+here comes from calling the code under test: the only thing shared with it is the order of the
+random draws, which each ``*_by_hand`` helper states.
 
 Costs are handed to ``tell()`` directly, so selection rules (greedy ``<=``, pbest ``<``,
 unconditional GWO replacement, ties) are checked on crafted costs. Scenario guards (``assert

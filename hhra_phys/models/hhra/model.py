@@ -1,6 +1,6 @@
 """The valve-controlled helical hydraulic rotary actuator (HHRA) as a package of parts.
 
-The HHRA of the reference paper (PAPER_NOTES section 1) reduces to three states,
+The HHRA of the reference paper (``docs/model.md``, "Equations") reduces to three states,
 shaft angle ``theta`` [rad], angular velocity ``omega`` [rad/s] and the load
 pressure normalised by the supply pressure, ``p = P_L / p_s`` [-]::
 

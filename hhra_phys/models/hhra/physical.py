@@ -1,7 +1,7 @@
 """The paper's physical parameters and their identifiable groups.
 
 The helical hydraulic rotary actuator is described in the reference paper by
-about twenty physical symbols (PAPER_NOTES section 1). From valve current and
+about twenty physical symbols (``docs/model.md``, "Equations"). From valve current and
 shaft angle only a few groups of them can be identified. With the load pressure
 normalised by the supply pressure, ``p = P_L/p_s``, the model becomes::
 
