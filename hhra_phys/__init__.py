@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from hhra_phys import discover as _discover  # noqa: E402, F401, I001  (registers discovered terms)
+from hhra_phys import terms as _terms  # noqa: E402, F401, I001  (registers discovered parts)
 from hhra_phys import effects as _effects  # noqa: E402, F401  (registers the library)
 from hhra_phys.model import Model  # noqa: E402, I001  (after parts: the core first)
 from hhra_phys.models.hhra import HHRAModel  # noqa: E402

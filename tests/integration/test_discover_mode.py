@@ -16,15 +16,7 @@ import pytest
 from scipy import signal as sps
 
 from hhra_phys import Simulator
-from hhra_phys.discover import (
-    MODE_ENTRIES,
-    DiscoveredMode,
-    load_column,
-    mode_column,
-    mode_entries,
-    velocity_pairs,
-    velocity_states,
-)
+from hhra_phys.discover import load_column, mode_column
 from hhra_phys.errors import ModelError
 from hhra_phys.fit import fit
 from hhra_phys.loop import augment
@@ -33,6 +25,13 @@ from hhra_phys.reference.hhra import reference_record
 from hhra_phys.reference.outside import outside_record
 from hhra_phys.reference.resonant import loaded_record, resonant_record
 from hhra_phys.result import FitResult
+from hhra_phys.terms import (
+    MODE_ENTRIES,
+    DiscoveredMode,
+    mode_entries,
+    velocity_pairs,
+    velocity_states,
+)
 
 NOISE = 0.05
 LOOP = {"candidates": [], "max_effects": 1, "pop_size": 20, "max_iter": 30}

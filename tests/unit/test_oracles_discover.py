@@ -13,7 +13,7 @@ import re
 import numpy as np
 import pytest
 
-from hhra_phys.discover import _NP, SMOOTH, DiscoveredTerm
+from hhra_phys.terms import _NP, SMOOTH, DiscoveredTerm
 
 VARS = ("omega", "theta", "u")
 SCALES = (3.0, 0.7, 5.0)
