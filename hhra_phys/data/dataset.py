@@ -5,6 +5,15 @@ and an output ``y`` (shaft angle [deg] by default) on a time axis ``t`` [s], wit
 extra measured channels and free-form metadata. The output channel and its unit are
 metadata, so a pressure output (``output_name="pressure"``, ``output_unit="raw"``) is as
 valid as an angle. It is validated on construction (see :mod:`hhra_phys.data.checks`).
+
+Inter-sample behaviour. What the input did between its samples is a property of the
+record, ``metadata["intersample"]`` (:attr:`Dataset.intersample`): ``"zoh"`` (the
+default) when the input was held over each sample, as a DAC driving a valve holds it;
+``"foh"`` when it moved linearly from one sample to the next, the usual approximation for
+a continuous input that was merely sampled (a signal generator's multisine read by the
+same ADC as the output). Every simulation of the record follows it
+(:class:`hhra_phys.simulate.Simulator` ``intersample``), and it travels with the record
+through the CSV side-car, the NPZ meta entry, splits and slices.
 """
 
 from __future__ import annotations
@@ -26,7 +35,11 @@ from hhra_phys.data.checks import (
 )
 from hhra_phys.errors import DataError, ParameterError
 
-__all__ = ["Dataset"]
+__all__ = ["Dataset", "INTERSAMPLE"]
+
+#: Inter-sample behaviours of an input (module docstring): zero-order hold (held over
+#: each sample) and first-order hold (linear between samples).
+INTERSAMPLE: tuple[str, ...] = ("zoh", "foh")
 
 
 @dataclass(eq=False, repr=False)
@@ -48,6 +61,8 @@ class Dataset:
         Further measured channels, each of shape (N,).
     metadata : dict
         Free-form, JSON-able information (for simulated data: the true parameters and effects).
+        ``metadata["intersample"]`` (``"zoh"`` or ``"foh"``, default ``"zoh"``) says what
+        the input did between samples (module docstring, :attr:`intersample`).
     source : str or None
         File the record came from; shown in every error message.
     name : str or None
@@ -101,6 +116,13 @@ class Dataset:
             input_desc=f"{self.input_name} [{self.input_unit}]",
         )
         self.metadata = copy.deepcopy(dict(self.metadata))
+        kind = self.metadata.get("intersample", "zoh")
+        if kind not in INTERSAMPLE:
+            raise DataError(
+                f"{_prefix(self.source)}metadata['intersample'] must be one of "
+                f"{', '.join(map(repr, INTERSAMPLE))} (input held over each sample, or linear "
+                f"between samples), got {kind!r}"
+            )
 
     # ---------------------------------------------------------------- properties
 
@@ -132,13 +154,36 @@ class Dataset:
         """Unit of ``t``: "s", or "samples" when the sample period is unknown."""
         return str(self.metadata.get("time_unit", "s"))
 
+    @property
+    def intersample(self) -> str:
+        """What the input did between samples: ``"zoh"`` (held, default) or ``"foh"`` (linear).
+
+        Stored as ``metadata["intersample"]``; see the module docstring.
+        """
+        return str(self.metadata.get("intersample", "zoh"))
+
+    def with_intersample(self, kind: str) -> Dataset:
+        """A copy of the record with inter-sample behaviour ``kind`` (``"zoh"`` or ``"foh"``).
+
+        Raises
+        ------
+        ParameterError
+            ``kind`` is not one of :data:`INTERSAMPLE`.
+        """
+        if kind not in INTERSAMPLE:
+            raise ParameterError(
+                f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))}, got {kind!r}"
+            )
+        return self.with_metadata(intersample=kind)
+
     def __repr__(self) -> str:
         extra = f", extra={sorted(self.extra)}" if self.extra else ""
         rate = f"fs={self.fs:.6g} Hz" if self.time_unit == "s" else "sample units"
         return (
             f"Dataset(name={self.name!r}, n={self.n}, {rate}, "
             f"u={self.input_name} [{self.input_unit}], y={self.output_name} [{self.output_unit}]"
-            f"{extra}, source={self.source!r})"
+            f"{extra}{', intersample=foh' if self.intersample == 'foh' else ''}, "
+            f"source={self.source!r})"
         )
 
     # ---------------------------------------------------------------- derived datasets
