@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from hhra_phys import Model, Parameter, Part, Simulator, State, register_part
-from hhra_phys.data import Dataset, DataError, load, save
+from hhra_phys.data import DataError, Dataset, load, save
 from hhra_phys.errors import ParameterError
 
 
@@ -207,3 +207,35 @@ def test_cli_flag_sets_and_overrides_the_records_hold(tmp_path) -> None:
     with pytest.raises(SystemExit) as exc:
         parser.parse_args(["fit", str(tmp_path / "a.csv"), "--intersample", "linear"])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("truth", ["zoh", "foh"])
+def test_the_wrong_hold_leaves_its_signature_and_the_other_is_tried(truth) -> None:
+    """A resonator sampled at 9 samples per period: the candidate says which hold fits."""
+    from hhra_phys.fit import fit
+    from hhra_phys.intersample import hold_suspected, other_hold, refit_with_hold
+    from hhra_phys.models.resonator import make_model
+
+    rng = np.random.default_rng({"zoh": 5, "foh": 6}[truth])
+    fs, w = 90.0, 2 * np.pi * 10.0
+    u = np.convolve(rng.standard_normal(1300), np.ones(3) / 3, "same")  # moves within a period
+    m = make_model(w_n=w, zeta=0.05)
+    p_true = np.array([1.0, w, 0.05])
+    y = Simulator(m, fs=fs, intersample=truth).simulate(u, p_true)
+    noise = 0.01 * np.std(y)
+    ds = Dataset.from_arrays(u, y + noise * rng.standard_normal(u.size), fs=fs)  # read as zoh
+    wrong = ds.with_intersample(other_hold(truth))
+    est, sel = wrong.split(0.5)
+    start = {"gain": 1.1, "w_n": 0.97 * w, "zeta": 0.06}
+    res = fit(est, m, validation=sel, cost="mse", optimizer="none", start=start)
+    cand = refit_with_hold(res, res.problem, sel)
+    assert cand.kind == truth and cand.was == other_hold(truth)
+    assert hold_suspected(cand.signature), cand.signature
+    # The measured output leads a held simulation (a zoh model on a foh record), lags a foh one.
+    assert np.sign(cand.signature["lead"]) == (1 if truth == "foh" else -1)
+    assert cand.rmse("selection") < 2 * noise < 0.5 * cand.rmse_before["selection"]
+    assert cand.name == f"intersample:{truth}" and "no physics changed" in cand.reason
+    # With the right hold the residual shows no shift: the other one is not suspected.
+    back = refit_with_hold(cand.result, cand.problem, cand.records(sel)[0])
+    assert not hold_suspected(back.signature), back.signature
+    assert back.rmse("selection") > 2 * cand.rmse("selection")
