@@ -239,3 +239,27 @@ def test_the_wrong_hold_leaves_its_signature_and_the_other_is_tried(truth) -> No
     back = refit_with_hold(cand.result, cand.problem, cand.records(sel)[0])
     assert not hold_suspected(back.signature), back.signature
     assert back.rmse("selection") > 2 * cand.rmse("selection")
+
+
+@pytest.mark.parametrize("kind", ["zoh", "foh"])
+def test_python_control_discretisation_matches_the_simulator(kind) -> None:
+    """``discretize(linearize(model), dt, kind)`` is the record's discrete model."""
+    import control as ct
+
+    from hhra_phys import control as hc
+    from hhra_phys.models.resonator import make_model
+
+    m = make_model(w_n=40.0, zeta=0.1)
+    p = m.nominal()
+    plant = ct.ss(*m.linearize(p))
+    rng = np.random.default_rng(4)
+    u = rng.standard_normal(200)
+    u[0] = 0.0  # python-control's foh state starts with the first input at 0
+    dt = 0.02
+    y_ct = ct.forced_response(hc.discretize(plant, dt, kind), T=np.arange(u.size) * dt,
+                              U=u).outputs
+    y = Simulator(m, fs=1 / dt, substeps=8, intersample=kind).simulate(u, p)
+    other = Simulator(m, fs=1 / dt, substeps=8,
+                      intersample="foh" if kind == "zoh" else "zoh").simulate(u, p)
+    assert np.max(np.abs(y_ct - y)) < 1e-4 * np.std(y)
+    assert np.max(np.abs(y_ct - other)) > 1e-2 * np.std(y)
