@@ -207,6 +207,15 @@ def test_cli_flag_sets_and_overrides_the_records_hold(tmp_path) -> None:
     with pytest.raises(SystemExit) as exc:
         parser.parse_args(["fit", str(tmp_path / "a.csv"), "--intersample", "linear"])
     assert exc.value.code == 2
+    # `simulate` writes it into the side-car; `fit` reads it back.
+    out = tmp_path / "sim.csv"
+    args = parser.parse_args(["simulate", "--generator", "reference", "--intersample", "foh",
+                              "--duration", "1", "--out", str(out)])
+    assert args.func(args) == 0
+    assert json.loads(out.with_suffix(".json").read_text())["metadata"]["intersample"] == "foh"
+    assert load_records(parser.parse_args(["fit", str(out)]))[0].intersample == "foh"
+    args = parser.parse_args(["simulate", "--intersample", "foh", "--out", str(tmp_path / "x.csv")])
+    assert args.func(args) == 2 and not (tmp_path / "x.csv").exists()
 
 
 @pytest.mark.parametrize("truth", ["zoh", "foh"])
@@ -263,3 +272,23 @@ def test_python_control_discretisation_matches_the_simulator(kind) -> None:
                       intersample="foh" if kind == "zoh" else "zoh").simulate(u, p)
     assert np.max(np.abs(y_ct - y)) < 1e-4 * np.std(y)
     assert np.max(np.abs(y_ct - other)) > 1e-2 * np.std(y)
+
+
+@pytest.mark.parametrize("effects", [{}, {"input_delay": {"delay": 1.4}}])
+def test_reference_rig_foh_matches_the_package(effects) -> None:
+    """solve_ivp with the input linear between samples against the compiled foh simulator."""
+    from hhra_phys.effects import make_effect
+    from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
+    from hhra_phys.reference import simulate_reference
+
+    fs = 250.0
+    rng = np.random.default_rng(2)
+    u = np.convolve(rng.uniform(-1, 1, 250), np.ones(5) / 5, "same")  # moves every sample
+    model = HHRAModel(effects=[make_effect(n) for n in effects])
+    values = dict(NOMINAL_GROUPS, **{k: v for e in effects.values() for k, v in e.items()})
+    p = np.array([values[n] for n in model.params.names])
+    y = Simulator(model, fs, substeps=8, intersample="foh").simulate(u, p)
+    yr = simulate_reference(u, fs, values, effects=effects, intersample="foh")
+    y_zoh = simulate_reference(u, fs, values, effects=effects)
+    assert np.max(np.abs(y - yr)) < 1e-4  # deg
+    assert np.max(np.abs(y_zoh - yr)) > 1e-2
