@@ -970,6 +970,7 @@ def augment(
     stop_on: str = "both",
     joint_search: bool = False,
     backward: bool = True,
+    intersample: bool = True,
 ) -> LoopResult:
     """Fit, diagnose and augment a physical model with library effects.
 
@@ -1085,6 +1086,13 @@ def augment(
         effect is not proposed again; rounds go on until ``max_effects`` are in, so
         a loop may run more rounds than ``max_effects``. Each check is a
         :class:`Step` with ``action`` ``"keep"`` or ``"remove"``.
+    intersample : bool
+        After the base fit (one record), when its residual carries the signature of the
+        wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`),
+        refit the same model with the other one (:func:`~hhra_phys.intersample.
+        refit_with_hold`) and judge it by the same rule; if accepted, every later fit
+        and score uses it. A :class:`Step` named ``"intersample:<kind>"``, which changes
+        no physics and adds no parameter.
 
     Returns
     -------
@@ -1156,6 +1164,17 @@ def augment(
     skipped: dict[str, str] = {}
     dropped: list[str] = []  # removed by the backward step, never proposed again
     levels: list[dict[str, Any]] = []
+    held_base = held  # the base is scored on the test part with its own hold
+    if intersample and not isinstance(est, RecordSet):
+        hold = _hold_candidate(cur, cur_prob, sel, margin, tol, criterion, say)
+        if hold is not None:
+            steps.append(hold[0])
+            if hold[0].accepted:
+                cand = hold[1]
+                est, sel, held = cand.records(est, sel, held)
+                data = data.with_intersample(cand.kind)
+                cfg = replace(cfg, est=est, sel=sel, data=data)
+                cur, cur_prob = cand.result, cand.problem
     est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     stop = "max_effects"
     compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
@@ -1283,7 +1302,7 @@ def augment(
                 f"selection output range [{vr[0]:.3g}, {vr[1]:.3g}] {data.output_unit or ''} "
                 f"(simulated) leaves the estimation range [{lo:.3g}, {hi:.3g}]: "
                 "position-dependent effects are extrapolated there")
-    test_scores = {"base": _test_score(prob, base_res, held),
+    test_scores = {"base": _test_score(prob, base_res, held_base),
                    "final": _test_score(cur_prob, cur, held)}
     settings = {"split": split, "test": test, "candidates": names, "max_effects": max_effects,
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
@@ -1299,6 +1318,34 @@ def augment(
                          "n_sel": sel.n, "n_test": held.n if held is not None else 0}}
     return LoopResult(base_res, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
                       skipped, test_scores)
+
+
+def _hold_candidate(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
+                    criterion: str, say: Callable[[str], None]) -> tuple[Step, Any] | None:
+    """The other inter-sample behaviour as a candidate (:mod:`hhra_phys.intersample`),
+    judged by :func:`acceptance`; ``None`` when the base fit shows no sign of it."""
+    from hhra_phys.intersample import hold_signature, hold_suspected, refit_with_hold
+
+    sig = hold_signature(prob.data.y, prob.simulate_values(_free_values(prob, cur)))
+    if not hold_suspected(sig):
+        return None
+    t0 = time.perf_counter()
+    cand = refit_with_hold(cur, prob, sel)
+    res = cand.result
+    crit_cur, crit = information_criterion(cur, criterion), information_criterion(res, criterion)
+    rmse_cur = float(cur.metrics["val"]["rmse"])
+    step = Step(0, cand.name, {"signature": cand.signature, "changes_physics": False},
+                dict(res.values), {k: list(v) for k, v in res.ci95.items()},
+                dict(res.metrics["est"]), dict(res.metrics["val"]), crit, crit_cur, rmse_cur,
+                seconds=time.perf_counter() - t0)
+    noise = float(selection_noise(prob, cur, sel)["noise"])
+    ok = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
+    step.reason = f"{cand.reason}; {step.reason}"
+    if ok:
+        step.accepted = True
+        step.reason = "accepted: " + step.reason
+    say(f"  tried {cand.name}: {step.reason} [{step.seconds:.1f} s]")
+    return step, cand
 
 
 def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
