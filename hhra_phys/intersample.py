@@ -158,13 +158,18 @@ class HoldCandidate:
         return float(self.result.metrics.get(key, {}).get("rmse", math.nan))
 
     @property
-    def reason(self) -> str:
-        """The candidate in words: what changed, what did not, the evidence."""
+    def evidence(self) -> str:
+        """What changed, what did not, and the signature, in words."""
         s = self.signature
         return (f"inter-sample behaviour {self.was} -> {self.kind} (no physics changed: same "
                 f"model and parameters); the measured output leads the {self.was} fit's by "
                 f"{s.get('lead', 0.0):+.2f} samples, a shift explaining "
-                f"{100 * s.get('explained', 0.0):.0f} % of its residual; selection RMSE "
+                f"{100 * s.get('explained', 0.0):.0f} % of its residual")
+
+    @property
+    def reason(self) -> str:
+        """:attr:`evidence` and the selection RMSE before and after."""
+        return (f"{self.evidence}; selection RMSE "
                 f"{self.rmse_before.get('selection', math.nan):.4g} -> "
                 f"{self.rmse('selection'):.4g}")
 

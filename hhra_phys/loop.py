@@ -1340,7 +1340,7 @@ def _hold_candidate(cur: FitResult, prob: Problem, sel: Dataset, margin: float, 
                 seconds=time.perf_counter() - t0)
     noise = float(selection_noise(prob, cur, sel)["noise"])
     ok = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
-    step.reason = f"{cand.reason}; {step.reason}"
+    step.reason = f"{cand.evidence}; {step.reason}"
     if ok:
         step.accepted = True
         step.reason = "accepted: " + step.reason

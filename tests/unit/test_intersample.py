@@ -292,3 +292,30 @@ def test_reference_rig_foh_matches_the_package(effects) -> None:
     y_zoh = simulate_reference(u, fs, values, effects=effects)
     assert np.max(np.abs(y - yr)) < 1e-4  # deg
     assert np.max(np.abs(y_zoh - yr)) > 1e-2
+
+
+@pytest.mark.parametrize("truth", ["zoh", "foh"])
+def test_the_loop_tries_the_other_hold_by_its_rule(truth) -> None:
+    """augment: a foh record read as zoh switches to foh (a step that adds no physics);
+    a zoh record stays zoh (no signature, no step)."""
+    from hhra_phys.loop import augment
+    from hhra_phys.models.resonator import make_model
+
+    rng = np.random.default_rng(21)
+    fs, w = 90.0, 2 * np.pi * 10.0
+    u = np.convolve(rng.standard_normal(1600), np.ones(3) / 3, "same")
+    m = make_model(w_n=w, zeta=0.05)
+    y = Simulator(m, fs=fs, intersample=truth).simulate(u, np.array([1.0, w, 0.05]))
+    noise = 0.01 * np.std(y)
+    ds = Dataset.from_arrays(u, y + noise * rng.standard_normal(u.size), fs=fs)  # zoh
+    out = augment(ds, m, candidates=[], discover=False, pop_size=12, max_iter=15)
+    holds = [s for s in out.steps if s.effect.startswith("intersample:")]
+    if truth == "zoh":
+        assert holds == [] and out.final.settings["intersample"] == "zoh"
+        return
+    (step,) = holds
+    assert step.accepted and step.effect == "intersample:foh" and step.params.keys() == {
+        "gain", "w_n", "zeta"} | {k for k in step.params if k.startswith("x0_")}
+    assert "no physics changed" in step.reason
+    assert out.final.settings["intersample"] == "foh" and out.chosen == []
+    assert out.test_scores["final"]["rmse"] < 2 * noise < out.test_scores["base"]["rmse"] / 3
