@@ -64,7 +64,8 @@ EXPLAINED_MIN = 0.05
 
 
 def other_hold(kind: str) -> str:
-    """The other inter-sample behaviour: ``"foh"`` for ``"zoh"`` and back."""
+    """The candidate behaviour for a record read with ``kind``: ``"foh"`` for ``"zoh"``,
+    ``"zoh"`` for ``"foh"`` and ``"cubic"`` (a held input is the other extreme)."""
     if kind not in INTERSAMPLE:
         raise ParameterError(f"intersample must be one of {', '.join(INTERSAMPLE)}, got {kind!r}")
     return "foh" if kind == "zoh" else "zoh"

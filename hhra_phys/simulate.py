@@ -13,12 +13,18 @@ Inter-sample behaviour (``intersample``, a property of the record,
 over its sample. ``"foh"`` moves the input linearly from one sample to the next,
 ``u(t) = u_k + (t - t_k)/T * (u_{k+1} - u_k)``, and every input lag with it (a
 part reading ``u[k-j]`` sees ``u(t - j*T)``, so delays stay delays); after the
-last sample the input is held. Under ``"foh"`` the state is augmented by the
-interpolated input lags ``v`` with ``dv/dt = (L_{k+1} - L_k)/T`` and the same
-method integrates ``[x; v]``: RK4 then evaluates the input exactly at its stage
-times, and the Rosenbrock methods get the time derivative of the right-hand
-side (``df/du * dv/dt``) through the augmented Jacobian, which is how a
-Rosenbrock method treats a non-autonomous system; derivatives (IPOPT, NLopt,
+last sample the input is held. ``"cubic"`` is the cubic convolution
+(Catmull-Rom, Keys' ``a = -1/2``) through ``u_{k-1} .. u_{k+2}``: it passes
+through the samples, reproduces quadratics, and approximates a band-limited
+input (one with nothing above the Nyquist frequency) to third order, where a
+first-order hold attenuates it by ``sinc^2(f T)``. Under ``"foh"`` and
+``"cubic"`` the state is augmented by the interpolated input lags ``v`` and
+their derivatives in time, a chain ending in a constant (``dv/dt = (L_{k+1} -
+L_k)/T`` for foh), and the same method integrates the augmented state: RK4
+then evaluates the input exactly at its stage times (the chain is a polynomial
+of degree at most 3), and the Rosenbrock methods get the time derivative of the
+right-hand side (``df/du * dv/dt``) through the augmented Jacobian, which is how
+a Rosenbrock method treats a non-autonomous system; derivatives (IPOPT, NLopt,
 sensitivities) differentiate the same step.
 
 Method and substeps (``method="auto"``, ``substeps="auto"``). The state
@@ -188,9 +194,10 @@ class Simulator:
         the state space). ROS4 is stable at any step: nothing is flagged.
     diverge_limit : float
         An output magnitude beyond this flags the row as diverged.
-    intersample : {"zoh", "foh"}
+    intersample : {"zoh", "foh", "cubic"}
         What the input does between samples (module docstring): held (``"zoh"``,
-        default) or linear from one sample to the next (``"foh"``). Normally the
+        default), linear from one sample to the next (``"foh"``), or the cubic
+        convolution through four samples (``"cubic"``). Normally the
         record's :attr:`~hhra_phys.data.Dataset.intersample`;
         :meth:`with_intersample` gives the same simulator with the other one.
 
@@ -234,8 +241,8 @@ class Simulator:
         if intersample not in INTERSAMPLE:
             raise ParameterError(
                 f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))} (input held "
-                f"over each sample, or linear between samples), got {intersample!r}")
-        #: What the input does between samples: "zoh" (held) or "foh" (linear).
+                f"over each sample, linear or cubic between samples), got {intersample!r}")
+        #: What the input does between samples: "zoh" (held), "foh" (linear), "cubic".
         self.intersample = intersample
         if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
             raise ParameterError(f"fs must be a positive sample rate in Hz, got {fs!r}")
@@ -581,29 +588,50 @@ class Simulator:
         return -(-n // self.block)
 
     @property
+    def _lead_trail(self) -> tuple[int, int]:
+        """Samples after and before the lags an input column also holds."""
+        return {"zoh": (0, 0), "foh": (1, 0), "cubic": (2, 1)}[self.intersample]
+
+    @property
     def n_u(self) -> int:
-        """Input rows per sample: ``n_lags + 1`` (``"zoh"``), one more (``"foh"``, the next)."""
-        return self.model.n_lags + 1 + (self.intersample == "foh")
+        """Input rows per sample: ``n_lags + 1``, plus 1 under ``"foh"``, 3 under ``"cubic"``."""
+        return self.model.n_lags + 1 + sum(self._lead_trail)
 
     def input_rows(self, u: np.ndarray, length: int | None = None) -> np.ndarray:
         """The input of every sample as :meth:`advance_sample` reads it, shape (n_u, length).
 
-        Column ``k`` holds the current and ``n_lags`` past inputs ``u[k], u[k-1], ...``,
-        preceded under ``"foh"`` by the next one ``u[k+1]``. Before the record starts
-        the input is taken equal to its first value, after it equal to its last
-        (columns past the record, up to ``length``, pad it).
+        Column ``k`` holds ``u[k+lead], ..., u[k], u[k-1], ..., u[k-n_lags-trail]``: the
+        current and ``n_lags`` past inputs, preceded by the ``lead`` next ones and
+        followed by ``trail`` older ones the interpolation needs (``"foh"``: 1 and 0,
+        ``"cubic"``: 2 and 1). Before the record starts the input is taken equal to
+        its first value, after it equal to its last (columns past the record, up to
+        ``length``, pad it).
         """
         u = np.asarray(u, dtype=float)
         n = u.size
         length = n if length is None else int(length)
-        nl = self.model.n_lags
-        lead = self.n_u - nl - 1
+        lead, trail = self._lead_trail
+        nl = self.model.n_lags + trail
         padded = np.concatenate([np.full(nl, u[0]), u, np.full(length + lead - n, u[-1])])
         return np.stack([padded[nl - j: nl - j + length] for j in range(-lead, nl + 1)])
 
     def sample_input(self, uk: ca.SX) -> ca.SX:
         """The input lags at the sample instant (``u[k], u[k-1], ...``) of a column ``uk``."""
-        return uk[self.n_u - self.model.n_lags - 1:]
+        lead = self._lead_trail[0]
+        return uk[lead:lead + self.model.n_lags + 1]
+
+    def _input_polynomial(self, uk: ca.SX) -> list[ca.SX]:
+        """Coefficients ``c_i`` of the lags over the sample, ``L(s) = sum c_i s^i``, s in [0, 1]."""
+        lead, nu = self._lead_trail[0], self.model.n_lags + 1
+        p1 = uk[lead:lead + nu]
+        if self.intersample == "zoh":
+            return [p1]
+        p2 = uk[lead - 1:lead - 1 + nu]
+        if self.intersample == "foh":
+            return [p1, p2 - p1]
+        p0, p3 = uk[lead + 1:lead + 1 + nu], uk[lead - 2:lead - 2 + nu]
+        return [p1, 0.5 * (p2 - p0), p0 - 2.5 * p1 + 2 * p2 - 0.5 * p3,
+                0.5 * (3 * p1 - p0 - 3 * p2 + p3)]
 
     def advance_sample(self, x: ca.SX, uk: ca.SX, p: ca.SX) -> ca.SX:
         """Symbolic state one sample on from ``x``, the input as :attr:`intersample` says.
@@ -620,27 +648,36 @@ class Simulator:
         f, jac = self._fns["f"], self._fns["jac"]
         if self.intersample == "zoh":
             return advance(self.method, f, jac, x, uk, p, self.h, self.substeps)
-        # First-order hold: integrate [x; v] with v the interpolated lags (module docstring).
-        nx, nu = self.model.nx, self.model.n_lags + 1
-        fa, ja = self._ramp_functions()
-        rate = (uk[:nu] - uk[1:]) / self.dt
-        xa = advance(self.method, fa, ja, ca.vertcat(x, uk[1:]), rate, p, self.h,
+        # Integrate [x; v; dv/dt; ...] with v the interpolated lags (module docstring):
+        # the chain starts at the polynomial's derivatives at the sample instant and
+        # ends in its constant highest derivative.
+        c = self._input_polynomial(uk)
+        order = len(c) - 1
+        derivs = [math.factorial(i) * c[i] / self.dt ** i for i in range(order + 1)]
+        fa, ja = self._ramp_functions(order)
+        xa = advance(self.method, fa, ja, ca.vertcat(x, *derivs[:-1]), derivs[-1], p, self.h,
                      self.substeps)
-        return xa[:nx]
+        return xa[:self.model.nx]
 
-    def _ramp_functions(self) -> tuple[ca.Function, ca.Function]:
-        """Right-hand side and Jacobian of the state augmented by the moving input (foh)."""
-        if "ramp_f" not in self._fns:
+    def _ramp_functions(self, order: int) -> tuple[ca.Function, ca.Function]:
+        """Right-hand side and Jacobian of the state augmented by the moving input.
+
+        ``(xa, rate, p)`` with ``xa = [x; v; v'; ...]`` (``order`` blocks of lags) and
+        ``rate`` the constant ``order``-th derivative of the lags.
+        """
+        key = f"ramp_{order}"
+        if key not in self._fns:
             m = self.model
             x, v, p = m.symbols()
-            rate = ca.SX.sym("rate", m.n_lags + 1)
-            xa = ca.vertcat(x, v)
-            fa = ca.vertcat(self._fns["f"](x, v, p), rate)
-            self._fns = {**self._fns,
-                         "ramp_f": ca.Function("ramp_f", [xa, rate, p], [fa]),
-                         "ramp_jac": ca.Function("ramp_jac", [xa, rate, p],
-                                                 [ca.densify(ca.jacobian(fa, xa))])}
-        return self._fns["ramp_f"], self._fns["ramp_jac"]
+            nu = m.n_lags + 1
+            chain = [v, *[ca.SX.sym(f"v{i}", nu) for i in range(1, order)]]
+            rate = ca.SX.sym("rate", nu)
+            xa = ca.vertcat(x, *chain)
+            fa = ca.vertcat(self._fns["f"](x, v, p), *chain[1:], rate)
+            self._fns = {**self._fns, key: (
+                ca.Function(f"{key}_f", [xa, rate, p], [fa]),
+                ca.Function(f"{key}_jac", [xa, rate, p], [ca.densify(ca.jacobian(fa, xa))]))}
+        return self._fns[key]
 
     def with_intersample(self, kind: str) -> Simulator:
         """This simulator with inter-sample behaviour ``kind`` (``self`` if it has it).
@@ -1147,9 +1184,9 @@ class Simulator:
         ps = ca.SX.sym("p", m.n_params)
         us = ca.SX.sym("u", self.n_u)
         t = ca.SX.sym("t")
-        now = self.sample_input(us)
-        if self.intersample == "foh":  # the exact ramp to the next sample's lags
-            now = now + t / self.dt * (us[:m.n_lags + 1] - now)
+        # The lags over the sample: held, the exact ramp, or the cubic.
+        now = sum((ci * (t / self.dt) ** i for i, ci in enumerate(self._input_polynomial(us))),
+                  ca.SX.zeros(m.n_lags + 1))
         ode = self._fns["f"](x, now, ps)
         integ = ca.integrator(
             "ref", "cvodes", {"x": x, "t": t, "p": ca.vertcat(ps, us), "ode": ode}, 0.0,
@@ -1158,7 +1195,8 @@ class Simulator:
         n = u.size
         acc = integ.mapaccum("ref_acc", n, ["x0"], ["xf"], {})
         rows = self.input_rows(u)  # (n_u, n): the input of every sample
-        lags = rows[self.n_u - m.n_lags - 1:]
+        lead = self._lead_trail[0]
+        lags = rows[lead:lead + m.n_lags + 1]
         pv = P[0]
         res = acc(x0=X0[:, 0], p=np.vstack([np.repeat(pv[:, None], n, axis=1), rows]))
         xf = np.array(res["xf"])  # states after each sample

@@ -86,7 +86,8 @@ def add_record_arguments(
     p.add_argument("--intersample", choices=INTERSAMPLE, default=None,
                    help="what the input did between samples: 'zoh' held (a DAC's output), "
                         "'foh' linear from one sample to the next (a continuous input that was "
-                        "only sampled); default: the record's side-car, else zoh")
+                        "only sampled), 'cubic' the cubic convolution through four samples (a "
+                        "smooth band-limited input); default: the record's side-car, else zoh")
 
 
 def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:

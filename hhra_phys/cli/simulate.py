@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from hhra_phys.cli._common import report_error
-from hhra_phys.data import INTERSAMPLE, check_save_path, save
+from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
@@ -41,7 +41,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--effect", action="append", default=None, metavar="NAME[:PARAM=VALUE,...]",
                    help="with --generator reference: hide a library effect in the record, "
                         "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable)")
-    p.add_argument("--intersample", choices=INTERSAMPLE, default=None,
+    p.add_argument("--intersample", choices=("zoh", "foh"), default=None,
                    help="with --generator reference: what the valve current does between "
                         "samples, 'zoh' held (default, a DAC) or 'foh' linear to the next "
                         "sample; the side-car records it")

@@ -11,7 +11,10 @@ record, ``metadata["intersample"]`` (:attr:`Dataset.intersample`): ``"zoh"`` (th
 default) when the input was held over each sample, as a DAC driving a valve holds it;
 ``"foh"`` when it moved linearly from one sample to the next, the usual approximation for
 a continuous input that was merely sampled (a signal generator's multisine read by the
-same ADC as the output). Every simulation of the record follows it
+same ADC as the output); ``"cubic"`` when it was a smooth, band-limited signal, which the
+cubic convolution through four samples (Catmull-Rom) follows far closer than a straight
+line when the record has only a few samples per period of its fastest content (a
+continuous multisine sampled near its bandwidth). Every simulation of the record follows it
 (:class:`hhra_phys.simulate.Simulator` ``intersample``), and it travels with the record
 through the CSV side-car, the NPZ meta entry, splits and slices.
 """
@@ -38,8 +41,8 @@ from hhra_phys.errors import DataError, ParameterError
 __all__ = ["Dataset", "INTERSAMPLE"]
 
 #: Inter-sample behaviours of an input (module docstring): zero-order hold (held over
-#: each sample) and first-order hold (linear between samples).
-INTERSAMPLE: tuple[str, ...] = ("zoh", "foh")
+#: each sample), first-order hold (linear between samples) and the cubic convolution.
+INTERSAMPLE: tuple[str, ...] = ("zoh", "foh", "cubic")
 
 
 @dataclass(eq=False, repr=False)
@@ -61,8 +64,8 @@ class Dataset:
         Further measured channels, each of shape (N,).
     metadata : dict
         Free-form, JSON-able information (for simulated data: the true parameters and effects).
-        ``metadata["intersample"]`` (``"zoh"`` or ``"foh"``, default ``"zoh"``) says what
-        the input did between samples (module docstring, :attr:`intersample`).
+        ``metadata["intersample"]`` (``"zoh"``, ``"foh"`` or ``"cubic"``, default ``"zoh"``)
+        says what the input did between samples (module docstring, :attr:`intersample`).
     source : str or None
         File the record came from; shown in every error message.
     name : str or None
@@ -120,8 +123,8 @@ class Dataset:
         if kind not in INTERSAMPLE:
             raise DataError(
                 f"{_prefix(self.source)}metadata['intersample'] must be one of "
-                f"{', '.join(map(repr, INTERSAMPLE))} (input held over each sample, or linear "
-                f"between samples), got {kind!r}"
+                f"{', '.join(map(repr, INTERSAMPLE))} (input held over each sample, linear or "
+                f"cubic between samples), got {kind!r}"
             )
 
     # ---------------------------------------------------------------- properties
@@ -156,14 +159,15 @@ class Dataset:
 
     @property
     def intersample(self) -> str:
-        """What the input did between samples: ``"zoh"`` (held, default) or ``"foh"`` (linear).
+        """What the input did between samples: ``"zoh"`` (held, default), ``"foh"`` (linear)
+        or ``"cubic"`` (cubic convolution).
 
         Stored as ``metadata["intersample"]``; see the module docstring.
         """
         return str(self.metadata.get("intersample", "zoh"))
 
     def with_intersample(self, kind: str) -> Dataset:
-        """A copy of the record with inter-sample behaviour ``kind`` (``"zoh"`` or ``"foh"``).
+        """A copy of the record with inter-sample behaviour ``kind`` (:data:`INTERSAMPLE`).
 
         Raises
         ------
@@ -182,7 +186,7 @@ class Dataset:
         return (
             f"Dataset(name={self.name!r}, n={self.n}, {rate}, "
             f"u={self.input_name} [{self.input_unit}], y={self.output_name} [{self.output_unit}]"
-            f"{extra}{', intersample=foh' if self.intersample == 'foh' else ''}, "
+            f"{extra}{'' if self.intersample == 'zoh' else ', intersample=' + self.intersample}, "
             f"source={self.source!r})"
         )
 
