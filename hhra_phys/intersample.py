@@ -51,6 +51,7 @@ __all__ = [
     "hold_signature",
     "hold_suspected",
     "other_hold",
+    "other_holds",
     "refit_with_hold",
     "LEAD_MIN",
     "EXPLAINED_MIN",
@@ -69,6 +70,14 @@ def other_hold(kind: str) -> str:
     if kind not in INTERSAMPLE:
         raise ParameterError(f"intersample must be one of {', '.join(INTERSAMPLE)}, got {kind!r}")
     return "foh" if kind == "zoh" else "zoh"
+
+
+def other_holds(kind: str) -> tuple[str, ...]:
+    """Every inter-sample behaviour but ``kind`` (the loop's candidates), in
+    :data:`~hhra_phys.data.INTERSAMPLE` order."""
+    if kind not in INTERSAMPLE:
+        raise ParameterError(f"intersample must be one of {', '.join(INTERSAMPLE)}, got {kind!r}")
+    return tuple(k for k in INTERSAMPLE if k != kind)
 
 
 def hold_signature(y: np.ndarray, y_sim: np.ndarray) -> dict[str, float]:

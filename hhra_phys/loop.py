@@ -1089,10 +1089,11 @@ def augment(
     intersample : bool
         After the base fit (one record), when its residual carries the signature of the
         wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`),
-        refit the same model with the other one (:func:`~hhra_phys.intersample.
-        refit_with_hold`) and judge it by the same rule; if accepted, every later fit
-        and score uses it. A :class:`Step` named ``"intersample:<kind>"``, which changes
-        no physics and adds no parameter.
+        refit the same model with each other one (:func:`~hhra_phys.intersample.
+        refit_with_hold`) and judge each by the same rule; the accepted one with the
+        lowest selection RMSE is kept, and every later fit and score uses it. Each is a
+        :class:`Step` named ``"intersample:<kind>"``, which changes no physics and adds
+        no parameter.
 
     Returns
     -------
@@ -1166,15 +1167,21 @@ def augment(
     levels: list[dict[str, Any]] = []
     held_base = held  # the base is scored on the test part with its own hold
     if intersample and not isinstance(est, RecordSet):
-        hold = _hold_candidate(cur, cur_prob, sel, margin, tol, criterion, say)
-        if hold is not None:
-            steps.append(hold[0])
-            if hold[0].accepted:
-                cand = hold[1]
-                est, sel, held = cand.records(est, sel, held)
-                data = data.with_intersample(cand.kind)
-                cfg = replace(cfg, est=est, sel=sel, data=data)
-                cur, cur_prob = cand.result, cand.problem
+        hold = _hold_candidates(cur, cur_prob, sel, margin, tol, criterion, say)
+        steps.extend(step for step, _ in hold)
+        won = [(step, c) for step, c in hold if step.accepted]
+        if won:
+            best_step, cand = min(won, key=lambda sc: sc[0].val.get("rmse", math.inf))
+            for step, _ in won:
+                if step is not best_step:
+                    step.accepted = False
+                    step.reason = ("acceptable, but another inter-sample behaviour had the "
+                                   "lower selection RMSE: " + step.reason.removeprefix(
+                                       "accepted: "))
+            est, sel, held = cand.records(est, sel, held)
+            data = data.with_intersample(cand.kind)
+            cfg = replace(cfg, est=est, sel=sel, data=data)
+            cur, cur_prob = cand.result, cand.problem
     est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     stop = "max_effects"
     compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
@@ -1320,32 +1327,41 @@ def augment(
                       skipped, test_scores)
 
 
-def _hold_candidate(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
-                    criterion: str, say: Callable[[str], None]) -> tuple[Step, Any] | None:
-    """The other inter-sample behaviour as a candidate (:mod:`hhra_phys.intersample`),
-    judged by :func:`acceptance`; ``None`` when the base fit shows no sign of it."""
-    from hhra_phys.intersample import hold_signature, hold_suspected, refit_with_hold
+def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
+                     criterion: str, say: Callable[[str], None]) -> list[tuple[Step, Any]]:
+    """The other inter-sample behaviours as candidates (:mod:`hhra_phys.intersample`),
+    each judged by :func:`acceptance`; none when the base fit shows no sign of them."""
+    from hhra_phys.intersample import (
+        hold_signature,
+        hold_suspected,
+        other_holds,
+        refit_with_hold,
+    )
 
     sig = hold_signature(prob.data.y, prob.simulate_values(_free_values(prob, cur)))
     if not hold_suspected(sig):
-        return None
-    t0 = time.perf_counter()
-    cand = refit_with_hold(cur, prob, sel)
-    res = cand.result
-    crit_cur, crit = information_criterion(cur, criterion), information_criterion(res, criterion)
+        return []
+    crit_cur = information_criterion(cur, criterion)
     rmse_cur = float(cur.metrics["val"]["rmse"])
-    step = Step(0, cand.name, {"signature": cand.signature, "changes_physics": False},
-                dict(res.values), {k: list(v) for k, v in res.ci95.items()},
-                dict(res.metrics["est"]), dict(res.metrics["val"]), crit, crit_cur, rmse_cur,
-                seconds=time.perf_counter() - t0)
     noise = float(selection_noise(prob, cur, sel)["noise"])
-    ok = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
-    step.reason = f"{cand.evidence}; {step.reason}"
-    if ok:
-        step.accepted = True
-        step.reason = "accepted: " + step.reason
-    say(f"  tried {cand.name}: {step.reason} [{step.seconds:.1f} s]")
-    return step, cand
+    out = []
+    for kind in other_holds(prob.data.intersample):
+        t0 = time.perf_counter()
+        cand = refit_with_hold(cur, prob, sel, kind=kind)
+        res = cand.result
+        step = Step(0, cand.name, {"signature": cand.signature, "changes_physics": False},
+                    dict(res.values), {k: list(v) for k, v in res.ci95.items()},
+                    dict(res.metrics["est"]), dict(res.metrics["val"]),
+                    information_criterion(res, criterion), crit_cur, rmse_cur,
+                    seconds=time.perf_counter() - t0)
+        ok = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
+        step.reason = f"{cand.evidence}; {step.reason}"
+        if ok:
+            step.accepted = True
+            step.reason = "accepted: " + step.reason
+        say(f"  tried {cand.name}: {step.reason} [{step.seconds:.1f} s]")
+        out.append((step, cand))
+    return out
 
 
 def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
