@@ -7,12 +7,13 @@ twice its natural frequency, integrated with the continuous input and sampled at
 record with a hidden cubic stiffening of the spring (``--cubic``, 1/V^2) and one
 linear. Each record is split 50/50 (estimation, test) and fitted with the resonator
 model of :mod:`hhra_phys.models.resonator` (``make_model``: linear; with
-``cubic=True`` the model that has the hidden term) under both holds, ``zoh`` (what a
-plain CSV is read as) and ``foh`` (input linear between samples). Printed and written
+``cubic=True`` the model that has the hidden term) under each inter-sample behaviour,
+``zoh`` (what a plain CSV is read as), ``foh`` (input linear between samples) and
+``cubic`` (cubic convolution through four samples). Printed and written
 (``--json``) per seed: test RMSE of every fit and its ratio to the noise, the fitted
 parameters, and the loop's candidate (:func:`hhra_phys.intersample.refit_with_hold`
 from the zoh fit: signature and selection RMSE with foh). ``--figure`` draws seed 1:
-a stretch of the test part with both holds' simulations and residuals, and the test
+a stretch of the test part with every hold's simulation and residual, and the test
 RMSE over the noise for every seed. ``--records DIR`` writes the cubic records as CSV
 (side-car without an inter-sample property, so they read as zoh) for
 ``hhra-phys diagnose``.
@@ -58,7 +59,7 @@ def run_seed(seed: int, args: argparse.Namespace) -> dict[str, Any]:
                                "fits": {}}
         models = (("linear", False), ("cubic", True)) if cubic > 0 else (("linear", False),)
         for mname, with_cubic in models:
-            for kind in ("zoh", "foh"):
+            for kind in ("zoh", "foh", "cubic"):
                 t0 = time.perf_counter()
                 res, test = _fit(ds, with_cubic, kind, seed, args.pop, args.iters)
                 rmse = float(res.metrics["val"]["rmse"])
@@ -103,15 +104,16 @@ def figure(path: str, results: list[dict[str, Any]], args: argparse.Namespace) -
     fig, axes = plt.subplots(3, 1, figsize=(8, 8.5))
     ax0, ax1, ax2 = axes
     sims = {}
-    for kind in ("zoh", "foh"):
+    for kind in ("zoh", "foh", "cubic"):
         res, test = _fit(ds, True, kind, seed, args.pop, args.iters)
         sims[kind] = res.predict(test)
     t = test.t
     span = slice(200, 290)  # ten resonance periods of the test part
     ax0.plot(t[span], test.y[span], "k.", ms=4, label="measured (samples)")
-    for kind, style in (("zoh", "C3-"), ("foh", "C0-")):
-        ax0.plot(t[span], sims[kind][span], style, lw=1, label=f"cubic model, {kind}")
-        ax1.plot(t[span], (test.y - sims[kind])[span], style, lw=1, label=kind)
+    for kind, style in (("zoh", "C3-"), ("foh", "C0-"), ("cubic", "C2--")):
+        ax0.plot(t[span], sims[kind][span], style, lw=1,
+                 label=f"model with the cubic spring, {kind} hold")
+        ax1.plot(t[span], (test.y - sims[kind])[span], style, lw=1, label=f"{kind} hold")
     ax1.axhspan(-args.noise, args.noise, color="0.85", label="+-1 noise std")
     ax0.set_ylabel("response [V]")
     ax0.set_title(f"seed {seed}, {args.spp:g} samples per resonance period, test part")
@@ -119,19 +121,22 @@ def figure(path: str, results: list[dict[str, Any]], args: argparse.Namespace) -
     ax1.set_ylabel("residual [V]")
     ax1.set_xlabel("t [s]")
     ax1.legend(fontsize=8, loc="upper right")
-    keys = [("cubic", "cubic/zoh"), ("cubic", "cubic/foh"), ("cubic", "linear/zoh"),
-            ("cubic", "linear/foh"), ("linear", "linear/zoh"), ("linear", "linear/foh")]
+    keys = [("cubic", "cubic/zoh"), ("cubic", "cubic/foh"), ("cubic", "cubic/cubic"),
+            ("cubic", "linear/zoh"), ("cubic", "linear/foh"), ("linear", "linear/zoh"),
+            ("linear", "linear/foh"), ("linear", "linear/cubic")]
     width = 0.8 / len(keys)
     for j, (rec, key) in enumerate(keys):
         vals = [r["records"][rec]["fits"][key]["over_noise"] for r in results]
+        model, kind = key.split("/")
         ax2.bar(np.arange(len(results)) + j * width, vals, width,
-                label=f"{rec} record, {key.replace('/', ' model, ')}")
+                label=f"{rec} record, {model} model, {kind} hold")
     ax2.axhline(1.0, color="k", lw=0.8)
     ax2.set_yscale("log")
+    ax2.set_ylim(0.5, 300)  # room for the legend above the bars
     ax2.set_xticks(np.arange(len(results)) + 0.4 - width / 2)
     ax2.set_xticklabels([f"seed {r['seed']}" for r in results])
     ax2.set_ylabel("test RMSE / noise std")
-    ax2.legend(fontsize=7, ncol=2)
+    ax2.legend(fontsize=7, ncol=2, loc="upper center")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -341,3 +341,4 @@ def test_the_loop_tries_the_other_hold_by_its_rule(truth) -> None:
     assert "no physics changed" in step.reason
     assert out.final.settings["intersample"] == "foh" and out.chosen == []
     assert out.test_scores["final"]["rmse"] < 2 * noise < out.test_scores["base"]["rmse"] / 3
+
