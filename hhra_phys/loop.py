@@ -1176,8 +1176,9 @@ def augment(
                 if step is not best_step:
                     step.accepted = False
                     step.reason = ("acceptable, but another inter-sample behaviour had the "
-                                   "lower selection RMSE: " + step.reason.removeprefix(
-                                       "accepted: "))
+                                   "lower selection RMSE: " + step.reason)
+            best_step.reason = "accepted: " + best_step.reason
+            say(f"  accepted {best_step.effect}")
             est, sel, held = cand.records(est, sel, held)
             data = data.with_intersample(cand.kind)
             cfg = replace(cfg, est=est, sel=sel, data=data)
@@ -1354,11 +1355,9 @@ def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float,
                     dict(res.metrics["est"]), dict(res.metrics["val"]),
                     information_criterion(res, criterion), crit_cur, rmse_cur,
                     seconds=time.perf_counter() - t0)
-        ok = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
+        # Passing the rule marks it accepted; augment keeps the best of those.
+        step.accepted = _decide(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
         step.reason = f"{cand.evidence}; {step.reason}"
-        if ok:
-            step.accepted = True
-            step.reason = "accepted: " + step.reason
         say(f"  tried {cand.name}: {step.reason} [{step.seconds:.1f} s]")
         out.append((step, cand))
     return out

@@ -338,7 +338,7 @@ def test_the_loop_tries_the_other_hold_by_its_rule(truth) -> None:
     (step,) = [s for s in holds if s.accepted]
     assert step.effect == "intersample:foh" and step.params.keys() == {
         "gain", "w_n", "zeta"} | {k for k in step.params if k.startswith("x0_")}
-    assert "no physics changed" in step.reason
+    assert step.reason.startswith("accepted: ") and "no physics changed" in step.reason
     assert out.final.settings["intersample"] == "foh" and out.chosen == []
     assert out.test_scores["final"]["rmse"] < 2 * noise < out.test_scores["base"]["rmse"] / 3
 
