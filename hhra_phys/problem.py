@@ -141,7 +141,8 @@ class Problem:
     initial_state : {"data", "zero", "fit"}
         How the initial state is set (module docstring).
     simulator : Simulator, optional
-        A simulator of ``model`` at the data's sample rate to reuse.
+        A simulator of ``model`` at the data's sample rate to reuse (its sibling with the
+        record's inter-sample behaviour, :meth:`Simulator.with_intersample`, if it differs).
     substeps : int or "auto"
         RK4 substeps if a simulator is built here.
     start : dict, optional

@@ -985,7 +985,8 @@ class Simulator:
         Parameters
         ----------
         u : array, shape (N,)
-            Input samples (valve current [mA] for the HHRA), held over each sample.
+            Input samples (valve current [mA] for the HHRA); between samples as
+            :attr:`intersample` says (held by default).
         P : array, shape (n_pop, n_params) or (n_params,)
             Parameter vectors in the order of ``model.params.names``.
         x0 : array, shape (nx,) or (n_pop, nx), optional
