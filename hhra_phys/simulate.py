@@ -665,8 +665,9 @@ class Simulator:
         ``(xa, rate, p)`` with ``xa = [x; v; v'; ...]`` (``order`` blocks of lags) and
         ``rate`` the constant ``order``-th derivative of the lags.
         """
-        key = f"ramp_{order}"
-        if key not in self._fns:
+        ramps: dict[int, tuple[ca.Function, ca.Function]] = self.__dict__.setdefault(
+            "_ramps", {})
+        if order not in ramps:
             m = self.model
             x, v, p = m.symbols()
             nu = m.n_lags + 1
@@ -674,10 +675,10 @@ class Simulator:
             rate = ca.SX.sym("rate", nu)
             xa = ca.vertcat(x, *chain)
             fa = ca.vertcat(self._fns["f"](x, v, p), *chain[1:], rate)
-            self._fns = {**self._fns, key: (
-                ca.Function(f"{key}_f", [xa, rate, p], [fa]),
-                ca.Function(f"{key}_jac", [xa, rate, p], [ca.densify(ca.jacobian(fa, xa))]))}
-        return self._fns[key]
+            ramps[order] = (
+                ca.Function(f"ramp{order}_f", [xa, rate, p], [fa]),
+                ca.Function(f"ramp{order}_jac", [xa, rate, p], [ca.densify(ca.jacobian(fa, xa))]))
+        return ramps[order]
 
     def with_intersample(self, kind: str) -> Simulator:
         """This simulator with inter-sample behaviour ``kind`` (``self`` if it has it).
