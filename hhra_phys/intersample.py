@@ -1,35 +1,39 @@
-"""The other inter-sample behaviour as a candidate that changes no physics.
+"""The other inter-sample behaviours as candidates that change no physics.
 
 A record says what its input did between samples (:attr:`Dataset.intersample
-<hhra_phys.data.Dataset.intersample>`: ``"zoh"`` held, ``"foh"`` linear). A wrong
-assumption leaves a typical residual: holding an input that really moved makes
-the simulated output lag the measured one by about half a sample (and a first-order
-hold of an input a DAC held makes it lead), which a fitted model only partly absorbs
-into its parameters. The diagnosis loop can then "discover" the artefact as an effect
-(an input lead, a rate-dependent term) and refuse the true one. This module gives the
-loop what it needs to test the other assumption under its one rule:
+<hhra_phys.data.Dataset.intersample>`: ``"zoh"`` held, ``"foh"`` linear, ``"cubic"``
+the cubic convolution). A wrong assumption leaves a typical residual: holding an input
+that really moved makes the simulated output lag the measured one by about half a
+sample (and interpolating an input a DAC held makes it lead), which a fitted model only
+partly absorbs into its parameters. The diagnosis loop can then "discover" the artefact
+as an effect (an input lead, a rate-dependent term) and refuse the true one. This module
+gives the loop what it needs to test the other assumptions under its one rule:
 
 * :func:`hold_signature`: the evidence on a fitted model's residual, the sub-sample
   shift ``lead`` (samples) that best aligns the simulated output with the measured
   one and the share of the residual variance that shift explains;
-* :func:`hold_suspected`: whether that evidence is worth a candidate;
+* :func:`hold_suspected`: whether that evidence is worth trying candidates;
+* :func:`other_holds`: the behaviours to try (every one but the record's);
 * :func:`refit_with_hold`: the same model, free set, fixed values and boxes refitted
-  (warm-started, IPOPT) on the estimation part with the other behaviour, scored on the
+  (warm-started, IPOPT) on the estimation part with another behaviour, scored on the
   selection part with it: a :class:`HoldCandidate` holding an ordinary
   :class:`~hhra_phys.result.FitResult` the loop judges like any candidate (selection
   RMSE, information criterion, noise allowance). The candidate has the same
   parameters as the current model, so the criterion changes only through the fit.
 
-Usage in a loop round (one extra candidate beside the effects)::
+Usage after the base fit (what :func:`hhra_phys.loop.augment` does)::
 
-    cand = refit_with_hold(current_result, current_problem, selection)
-    ok, why = acceptance(rmse_cur, cand.rmse("selection"), crit_cur,
-                         information_criterion(cand.result), margin, ...)
-    if ok:   # every later fit uses cand.problem's records (the other hold)
-        ...
+    sig = hold_signature(problem.data.y, problem.simulate_values(values))
+    if hold_suspected(sig):
+        for kind in other_holds(problem.data.intersample):
+            cand = refit_with_hold(result, problem, selection, kind=kind)
+            ok, why = <the loop's acceptance rule>(rmse_cur, cand.rmse("selection"),
+                                                   crit_cur, <criterion of cand.result>)
+        # keep the accepted one with the lowest selection RMSE: every later fit and
+        # score uses its records (cand.records(est, sel, test)) and cand.problem
 
-Reported as what it is: ``cand.name`` is ``"intersample:foh"`` (or ``":zoh"``),
-``cand.reason`` says which assumption was replaced and by what evidence.
+Reported as what it is: ``cand.name`` is ``"intersample:<kind>"``; ``cand.evidence``
+says which assumption was replaced, that no physics changed, and by what evidence.
 """
 
 from __future__ import annotations
