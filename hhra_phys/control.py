@@ -6,7 +6,7 @@ system::
     from hhra_phys import control as hc
     plant = hc.linearize(result)                 # continuous StateSpace, mA -> deg
     G = hc.to_tf(result)                         # the paper's kv/(s^3 + b s^2 + c s), in deg
-    Pd = hc.discretize(plant, 0.004)             # zero-order hold (or method="tustin")
+    Pd = hc.discretize(plant, 0.004)             # zero-order hold ("foh", "tustin")
 
 and a controller designed on it is checked on the *nonlinear* fitted model, with
 every part and effect the model has, by :class:`ClosedLoop`::
@@ -290,7 +290,7 @@ def paper_tf(
 def discretize(
     sys: ct.StateSpace | ct.TransferFunction,
     dt: float,
-    method: Literal["zoh", "tustin"] = "zoh",
+    method: Literal["zoh", "foh", "tustin"] = "zoh",
 ) -> ct.StateSpace | ct.TransferFunction:
     """Discrete-time version of a continuous system.
 
@@ -300,22 +300,25 @@ def discretize(
         Continuous system (e.g. from :func:`linearize`).
     dt : float
         Sample period [s].
-    method : {"zoh", "tustin"}
+    method : {"zoh", "foh", "tustin"}
         Zero-order hold (exact for a piecewise-constant valve current, the
-        right model of a digital controller's output) or Tustin (bilinear; the
-        paper's ARX discretisation).
+        right model of a digital controller's output), first-order hold (exact
+        for an input linear between samples: the discrete model of a record whose
+        inter-sample behaviour is ``"foh"``, ``result.settings["intersample"]``,
+        as the simulator integrates it), or Tustin (bilinear; the paper's ARX
+        discretisation).
 
     Returns
     -------
     Same type as ``sys`` with sample time ``dt``; signal names are kept.
     """
-    if method not in ("zoh", "tustin"):
-        raise ParameterError(f"method must be 'zoh' or 'tustin', got {method!r}")
+    if method not in ("zoh", "foh", "tustin"):
+        raise ParameterError(f"method must be 'zoh', 'foh' or 'tustin', got {method!r}")
     if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
         raise ParameterError(f"dt must be a positive sample period in s, got {dt!r}")
     if not ct.isctime(sys, strict=True):
         raise ParameterError("sys must be a continuous-time system (dt = 0)")
-    return sys.sample(float(dt), method="bilinear" if method == "tustin" else "zoh")
+    return sys.sample(float(dt), method="bilinear" if method == "tustin" else method)
 
 
 # --- ARX: inverse Tustin -----------------------------------------------------------

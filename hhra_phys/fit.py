@@ -903,6 +903,7 @@ def _settings(problem: Any, optimizer: str, refine: Any, pop_size: int, max_iter
         "fs": problem.sim.fs,
         "substeps": problem.sim.substeps,
         "method": problem.sim.method,
+        "intersample": problem.sim.intersample,
         "seconds": seconds,
     }
 

@@ -882,7 +882,14 @@ class LoopOptions:
         effect is not proposed again; rounds go on until ``max_effects`` are in, so
         a loop may run more rounds than ``max_effects``. Each check is a
         :class:`Step` with ``action`` ``"keep"`` or ``"remove"``.
-
+    intersample : bool
+        After the base fit (one record), when its residual carries the signature of the
+        wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`),
+        refit the same model with each other one (:func:`~hhra_phys.intersample.
+        refit_with_hold`) and judge each by the same rule (:mod:`hhra_phys.selection`);
+        the one :func:`~hhra_phys.selection.choose` picks is kept, and every later fit and
+        score uses it. Each is a :class:`Step` named ``"intersample:<kind>"``, which
+        changes no physics and adds no parameter.
     """
 
     split: float = 0.5
@@ -911,6 +918,7 @@ class LoopOptions:
     stop_on: str = "both"
     joint_search: bool = False
     backward: bool = True
+    intersample: bool = True
 
     def validate(self) -> LoopOptions:
         """Check every setting; returns ``self``.
@@ -1038,7 +1046,7 @@ def augment(
     (split, test, candidates, max_effects, top_k, pop_size, max_iter, cand_pop, cand_iter,
      seed, margin, noise_tol, criterion, free, bounds, default_bounds, effect_kw, backend,
      ipopt_iter, initial_state, background, discover, discover_kw, stop_on, joint_search,
-     backward) = (getattr(opts, f.name) for f in fields(LoopOptions))
+     backward, intersample) = (getattr(opts, f.name) for f in fields(LoopOptions))
     say = progress or (lambda s: None)
     discover_asked = discover
     tol = NOISE_TOL if noise_tol is None else float(noise_tol)
@@ -1086,6 +1094,21 @@ def augment(
     dropped: list[str] = []  # removed by the backward step, never proposed again
     levels: list[dict[str, Any]] = []
     settled: list[dict[str, Any]] = []  # rounds whose rest was skipped (round_settled)
+    held_base = held  # the base is scored on the test part with its own hold
+    if intersample and not isinstance(est, RecordSet):
+        hold = _hold_candidates(cur, cur_prob, sel, margin, tol, criterion, say)
+        steps.extend(step for step, _ in hold)
+        won = [(step, c) for step, c in hold if step.accepted]
+        if won:
+            for step, _ in won:
+                step.accepted = False  # choose marks the one kept
+            best_step, cand = choose(won, float(selection_noise(cur_prob, cur, sel)["noise"]),
+                                     tol, criterion)
+            say(f"  accepted {best_step.effect}")
+            est, sel, held = cand.records(est, sel, held)
+            data = data.with_intersample(cand.kind)
+            cfg = replace(cfg, est=est, sel=sel, data=data)
+            cur, cur_prob = cand.result, cand.problem
     est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
     stop = "max_effects"
     compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
@@ -1248,7 +1271,7 @@ def augment(
                 f"selection output range [{vr[0]:.3g}, {vr[1]:.3g}] {data.output_unit or ''} "
                 f"(simulated) leaves the estimation range [{lo:.3g}, {hi:.3g}]: "
                 "position-dependent effects are extrapolated there")
-    test_scores = {"base": _test_score(prob, base_res, held),
+    test_scores = {"base": _test_score(prob, base_res, held_base),
                    "final": _test_score(cur_prob, cur, held)}
     settings = {"split": split, "test": test, "candidates": names, "max_effects": max_effects,
                 "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
@@ -1264,6 +1287,41 @@ def augment(
                          "n_sel": sel.n, "n_test": held.n if held is not None else 0}}
     return LoopResult(base_res, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
                       skipped, test_scores)
+
+
+def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
+                     criterion: str, say: Callable[[str], None]) -> list[tuple[Step, Any]]:
+    """The other inter-sample behaviours as candidates (:mod:`hhra_phys.intersample`),
+    each judged by :func:`acceptance`; none when the base fit shows no sign of them."""
+    from hhra_phys.intersample import (
+        hold_signature,
+        hold_suspected,
+        other_holds,
+        refit_with_hold,
+    )
+
+    sig = hold_signature(prob.data.y, prob.simulate_values(_free_values(prob, cur)))
+    if not hold_suspected(sig):
+        return []
+    crit_cur = information_criterion(cur, criterion)
+    rmse_cur = float(cur.metrics["val"]["rmse"])
+    noise = float(selection_noise(prob, cur, sel)["noise"])
+    out = []
+    for kind in other_holds(prob.data.intersample):
+        t0 = time.perf_counter()
+        cand = refit_with_hold(cur, prob, sel, kind=kind)
+        res = cand.result
+        step = Step(0, cand.name, {"signature": cand.signature, "changes_physics": False},
+                    dict(res.values), {k: list(v) for k, v in res.ci95.items()},
+                    dict(res.metrics["est"]), dict(res.metrics["val"]),
+                    information_criterion(res, criterion), crit_cur, rmse_cur,
+                    seconds=time.perf_counter() - t0)
+        # Passing the rule marks it acceptable; augment keeps the one choose picks.
+        step.accepted = judge(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
+        step.reason = f"{cand.evidence}; {step.reason}"
+        say(f"  tried {cand.name}: {step.reason} [{step.seconds:.1f} s]")
+        out.append((step, cand))
+    return out
 
 
 def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,

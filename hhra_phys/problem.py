@@ -141,7 +141,8 @@ class Problem:
     initial_state : {"data", "zero", "fit"}
         How the initial state is set (module docstring).
     simulator : Simulator, optional
-        A simulator of ``model`` at the data's sample rate to reuse.
+        A simulator of ``model`` at the data's sample rate to reuse (its sibling with the
+        record's inter-sample behaviour, :meth:`Simulator.with_intersample`, if it differs).
     substeps : int or "auto"
         RK4 substeps if a simulator is built here.
     start : dict, optional
@@ -292,7 +293,11 @@ class Problem:
                                 for p in params])
         self._log = np.array([p.scale == "log" for p in params])
 
-        self.sim = simulator or Simulator(model, fs=data.fs, substeps=substeps)
+        # The record says what its input did between samples; a simulator given for
+        # another behaviour is swapped for its sibling (same method and substeps).
+        self.sim = (simulator.with_intersample(data.intersample) if simulator is not None
+                    else Simulator(model, fs=data.fs, substeps=substeps,
+                                   intersample=data.intersample))
         if abs(self.sim.fs - data.fs) > 1e-9 * data.fs:
             raise DataError(
                 f"dataset sample rate {data.fs} Hz differs from the simulator's {self.sim.fs} Hz"
@@ -449,11 +454,12 @@ class Problem:
         return estimate_initial_state(self.simulator_for(data), data.u, data.y, p, x0, iterations)
 
     def simulator_for(self, data: Dataset) -> Simulator:
-        """The problem's simulator, or one at ``data``'s sample rate if it differs."""
+        """The problem's simulator, or one at ``data``'s sample rate and inter-sample
+        behaviour if they differ."""
         if abs(data.fs - self.sim.fs) <= 1e-9 * data.fs:
-            return self.sim
+            return self.sim.with_intersample(data.intersample)
         return Simulator(self.model, fs=data.fs, substeps=self.sim.substeps,
-                         method=self.sim.method)
+                         method=self.sim.method, intersample=data.intersample)
 
     # -- evaluation ------------------------------------------------------------------------
     def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:

@@ -228,12 +228,17 @@ class FitResult:
         state.pop("_sims", None)
         return state
 
-    def simulator(self, fs: float | None = None) -> Simulator:
-        """A simulator of the fitted model at ``fs`` [Hz] (the fit's own when it matches)."""
+    def simulator(self, fs: float | None = None, intersample: str | None = None) -> Simulator:
+        """A simulator of the fitted model at ``fs`` [Hz] (the fit's own when it matches).
+
+        ``intersample`` (``"zoh"`` or ``"foh"``, default: the fit's record's) says what
+        the input does between samples.
+        """
         fs = float(fs or self.settings["fs"])
+        kind = intersample or self.settings.get("intersample", "zoh")
         pr = self.problem
         if pr is not None and abs(pr.sim.fs - fs) <= 1e-9 * fs:
-            return pr.sim
+            return pr.sim.with_intersample(kind)
         sims = self.__dict__.setdefault("_sims", {})
         if fs not in sims:
             # The fit's method and substeps (a result saved before methods existed
@@ -242,7 +247,7 @@ class FitResult:
             sims[fs] = Simulator(self.model, fs=fs,
                                  substeps=self.settings.get("substeps", "auto"),
                                  method=self.settings.get("method", "auto"))
-        return sims[fs]
+        return sims[fs].with_intersample(kind)
 
     def parameter_vector(self) -> np.ndarray:
         """Full parameter vector in the model's order."""
@@ -294,7 +299,7 @@ class FitResult:
         from hhra_phys.problem import estimate_initial_state, initial_guess
 
         model = self.model
-        sim = self.simulator(data.fs)
+        sim = self.simulator(data.fs, data.intersample)
         p = self.parameter_vector()
         x0 = initial_guess(model, float(data.y[0]), p, float(data.u[0]), 1.0 / data.fs)
         if estimate_x0:

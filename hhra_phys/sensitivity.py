@@ -25,7 +25,6 @@ import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
-from hhra_phys.integrate import advance
 from hhra_phys.simulate import Simulator
 
 __all__ = [
@@ -50,18 +49,17 @@ class TrajectorySensitivity:
         m = sim.model
         self.nx, self.np_ = m.nx, m.n_params
         nv = self.nx + self.np_
-        nu = m.n_lags + 1
+        nu = sim.n_u  # the sample's input column (one more row under a first-order hold)
         x = ca.SX.sym("x", self.nx)
         S = ca.SX.sym("S", self.nx, nv)
         p = ca.SX.sym("p", self.np_)
         u = ca.SX.sym("u", nu)
-        f, h = sim._fns["f"], sim._fns["h"]
-        hh = sim.h
-        # The simulator's own method and substeps: the exact Jacobian of the same
-        # discretisation (for ROS2 CasADi differentiates through the step's
-        # Jacobian and its LU as well).
-        xk = advance(sim.method, f, sim._fns["jac"], x, u, p, hh, sim.substeps)
-        y = h(x, u, p)
+        h = sim._fns["h"]
+        # The simulator's own method, substeps and inter-sample behaviour: the exact
+        # Jacobian of the same discretisation (for ROS2 CasADi differentiates through
+        # the step's Jacobian and its LU as well).
+        xk = sim.advance_sample(x, u, p)
+        y = h(x, sim.sample_input(u), p)
         dp = ca.horzcat(ca.SX.zeros(self.np_, self.nx), ca.SX.eye(self.np_))
         S_next = ca.mtimes(ca.jacobian(xk, x), S) + ca.mtimes(ca.jacobian(xk, p), dp)
         dy = ca.mtimes(ca.jacobian(y, x), S) + ca.mtimes(ca.jacobian(y, p), dp)
@@ -90,13 +88,10 @@ class TrajectorySensitivity:
 
     def __call__(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, ...]:
         """Output ``y`` (N,) and ``dy/d(x0, p)`` (N, nx + n_params) for one trajectory."""
-        m = self.sim.model
-        nl = m.n_lags
         u = np.asarray(u, dtype=float)
         n = u.size
         n_chunks = -(-n // CHUNK)
-        padded = np.concatenate([np.full(nl, u[0]), u, np.full(n_chunks * CHUNK - n, u[-1])])
-        lags = np.stack([padded[nl - j: nl - j + n_chunks * CHUNK] for j in range(nl + 1)])
+        lags = self.sim.input_rows(u, n_chunks * CHUNK)
         nv = self.nx + self.np_
         x = np.asarray(x0, dtype=float)
         S = np.hstack([np.eye(self.nx), np.zeros((self.nx, self.np_))])

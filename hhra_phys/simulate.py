@@ -8,6 +8,25 @@ the linearly implicit Rosenbrock method ROS4 for stiff models), and the output
 is read at the sample instants (``y[k] = h(x(t_k))``, so ``y[0]`` is the output
 of the initial state).
 
+Inter-sample behaviour (``intersample``, a property of the record,
+:attr:`hhra_phys.data.Dataset.intersample`). ``"zoh"`` holds each input sample
+over its sample. ``"foh"`` moves the input linearly from one sample to the next,
+``u(t) = u_k + (t - t_k)/T * (u_{k+1} - u_k)``, and every input lag with it (a
+part reading ``u[k-j]`` sees ``u(t - j*T)``, so delays stay delays); after the
+last sample the input is held. ``"cubic"`` is the cubic convolution
+(Catmull-Rom, Keys' ``a = -1/2``) through ``u_{k-1} .. u_{k+2}``: it passes
+through the samples, reproduces quadratics, and approximates a band-limited
+input (one with nothing above the Nyquist frequency) to third order, where a
+first-order hold attenuates it by ``sinc^2(f T)``. Under ``"foh"`` and
+``"cubic"`` the state is augmented by the interpolated input lags ``v`` and
+their derivatives in time, a chain ending in a constant (``dv/dt = (L_{k+1} -
+L_k)/T`` for foh), and the same method integrates the augmented state: RK4
+then evaluates the input exactly at its stage times (the chain is a polynomial
+of degree at most 3), and the Rosenbrock methods get the time derivative of the
+right-hand side (``df/du * dv/dt``) through the augmented Jacobian, which is how
+a Rosenbrock method treats a non-autonomous system; derivatives (IPOPT, NLopt,
+sensitivities) differentiate the same step.
+
 Method and substeps (``method="auto"``, ``substeps="auto"``). The state
 Jacobian of the nominal model is evaluated at rest; RK4 keeps the integration
 error of the rig far below its noise while ``|lambda| * h <= 0.25``
@@ -74,6 +93,7 @@ import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
+from hhra_phys.data.dataset import INTERSAMPLE
 from hhra_phys.errors import ParameterError, SimulationError
 from hhra_phys.integrate import METHODS, advance
 from hhra_phys.model import Model
@@ -174,6 +194,12 @@ class Simulator:
         the state space). ROS4 is stable at any step: nothing is flagged.
     diverge_limit : float
         An output magnitude beyond this flags the row as diverged.
+    intersample : {"zoh", "foh", "cubic"}
+        What the input does between samples (module docstring): held (``"zoh"``,
+        default), linear from one sample to the next (``"foh"``), or the cubic
+        convolution through four samples (``"cubic"``). Normally the
+        record's :attr:`~hhra_phys.data.Dataset.intersample`;
+        :meth:`with_intersample` gives the same simulator with the other one.
 
     Attributes
     ----------
@@ -210,7 +236,14 @@ class Simulator:
         diverge_limit: float = 1e8,
         simd: int | str | None = "auto",
         method: str = "auto",
+        intersample: str = "zoh",
     ) -> None:
+        if intersample not in INTERSAMPLE:
+            raise ParameterError(
+                f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))} (input held "
+                f"over each sample, linear or cubic between samples), got {intersample!r}")
+        #: What the input does between samples: "zoh" (held), "foh" (linear), "cubic".
+        self.intersample = intersample
         if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
             raise ParameterError(f"fs must be a positive sample rate in Hz, got {fs!r}")
         if backend not in ("auto", "native", "casadi"):
@@ -299,7 +332,7 @@ class Simulator:
         self.last_rho: np.ndarray = np.zeros(0)
         self.last_method: str = self.method
         self.last_substeps: int = self.substeps
-        self._derived: dict[tuple[str, int], Simulator] = {}
+        self._derived: dict[tuple[str, int | str], Simulator] = {}
 
     # -- construction -------------------------------------------------------------
     def _simd_target(self, simd: int | str | None) -> SimdTarget | None:
@@ -452,7 +485,7 @@ class Simulator:
                 self.model, self.fs, substeps=n, method=method, threads=self._threads_arg,
                 block=self._block_arg, lanes=self._lanes_arg, chunk=self._chunk_arg,
                 backend=self.backend, rho_max=self.rho_max, diverge_limit=self.diverge_limit,
-                simd=self._simd_arg)
+                simd=self._simd_arg, intersample=self.intersample)
         if unstable:
             warnings.warn(
                 f"these parameters are unstable for {self.method.upper()} with {self.substeps} "
@@ -471,21 +504,20 @@ class Simulator:
         and divisions of the valve law are latency-bound in a scalar loop).
         """
         m = self.model
-        nu = m.n_lags + 1
+        nu = self.n_u
         x = ca.SX.sym("x", m.nx, lanes)
         p = ca.SX.sym("p", m.n_params, lanes)
         U = ca.SX.sym("U", nu * self.block)
-        f, h, jac = self._fns["f"], self._fns["h"], self._fns["jac"]
-        hh = self.h
+        h = self._fns["h"]
         x_next, y_cols, x_cols = [], [], []
         for lane in range(lanes):
             xk, pk = x[:, lane], p[:, lane]
             ys, xs = [], []
             for k in range(self.block):
                 uk = U[k * nu:(k + 1) * nu]
-                ys.append(h(xk, uk, pk))
+                ys.append(h(xk, self.sample_input(uk), pk))
                 xs.append(xk)
-                xk = advance(self.method, f, jac, xk, uk, pk, hh, self.substeps)
+                xk = self.advance_sample(xk, uk, pk)
             x_next.append(xk)
             y_cols.append(ca.vertcat(*ys))
             x_cols.append(ca.horzcat(*xs))
@@ -514,7 +546,7 @@ class Simulator:
         Returns
         -------
         casadi.Function
-            ``(x0[nx, lanes], p[n_params, lanes], U[(n_lags+1)*block, n_blocks]) -> y``
+            ``(x0[nx, lanes], p[n_params, lanes], U[n_u*block, n_blocks]) -> y``
             with ``y`` of shape (1, n_blocks*block) for one lane (raw block layout
             otherwise, see :meth:`_unpack`), then the states ``X[nx, n_blocks*block]``
             if ``states`` (one lane only), then the state after the last sample
@@ -529,7 +561,7 @@ class Simulator:
         acc = step.mapaccum("traj_acc", nb, [0], [0], {})
         x0 = ca.MX.sym("x0", self.model.nx, lanes)
         p = ca.MX.sym("p", self.model.n_params, lanes)
-        U = ca.MX.sym("U", (self.model.n_lags + 1) * self.block, nb)
+        U = ca.MX.sym("U", self.n_u * self.block, nb)
         res = acc(x0, ca.repmat(p, 1, nb), U)
         y = ca.reshape(res[1], 1, nb * self.block) if lanes == 1 else res[1]  # (lanes, block*nb)
         outs, names = [y], ["y"]
@@ -555,21 +587,132 @@ class Simulator:
     def _n_blocks(self, n: int) -> int:
         return -(-n // self.block)
 
+    @property
+    def _lead_trail(self) -> tuple[int, int]:
+        """Samples after and before the lags an input column also holds."""
+        return {"zoh": (0, 0), "foh": (1, 0), "cubic": (2, 1)}[self.intersample]
+
+    @property
+    def n_u(self) -> int:
+        """Input rows per sample: ``n_lags + 1``, plus 1 under ``"foh"``, 3 under ``"cubic"``."""
+        return self.model.n_lags + 1 + sum(self._lead_trail)
+
+    def input_rows(self, u: np.ndarray, length: int | None = None) -> np.ndarray:
+        """The input of every sample as :meth:`advance_sample` reads it, shape (n_u, length).
+
+        Column ``k`` holds ``u[k+lead], ..., u[k], u[k-1], ..., u[k-n_lags-trail]``: the
+        current and ``n_lags`` past inputs, preceded by the ``lead`` next ones and
+        followed by ``trail`` older ones the interpolation needs (``"foh"``: 1 and 0,
+        ``"cubic"``: 2 and 1). Before the record starts the input is taken equal to
+        its first value, after it equal to its last (columns past the record, up to
+        ``length``, pad it).
+        """
+        u = np.asarray(u, dtype=float)
+        n = u.size
+        length = n if length is None else int(length)
+        lead, trail = self._lead_trail
+        nl = self.model.n_lags + trail
+        padded = np.concatenate([np.full(nl, u[0]), u, np.full(length + lead - n, u[-1])])
+        return np.stack([padded[nl - j: nl - j + length] for j in range(-lead, nl + 1)])
+
+    def sample_input(self, uk: ca.SX) -> ca.SX:
+        """The input lags at the sample instant (``u[k], u[k-1], ...``) of a column ``uk``."""
+        lead = self._lead_trail[0]
+        return uk[lead:lead + self.model.n_lags + 1]
+
+    def _input_polynomial(self, uk: ca.SX) -> list[ca.SX]:
+        """Coefficients ``c_i`` of the lags over the sample, ``L(s) = sum c_i s^i``, s in [0, 1]."""
+        lead, nu = self._lead_trail[0], self.model.n_lags + 1
+        p1 = uk[lead:lead + nu]
+        if self.intersample == "zoh":
+            return [p1]
+        p2 = uk[lead - 1:lead - 1 + nu]
+        if self.intersample == "foh":
+            return [p1, p2 - p1]
+        p0, p3 = uk[lead + 1:lead + 1 + nu], uk[lead - 2:lead - 2 + nu]
+        return [p1, 0.5 * (p2 - p0), p0 - 2.5 * p1 + 2 * p2 - 0.5 * p3,
+                0.5 * (3 * p1 - p0 - 3 * p2 + p3)]
+
+    def advance_sample(self, x: ca.SX, uk: ca.SX, p: ca.SX) -> ca.SX:
+        """Symbolic state one sample on from ``x``, the input as :attr:`intersample` says.
+
+        Parameters
+        ----------
+        x : casadi.SX or MX, shape (nx,)
+            State at the sample instant.
+        uk : casadi.SX or MX, shape (n_u,)
+            The sample's column of :meth:`input_rows`.
+        p : casadi.SX or MX, shape (n_params,)
+            Parameters.
+        """
+        f, jac = self._fns["f"], self._fns["jac"]
+        if self.intersample == "zoh":
+            return advance(self.method, f, jac, x, uk, p, self.h, self.substeps)
+        # Integrate [x; v; dv/dt; ...] with v the interpolated lags (module docstring):
+        # the chain starts at the polynomial's derivatives at the sample instant and
+        # ends in its constant highest derivative.
+        c = self._input_polynomial(uk)
+        order = len(c) - 1
+        derivs = [math.factorial(i) * c[i] / self.dt ** i for i in range(order + 1)]
+        fa, ja = self._ramp_functions(order)
+        xa = advance(self.method, fa, ja, ca.vertcat(x, *derivs[:-1]), derivs[-1], p, self.h,
+                     self.substeps)
+        return xa[:self.model.nx]
+
+    def _ramp_functions(self, order: int) -> tuple[ca.Function, ca.Function]:
+        """Right-hand side and Jacobian of the state augmented by the moving input.
+
+        ``(xa, rate, p)`` with ``xa = [x; v; v'; ...]`` (``order`` blocks of lags) and
+        ``rate`` the constant ``order``-th derivative of the lags.
+        """
+        ramps: dict[int, tuple[ca.Function, ca.Function]] = self.__dict__.setdefault(
+            "_ramps", {})
+        if order not in ramps:
+            m = self.model
+            x, v, p = m.symbols()
+            nu = m.n_lags + 1
+            chain = [v, *[ca.SX.sym(f"v{i}", nu) for i in range(1, order)]]
+            rate = ca.SX.sym("rate", nu)
+            xa = ca.vertcat(x, *chain)
+            fa = ca.vertcat(self._fns["f"](x, v, p), *chain[1:], rate)
+            ramps[order] = (
+                ca.Function(f"ramp{order}_f", [xa, rate, p], [fa]),
+                ca.Function(f"ramp{order}_jac", [xa, rate, p], [ca.densify(ca.jacobian(fa, xa))]))
+        return ramps[order]
+
+    def with_intersample(self, kind: str) -> Simulator:
+        """This simulator with inter-sample behaviour ``kind`` (``self`` if it has it).
+
+        The sibling has the same settings, method and substeps; it is built once and kept.
+        """
+        if kind == self.intersample:
+            return self
+        if kind not in INTERSAMPLE:
+            raise ParameterError(
+                f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))}, got {kind!r}")
+        key = ("intersample", kind)
+        if key not in self._derived:
+            self._derived[key] = Simulator(
+                self.model, self.fs, substeps=self.substeps, method=self.method,
+                threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
+                chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
+                diverge_limit=self.diverge_limit, simd=self._simd_arg, intersample=kind)
+            self._derived[key].substeps_auto = self.substeps_auto
+        return self._derived[key]
+
     def input_matrix(self, u: np.ndarray) -> np.ndarray:
         """Arrange an input record for :meth:`trajectory_function`.
 
         Column ``b`` holds, for each of the ``block`` samples ``k`` of block ``b``,
-        the current input and ``n_lags`` past inputs ``u[k], u[k-1], ...``. Before
+        the sample's column of :meth:`input_rows` (the current input and ``n_lags``
+        past inputs ``u[k], u[k-1], ...``, after the next one under ``"foh"``). Before
         the record starts the input is taken equal to its first value; the last
         block is padded with the last value (its outputs are discarded).
         """
         u = np.asarray(u, dtype=float)
-        n = u.size
-        nl = self.model.n_lags
-        nb = self._n_blocks(n)
-        padded = np.concatenate([np.full(nl, u[0]), u, np.full(nb * self.block - n, u[-1])])
-        lags = np.stack([padded[nl - j: nl - j + nb * self.block] for j in range(nl + 1)])
-        return lags.T.reshape(nb, self.block * (nl + 1)).T
+        nb = self._n_blocks(u.size)
+        lags = self.input_rows(u, nb * self.block)
+        return lags.T.reshape(nb, self.block * self.n_u).T
 
     def _layout(self, n_pop: int, kind: str, width: int = 1) -> tuple[int, int]:
         """(lanes, padded population): populations are padded to whole groups per thread."""
@@ -617,7 +760,7 @@ class Simulator:
         sample must not add to either (not even a NaN through ``0 * NaN``).
         """
         m = self.model
-        nu = m.n_lags + 1
+        nu = self.n_u
         step = self._step(False, 1)
         xa = ca.SX.sym("xa", m.nx + 2)
         p = ca.SX.sym("p", m.n_params)
@@ -843,7 +986,8 @@ class Simulator:
         Parameters
         ----------
         u : array, shape (N,)
-            Input samples (valve current [mA] for the HHRA), held over each sample.
+            Input samples (valve current [mA] for the HHRA); between samples as
+            :attr:`intersample` says (held by default).
         P : array, shape (n_pop, n_params) or (n_params,)
             Parameter vectors in the order of ``model.params.names``.
         x0 : array, shape (nx,) or (n_pop, nx), optional
@@ -1012,7 +1156,8 @@ class Simulator:
 
         The zero-order hold makes the right-hand side jump at every sample, so the
         variable-step integrator is re-initialised at each sample instead of
-        stepping over the jumps (a single call across them is measurably wrong).
+        stepping over the jumps (a single call across them is measurably wrong);
+        under ``"foh"`` the input is the exact ramp between the sample's values.
         Slow (about 0.1 ms per sample): meant for accuracy checks and tests.
 
         Parameters
@@ -1037,21 +1182,25 @@ class Simulator:
         if P.shape[0] != 1:
             raise ParameterError("reference() takes a single parameter vector")
         m = self.model
-        nu = m.n_lags + 1
         x = ca.SX.sym("x", m.nx)
         ps = ca.SX.sym("p", m.n_params)
-        us = ca.SX.sym("u", nu)
-        ode = self._fns["f"](x, us, ps)
+        us = ca.SX.sym("u", self.n_u)
+        t = ca.SX.sym("t")
+        # The lags over the sample: held, the exact ramp, or the cubic.
+        now = sum((ci * (t / self.dt) ** i for i, ci in enumerate(self._input_polynomial(us))),
+                  ca.SX.zeros(m.n_lags + 1))
+        ode = self._fns["f"](x, now, ps)
         integ = ca.integrator(
-            "ref", "cvodes", {"x": x, "p": ca.vertcat(ps, us), "ode": ode}, 0.0, self.dt,
-            {"abstol": atol, "reltol": rtol, "max_num_steps": 100000},
+            "ref", "cvodes", {"x": x, "t": t, "p": ca.vertcat(ps, us), "ode": ode}, 0.0,
+            self.dt, {"abstol": atol, "reltol": rtol, "max_num_steps": 100000},
         )
         n = u.size
         acc = integ.mapaccum("ref_acc", n, ["x0"], ["xf"], {})
-        U = self.input_matrix(u)  # (nu*block, nb)
-        lags = U.T.reshape(-1, nu)[:n].T  # (nu, n): lags of every sample
+        rows = self.input_rows(u)  # (n_u, n): the input of every sample
+        lead = self._lead_trail[0]
+        lags = rows[lead:lead + m.n_lags + 1]
         pv = P[0]
-        res = acc(x0=X0[:, 0], p=np.vstack([np.repeat(pv[:, None], n, axis=1), lags]))
+        res = acc(x0=X0[:, 0], p=np.vstack([np.repeat(pv[:, None], n, axis=1), rows]))
         xf = np.array(res["xf"])  # states after each sample
         Xs = np.hstack([X0[:, :1], xf[:, :-1]])  # states at the sample instants
         y = np.array(self._fns["h"].map(n)(Xs, lags, np.repeat(pv[:, None], n, axis=1))).ravel()

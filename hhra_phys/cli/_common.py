@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hhra_phys.data import Dataset, load, load_public_actuator
+from hhra_phys.data import INTERSAMPLE, Dataset, load, load_public_actuator
 from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, OVERWRITE_HINT, check_output_path
@@ -68,9 +68,9 @@ def add_record_arguments(
 ) -> None:
     """The one data vocabulary of every command that reads a record.
 
-    ``--time-col``, ``--input-col``, ``--output-col``, ``--fs``, ``--delimiter`` and
-    ``--time-unit``; ``input_aliases``/``output_aliases`` keep a command's older spellings
-    (``compare``'s ``--u``/``--y``) working.
+    ``--time-col``, ``--input-col``, ``--output-col``, ``--fs``, ``--delimiter``,
+    ``--time-unit`` and ``--intersample``; ``input_aliases``/``output_aliases`` keep a
+    command's older spellings (``compare``'s ``--u``/``--y``) working.
     """
     p.add_argument("--time-col", default=None, metavar="COL",
                    help="time column / variable (CSV default 't')")
@@ -83,6 +83,11 @@ def add_record_arguments(
     add_delimiter_argument(p)
     p.add_argument("--time-unit", choices=tuple(TIME_UNITS), default=None,
                    help="unit of the file's time column (default s; ms divides it by 1000)")
+    p.add_argument("--intersample", choices=INTERSAMPLE, default=None,
+                   help="what the input did between samples: 'zoh' held (a DAC's output), "
+                        "'foh' linear from one sample to the next (a continuous input that was "
+                        "only sampled), 'cubic' the cubic convolution through four samples (a "
+                        "smooth band-limited input); default: the record's side-car, else zoh")
 
 
 def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
@@ -144,7 +149,13 @@ def read_record(args: argparse.Namespace) -> Dataset:
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
     data = load(args.data, **kw)
-    return rescale_time(data, args.time_unit) if args.time_unit else data
+    return with_intersample(args, rescale_time(data, args.time_unit) if args.time_unit else data)
+
+
+def with_intersample(args: argparse.Namespace, data: Dataset) -> Dataset:
+    """``data`` with the inter-sample behaviour ``--intersample`` gives (unchanged without)."""
+    kind = getattr(args, "intersample", None)
+    return data if kind is None or kind == data.intersample else data.with_intersample(kind)
 
 
 def load_data(args: argparse.Namespace) -> Dataset:
@@ -167,12 +178,12 @@ def load_data(args: argparse.Namespace) -> Dataset:
     if args.data is None or args.data.lower() == "rig":
         from hhra_phys.models.hhra.rig import simulate_rig
 
-        return simulate_rig(seed=0 if rig_seed is None else rig_seed)
+        return with_intersample(args, simulate_rig(seed=0 if rig_seed is None else rig_seed))
     if rig_seed is not None:
         raise ParameterError(f"--rig-seed seeds the simulated rig; it has no effect on DATA "
                              f"{args.data!r} (leave it out, or leave out DATA)")
     if args.data.lower() == "public":
-        return load_public_actuator()
+        return with_intersample(args, load_public_actuator())
     return read_record(args)
 
 

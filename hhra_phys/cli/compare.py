@@ -16,6 +16,7 @@ from hhra_phys.cli._common import (
     positive_int,
     read_record,
     report_error,
+    with_intersample,
 )
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
@@ -151,11 +152,12 @@ def _load(args: argparse.Namespace) -> Any:
             raise ParameterError(f"{', '.join(given)}: options of a DATA file; the built-in "
                                  "records need none")
     if args.public or word in PUBLIC_WORDS:
-        return load_public_actuator(), 512  # the usual split of that record (docs/data.md)
+        # the usual split of that record (docs/data.md)
+        return with_intersample(args, load_public_actuator()), 512
     if not args.data or word in RIG_WORDS:
         if not args.duration > 0:
             raise ParameterError(f"--duration must be positive, got {args.duration}")
-        return simulate_rig(seed=args.seed, duration=args.duration), 0.5
+        return with_intersample(args, simulate_rig(seed=args.seed, duration=args.duration)), 0.5
     data = read_record(args)
     for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
         print(f"warning: {line}", file=sys.stderr)

@@ -41,6 +41,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--effect", action="append", default=None, metavar="NAME[:PARAM=VALUE,...]",
                    help="with --generator reference: hide a library effect in the record, "
                         "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable)")
+    p.add_argument("--intersample", choices=("zoh", "foh"), default=None,
+                   help="with --generator reference: what the valve current does between "
+                        "samples, 'zoh' held (default, a DAC) or 'foh' linear to the next "
+                        "sample; the side-car records it")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(func=run)
 
@@ -79,10 +83,14 @@ def run(args: argparse.Namespace) -> int:
 
             ds = reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
                                   fs=args.fs, amplitude=args.amplitude,
-                                  quantization=args.quantization, effects=effects or None)
+                                  quantization=args.quantization, effects=effects or None,
+                                  intersample=args.intersample or "zoh")
         else:
             if effects:
                 raise ParameterError("--effect needs --generator reference")
+            if args.intersample not in (None, "zoh"):
+                raise ParameterError("--intersample foh needs --generator reference (the "
+                                     "built-in rig's valve current is held by its DAC)")
             ds = simulate_rig(seed=args.seed, noise=args.noise, duration=args.duration,
                               fs=args.fs, amplitude=args.amplitude,
                               quantization=args.quantization)

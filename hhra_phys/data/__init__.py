@@ -23,7 +23,7 @@ record). Import from ``hhra_phys.data``; the submodules are an implementation de
 from __future__ import annotations
 
 from hhra_phys.data.checks import DataChecks
-from hhra_phys.data.dataset import Dataset
+from hhra_phys.data.dataset import INTERSAMPLE, Dataset
 from hhra_phys.data.errors import (
     DataFileExistsError,
     DataFileNotFoundError,
@@ -63,6 +63,7 @@ __all__ = [
     "DataFileNotFoundError",
     "DataFormatError",
     "Dataset",
+    "INTERSAMPLE",
     "DimensionError",
     "LengthMismatchError",
     "MissingColumnError",

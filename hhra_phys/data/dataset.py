@@ -5,6 +5,18 @@ and an output ``y`` (shaft angle [deg] by default) on a time axis ``t`` [s], wit
 extra measured channels and free-form metadata. The output channel and its unit are
 metadata, so a pressure output (``output_name="pressure"``, ``output_unit="raw"``) is as
 valid as an angle. It is validated on construction (see :mod:`hhra_phys.data.checks`).
+
+Inter-sample behaviour. What the input did between its samples is a property of the
+record, ``metadata["intersample"]`` (:attr:`Dataset.intersample`): ``"zoh"`` (the
+default) when the input was held over each sample, as a DAC driving a valve holds it;
+``"foh"`` when it moved linearly from one sample to the next, the usual approximation for
+a continuous input that was merely sampled (a signal generator's multisine read by the
+same ADC as the output); ``"cubic"`` when it was a smooth, band-limited signal, which the
+cubic convolution through four samples (Catmull-Rom) follows far closer than a straight
+line when the record has only a few samples per period of its fastest content (a
+continuous multisine sampled near its bandwidth). Every simulation of the record follows it
+(:class:`hhra_phys.simulate.Simulator` ``intersample``), and it travels with the record
+through the CSV side-car, the NPZ meta entry, splits and slices.
 """
 
 from __future__ import annotations
@@ -26,7 +38,11 @@ from hhra_phys.data.checks import (
 )
 from hhra_phys.errors import DataError, ParameterError
 
-__all__ = ["Dataset"]
+__all__ = ["Dataset", "INTERSAMPLE"]
+
+#: Inter-sample behaviours of an input (module docstring): zero-order hold (held over
+#: each sample), first-order hold (linear between samples) and the cubic convolution.
+INTERSAMPLE: tuple[str, ...] = ("zoh", "foh", "cubic")
 
 
 @dataclass(eq=False, repr=False)
@@ -48,6 +64,8 @@ class Dataset:
         Further measured channels, each of shape (N,).
     metadata : dict
         Free-form, JSON-able information (for simulated data: the true parameters and effects).
+        ``metadata["intersample"]`` (``"zoh"``, ``"foh"`` or ``"cubic"``, default ``"zoh"``)
+        says what the input did between samples (module docstring, :attr:`intersample`).
     source : str or None
         File the record came from; shown in every error message.
     name : str or None
@@ -101,6 +119,13 @@ class Dataset:
             input_desc=f"{self.input_name} [{self.input_unit}]",
         )
         self.metadata = copy.deepcopy(dict(self.metadata))
+        kind = self.metadata.get("intersample", "zoh")
+        if kind not in INTERSAMPLE:
+            raise DataError(
+                f"{_prefix(self.source)}metadata['intersample'] must be one of "
+                f"{', '.join(map(repr, INTERSAMPLE))} (input held over each sample, linear or "
+                f"cubic between samples), got {kind!r}"
+            )
 
     # ---------------------------------------------------------------- properties
 
@@ -132,13 +157,37 @@ class Dataset:
         """Unit of ``t``: "s", or "samples" when the sample period is unknown."""
         return str(self.metadata.get("time_unit", "s"))
 
+    @property
+    def intersample(self) -> str:
+        """What the input did between samples: ``"zoh"`` (held, default), ``"foh"`` (linear)
+        or ``"cubic"`` (cubic convolution).
+
+        Stored as ``metadata["intersample"]``; see the module docstring.
+        """
+        return str(self.metadata.get("intersample", "zoh"))
+
+    def with_intersample(self, kind: str) -> Dataset:
+        """A copy of the record with inter-sample behaviour ``kind`` (:data:`INTERSAMPLE`).
+
+        Raises
+        ------
+        ParameterError
+            ``kind`` is not one of :data:`INTERSAMPLE`.
+        """
+        if kind not in INTERSAMPLE:
+            raise ParameterError(
+                f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))}, got {kind!r}"
+            )
+        return self.with_metadata(intersample=kind)
+
     def __repr__(self) -> str:
         extra = f", extra={sorted(self.extra)}" if self.extra else ""
         rate = f"fs={self.fs:.6g} Hz" if self.time_unit == "s" else "sample units"
         return (
             f"Dataset(name={self.name!r}, n={self.n}, {rate}, "
             f"u={self.input_name} [{self.input_unit}], y={self.output_name} [{self.output_unit}]"
-            f"{extra}, source={self.source!r})"
+            f"{extra}{'' if self.intersample == 'zoh' else ', intersample=' + self.intersample}, "
+            f"source={self.source!r})"
         )
 
     # ---------------------------------------------------------------- derived datasets

@@ -416,8 +416,12 @@ def _initial_mode(x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
 def _segment(
     x: np.ndarray, u_lags: np.ndarray, s: _Spec, t_eval: np.ndarray, method: str,
     rtol: float, atol: float, turns: list[tuple[float, float]] | None = None,
+    slope: np.ndarray | None = None,
 ) -> np.ndarray:
     """States at ``t_eval`` (starting at 0) with the input held; shape (nx, len(t_eval)).
+
+    ``slope``: the input lags move at this rate [input units/s] from ``u_lags`` at
+    ``t = 0`` (a first-order hold over one sample) instead of being held.
 
     ``turns``: if given, ``(t, theta)`` of every point where ``omega`` reaches 0 in
     ``(0, t_eval[-1])`` is appended to it (the shaft's reversals, for the play operator).
@@ -428,8 +432,13 @@ def _segment(
     back; while stuck (``omega = 0`` held) an event stops it where that
     acceleration reaches the level (breakaway). Nothing chatters across 0.
     """
+    held = u_lags
+
+    def ul(t: float) -> np.ndarray:
+        return held if slope is None else held + t * slope
+
     if not _sticky(s):
-        sol = solve_ivp(lambda _t, xx: _xdot(xx, u_lags, s), (0.0, t_eval[-1]), x,
+        sol = solve_ivp(lambda t, xx: _xdot(xx, ul(t), s), (0.0, t_eval[-1]), x,
                         method=method, t_eval=t_eval, rtol=rtol, atol=atol,
                         events=None if turns is None else (lambda _t, xx: xx[1]))
         if not sol.success:
@@ -448,8 +457,8 @@ def _segment(
         if done == t_eval.size:
             return out
         if mode == 0:
-            def event(_t: float, xx: np.ndarray) -> float:
-                push, level = _push_and_level(xx, u_lags, s)
+            def event(t: float, xx: np.ndarray) -> float:
+                push, level = _push_and_level(xx, ul(t), s)
                 return abs(push) - level
             event.direction = 1.0  # type: ignore[attr-defined]
         else:
@@ -458,7 +467,7 @@ def _segment(
             event.direction = -1.0  # type: ignore[attr-defined]
         event.terminal = True  # type: ignore[attr-defined]
         te = t_eval[done:]
-        sol = solve_ivp(lambda _t, xx, m=mode: _xdot(xx, u_lags, s, m), (t0, t_eval[-1]), x,
+        sol = solve_ivp(lambda t, xx, m=mode: _xdot(xx, ul(t), s, m), (t0, t_eval[-1]), x,
                         method=method, t_eval=te, rtol=rtol, atol=atol, events=event)
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
@@ -472,11 +481,11 @@ def _segment(
         if turns is not None:  # a stop (omega = 0) or a breakaway from rest
             turns.append((t0, float(x[0])))
         if mode == 0:
-            push, _ = _push_and_level(x, u_lags, s)
+            push, _ = _push_and_level(x, ul(t0), s)
             mode = 1 if push > 0 else -1
         else:
             x[1] = 0.0
-            push, level = _push_and_level(x, u_lags, s)
+            push, level = _push_and_level(x, ul(t0), s)
             mode = 0 if abs(push) <= level else (1 if push > 0 else -1)
         if t_eval[-1] - t0 <= 1e-12 * max(1.0, t_eval[-1]):
             # The event fell on the end of the segment: its state is the last sample's.
@@ -631,8 +640,9 @@ def simulate_reference(
     method: str = "LSODA",
     stick_band: float = 1e-6,
     states: bool = False,
+    intersample: str = "zoh",
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Simulate the sampled system with an exact zero-order hold of the input.
+    """Simulate the sampled system with an exact zero-order (or first-order) hold.
 
     The input sample ``u[k]`` (and, for a delay, the samples before it) is held
     over ``[t_k, t_k + 1/fs)``; ``y[k]`` is the output of the state at ``t_k``, so
@@ -640,7 +650,9 @@ def simulate_reference(
     input is taken equal to ``u[0]``. Consecutive samples with the same held inputs
     are integrated in one :func:`~scipy.integrate.solve_ivp` call (the right-hand
     side is smooth there); every change of the input restarts the integrator, so
-    no step crosses a jump.
+    no step crosses a jump. With ``intersample="foh"`` the input (and each lag)
+    moves linearly from ``u[k]`` to ``u[k+1]`` over the sample, held after the last
+    one, and every sample is its own call (the slope changes at each).
 
     Parameters
     ----------
@@ -661,6 +673,8 @@ def simulate_reference(
         for stiff sets; ``"DOP853"`` for smooth, non-stiff ones).
     states : bool
         Also return the state at every sample.
+    intersample : {"zoh", "foh"}
+        What the input does between samples: held, or linear to the next sample.
 
     Returns
     -------
@@ -679,6 +693,8 @@ def simulate_reference(
         raise ValueError("u must be a non-empty finite 1-D array")
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"fs must be a positive sample rate in Hz, got {fs}")
+    if intersample not in ("zoh", "foh"):
+        raise ValueError(f"intersample must be 'zoh' or 'foh', got {intersample!r}")
     dt = 1.0 / fs
     s = _spec(params, valve, output, spool_lag, effects, dt, smooth, stick_band)
     nl = s.n_lags
@@ -697,6 +713,11 @@ def simulate_reference(
     X = np.empty((u.size, x.size))
     turns: list[tuple[float, float]] | None = [] if play_after else None
     change = np.flatnonzero(np.any(np.diff(lags, axis=0) != 0, axis=1)) + 1
+    slopes = np.zeros_like(lags)
+    if intersample == "foh":  # every sample moving to the next is its own segment
+        slopes[:-1] = np.diff(lags, axis=0) / dt
+        change = np.flatnonzero(np.any(slopes[:-1] != 0, axis=1) | np.any(slopes[1:] != 0,
+                                                                          axis=1)) + 1
     starts = np.concatenate([[0], change])
     stops = np.concatenate([change, [u.size]])
     xc = x[:nx]
@@ -705,7 +726,8 @@ def simulate_reference(
         t_eval = np.arange(b - a + 1) * dt
         seg: list[tuple[float, float]] | None = [] if play_after else None
         try:
-            Y = _segment(xc, ul, core, t_eval, method, rtol, atol, seg)
+            Y = _segment(xc, ul, core, t_eval, method, rtol, atol, seg,
+                         slope=slopes[a] if slopes[a].any() else None)
         except RuntimeError as exc:
             raise RuntimeError(f"at sample {a}: {exc}") from exc
         X[a:b, :nx] = Y[:, :-1].T
@@ -777,6 +799,7 @@ def reference_record(
     rtol: float = 1e-10,
     atol: float = 1e-12,
     method: str = "LSODA",
+    intersample: str = "zoh",
 ) -> Dataset:
     """A simulated rig record generated by the reference implementation.
 
@@ -814,8 +837,9 @@ def reference_record(
         Half range [deg] the linear angle estimate may reach before the input is scaled.
     quantization : float, optional
         Encoder resolution [deg].
-    smooth, rtol, atol, method
-        As in :func:`simulate_reference`.
+    smooth, rtol, atol, method, intersample
+        As in :func:`simulate_reference`; the record carries ``intersample`` (what its
+        input did between samples).
 
     Returns
     -------
@@ -851,7 +875,8 @@ def reference_record(
     x0 = np.zeros(len(names))
     x0[0] = -math.radians(0.5 * float(est.max() + est.min()))
     y_true = simulate_reference(u, fs, p, valve=valve, spool_lag=spool_lag, effects=effects,
-                                x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method)
+                                x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method,
+                                intersample=intersample)
     y = y_true + noise_deg * rng.standard_normal(u.size)
     if quantization:
         y = np.round(y / quantization) * quantization
@@ -865,6 +890,7 @@ def reference_record(
         "noise_deg": noise_deg,
         "quantization_deg": quantization,
         "valve": valve,
+        "intersample": intersample,
         "true_params": true_params,
         "effects": list(eff),
         "x0": dict(zip(names, x0.tolist(), strict=True)),

@@ -38,8 +38,8 @@ OUTSIDE: dict[str, tuple[int, Callable[[np.ndarray], float]]] = {
 
 
 def integrate_held(rhs: Callable[[float, np.ndarray, float], np.ndarray], x0: np.ndarray,
-                   u: np.ndarray, fs: float, what: str) -> np.ndarray:
-    """States at every sample under an exact zero-order hold of ``u``.
+                   u: np.ndarray, fs: float, what: str, intersample: str = "zoh") -> np.ndarray:
+    """States at every sample under an exact zero-order (or first-order) hold of ``u``.
 
     Parameters
     ----------
@@ -53,21 +53,29 @@ def integrate_held(rhs: Callable[[float, np.ndarray, float], np.ndarray], x0: np
         Sample rate [Hz].
     what : str
         Name of the caller, for the error message.
+    intersample : {"zoh", "foh"}
+        Held over each sample, or linear from ``u[k]`` to ``u[k+1]`` (held after the last).
 
     Returns
     -------
     ndarray, shape (N, nx)
         One :func:`~scipy.integrate.solve_ivp` call (LSODA, rtol 1e-9, atol 1e-11) per run
-        of equal inputs.
+        of equal inputs (under ``"foh"`` per moving sample).
     """
+    if intersample not in ("zoh", "foh"):
+        raise ValueError(f"intersample must be 'zoh' or 'foh', got {intersample!r}")
     dt = 1.0 / fs
     x = np.asarray(x0, dtype=float)
     X = np.empty((u.size, x.size))
-    change = np.flatnonzero(np.diff(u) != 0) + 1
+    du = np.append(np.diff(u), 0.0) / dt if intersample == "foh" else np.zeros(u.size)
+    moving = du != 0
+    change = np.flatnonzero((np.diff(u) != 0) | moving[:-1] | moving[1:]) + 1
     for a, b in zip(np.concatenate([[0], change]), np.concatenate([change, [u.size]]),
                     strict=True):
         t_eval = np.arange(b - a + 1) * dt
-        sol = solve_ivp(rhs, (0.0, t_eval[-1]), x, t_eval=t_eval, args=(float(u[a]),),
+        ua, slope = float(u[a]), float(du[a])
+        sol = solve_ivp(lambda t, xx, ua=ua, slope=slope: rhs(t, xx, ua + slope * t),
+                        (0.0, t_eval[-1]), x, t_eval=t_eval,
                         method="LSODA", rtol=1e-9, atol=1e-11)
         if not sol.success:
             raise RuntimeError(f"{what}: integration failed at sample {a}: {sol.message}")
@@ -77,7 +85,8 @@ def integrate_held(rhs: Callable[[float, np.ndarray, float], np.ndarray], x0: np
 
 
 def outside_record(term: str, size: float, seed: int = 0, duration: float = 6.0,
-                   fs: float = 250.0, noise_deg: float = 0.05, levels: int = 4) -> Dataset:
+                   fs: float = 250.0, noise_deg: float = 0.05, levels: int = 4,
+                   intersample: str = "zoh") -> Dataset:
     """A rig record (angle [deg] from current [mA]) whose plant has an outside-library term.
 
     Parameters
@@ -95,6 +104,8 @@ def outside_record(term: str, size: float, seed: int = 0, duration: float = 6.0,
         Standard deviation of the angle noise [deg].
     levels : int
         Amplitude levels of the excitation.
+    intersample : {"zoh", "foh"}
+        What the input does between samples (:func:`integrate_held`); the record says so.
 
     Returns
     -------
@@ -119,10 +130,11 @@ def outside_record(term: str, size: float, seed: int = 0, duration: float = 6.0,
         d[index] += k * extra(xx)
         return d
 
-    X = integrate_held(rhs, x, u, fs, "outside_record")
+    X = integrate_held(rhs, x, u, fs, "outside_record", intersample)
     rng = np.random.default_rng([seed, 1])
     y = np.degrees(X[:, 0]) + noise_deg * rng.standard_normal(u.size)
     meta = {"generator": "hhra_phys.reference.outside", "seed": seed, "noise_deg": noise_deg,
+            "intersample": intersample,
             "truth": {"term": term, "size": k, "params": params}}
     return Dataset.from_arrays(u, y, fs=fs, metadata=meta, name=f"outside-{term}-seed{seed}",
                                input_name="current", input_unit="mA", output_name="angle",

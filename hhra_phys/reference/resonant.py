@@ -19,6 +19,16 @@ model code or the mode's code.
       domega/dt   = (reference rate of omega) - c
       dtheta_l/dt = omega_l
       domega_l/dt = c/ratio
+
+* :func:`multisine_resonator_record`: a lightly damped resonator (not the HHRA)
+  driven by a *continuous* multisine, integrated by ``solve_ivp`` with the input
+  evaluated at every instant the integrator asks for, then sampled at a few
+  samples per resonance period: the input really moves between samples, which
+  neither a zero-order nor a first-order hold reproduces exactly. Optionally a
+  hidden cubic stiffening of the spring::
+
+      dx/dt = v
+      dv/dt = w^2 (gain u(t) - x - cubic x^3) - 2 zeta w v,    y = x + noise
 """
 
 from __future__ import annotations
@@ -27,12 +37,13 @@ import math
 
 import numpy as np
 from scipy import signal as sps
+from scipy.integrate import solve_ivp
 
 from hhra_phys.data import Dataset
 from hhra_phys.reference.hhra import REFERENCE_GROUPS, reference_record, reference_rhs
 from hhra_phys.reference.outside import integrate_held, outside_record
 
-__all__ = ["resonant_record", "loaded_record"]
+__all__ = ["resonant_record", "loaded_record", "multisine_resonator_record"]
 
 
 def resonant_record(period: float, damping: float, seed: int = 0, duration: float = 6.0,
@@ -140,3 +151,95 @@ def loaded_record(period: float, ratio: float, damping: float, seed: int = 0,
                                name=f"loaded-{period:g}s-{ratio:g}-seed{seed}",
                                input_name="current", input_unit="mA", output_name="angle",
                                output_unit="deg")
+
+
+def multisine_resonator_record(seed: int = 1, samples_per_period: float = 9.0,
+                               periods: float = 240.0, f_n: float = 10.0, zeta: float = 0.05,
+                               gain: float = 1.0, cubic: float = 0.0, amplitude: float = 1.0,
+                               band: float = 2.0, lines: int = 60,
+                               noise: float = 0.01) -> Dataset:
+    """A resonator driven by a continuous multisine, sampled coarsely (truth for foh studies).
+
+    Parameters
+    ----------
+    seed : int
+        Seeds the multisine's phases and the noise.
+    samples_per_period : float
+        Sample rate over the natural frequency, ``fs / f_n`` (8 to 10 is the regime
+        where holding the input between samples is visibly wrong).
+    periods : float
+        Length of the record in resonance periods (``N = periods * samples_per_period``).
+    f_n : float
+        Natural frequency [Hz] (``w = 2 pi f_n``).
+    zeta : float
+        Damping ratio [-].
+    gain : float
+        Static gain [V/V].
+    cubic : float
+        Hidden cubic stiffening [1/V^2]: the spring force is ``w^2 (x + cubic x^3)``;
+        0 for a linear resonator.
+    amplitude : float
+        RMS of the input [V].
+    band : float
+        Highest line of the multisine over ``f_n``; the lines are ``lines`` equally spaced
+        frequencies from ``band*f_n/lines`` to ``band*f_n``, of equal amplitude and random
+        phases.
+    lines : int
+        Number of sine lines.
+    noise : float
+        Standard deviation of the white output noise [V].
+
+    Returns
+    -------
+    Dataset
+        Input and output [V] at ``fs = samples_per_period * f_n``. The record carries no
+        inter-sample property (it reads as ``"zoh"``, as a plain CSV would);
+        ``metadata["truth"]`` holds the physics, the multisine and ``"input": "continuous"``.
+
+    Notes
+    -----
+    The integration uses the multisine itself, not its samples (``DOP853``, rtol 1e-10,
+    steps at most a twentieth of a resonance period), so the record is what a continuous
+    input would give; nothing here imports the package's model code.
+    """
+    values = (samples_per_period, periods, f_n, zeta, gain, amplitude, band)
+    if not all(math.isfinite(v) and v > 0 for v in values):
+        raise ValueError("samples_per_period, periods, f_n, zeta, gain, amplitude and band "
+                         f"must be positive, got {values}")
+    if not (math.isfinite(cubic) and cubic >= 0 and math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"cubic and noise must be finite and >= 0, got {cubic}, {noise}")
+    if int(lines) < 1:
+        raise ValueError(f"lines must be a positive integer, got {lines}")
+    rng = np.random.default_rng([seed, 22])
+    freqs = band * f_n * np.arange(1, int(lines) + 1) / int(lines)
+    phases = rng.uniform(0.0, 2 * math.pi, freqs.size)
+    amp = amplitude * math.sqrt(2.0 / freqs.size)
+    w = 2 * math.pi * f_n
+    fs = samples_per_period * f_n
+    n = int(round(periods * samples_per_period))
+    t = np.arange(n) / fs
+    omega = 2 * math.pi * freqs
+
+    def u_of(tt: np.ndarray | float) -> np.ndarray:
+        return amp * np.cos(np.multiply.outer(tt, omega) + phases).sum(axis=-1)
+
+    def rhs(tt: float, xx: np.ndarray) -> np.ndarray:
+        x, v = xx
+        return np.array([v, w * w * (gain * float(u_of(tt)) - x - cubic * x ** 3)
+                         - 2 * zeta * w * v])
+
+    sol = solve_ivp(rhs, (0.0, float(t[-1])), np.zeros(2), t_eval=t, method="DOP853",
+                    rtol=1e-10, atol=1e-12, max_step=1.0 / (20 * f_n))
+    if not sol.success:
+        raise RuntimeError(f"multisine_resonator_record: integration failed: {sol.message}")
+    y = sol.y[0] + noise * rng.standard_normal(n)
+    meta = {"generator": "hhra_phys.reference.resonant.multisine_resonator_record",
+            "seed": seed, "noise": noise,
+            "truth": {"input": "continuous", "f_n": f_n, "w_n": w, "zeta": zeta, "gain": gain,
+                      "cubic": cubic, "samples_per_period": samples_per_period,
+                      "multisine": {"frequencies": freqs.tolist(), "phases": phases.tolist(),
+                                    "amplitude": amp}}}
+    return Dataset.from_arrays(u_of(t), y, fs=fs, metadata=meta,
+                               name=f"multisine-resonator-{samples_per_period:g}-seed{seed}",
+                               input_name="drive", input_unit="V", output_name="response",
+                               output_unit="V")
