@@ -1043,250 +1043,323 @@ def augment(
     Ljung-Box, each with its own noise level).
     """
     opts = LoopOptions.of(options, **settings)
-    (split, test, candidates, max_effects, top_k, pop_size, max_iter, cand_pop, cand_iter,
-     seed, margin, noise_tol, criterion, free, bounds, default_bounds, effect_kw, backend,
-     ipopt_iter, initial_state, background, discover, discover_kw, stop_on, joint_search,
-     backward, intersample) = (getattr(opts, f.name) for f in fields(LoopOptions))
-    say = progress or (lambda s: None)
-    discover_asked = discover
-    tol = NOISE_TOL if noise_tol is None else float(noise_tol)
-    est, sel, held = _loop_parts(data, split, test, validation, base)
-    if isinstance(est, RecordSet):
-        data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
-    names = list(candidates) if candidates is not None else list(EFFECTS)
-    if model is None:
-        from hhra_phys.models.hhra import HHRAModel
+    return _Loop(data, model, opts, validation, base, executor, progress).run()
 
-        model = HHRAModel(output="pressure" if data.output_name == "pressure" else "angle")
-    if base is not None and int(base.settings["data"]["n_est"]) != est.n:
-        raise ParameterError(
-            f"base was fitted on {base.settings['data']['n_est']} estimation samples, the "
-            f"loop's estimation part has {est.n} (split={split}): fit it with the same split")
-    t0 = time.perf_counter()
-    cfg = _Settings(est, sel, data, dict(bounds or {}), backend, seed, ipopt_iter,
-                    initial_state, None, split, criterion, dict(default_bounds or {}))
-    if base is None:
-        base_free = list(free) if free is not None else default_free(model)
-        say(f"base fit: {', '.join(base_free)} (pop {pop_size}, {max_iter} iterations)")
-        # The plain fit's simulator (default block): its compiled code is shared with
-        # `hhra-phys fit` of the same model through the cache.
-        prob = _problem(cfg, model, base_free, {}, {},
-                        simulator=Simulator(model, fs=est.fs, backend=backend))
-        cur = _base_fit(cfg, prob, pop_size, max_iter)
-    else:
-        base_free = [n for n in base.free if not n.startswith("x0_")]
-        say(f"base fit given: {', '.join(base_free)}")
-        prob = _problem(cfg, base.model, base_free, {}, base.values, base.x0,
-                        simulator=Simulator(base.model, fs=est.fs, backend=backend))
-        cur = _run(cfg, prob, "none", 0, 0, refine="none")
-        model = prob.model
-    cfg = replace(cfg, substeps=_substeps(prob))
-    base_res = cur
-    cur_prob = prob
-    cur_free = base_free
-    say(f"  base: est RMSE {cur.metrics['est']['rmse']:.4g}, "
-        f"selection RMSE {cur.metrics['val']['rmse']:.4g}")
-    steps: list[Step] = []
-    chosen: list[str] = []
-    diagnoses: list[Diagnosis] = []
-    warnings: list[str] = []
-    skipped: dict[str, str] = {}
-    dropped: list[str] = []  # removed by the backward step, never proposed again
-    levels: list[dict[str, Any]] = []
-    settled: list[dict[str, Any]] = []  # rounds whose rest was skipped (round_settled)
-    held_base = held  # the base is scored on the test part with its own hold
-    if intersample and not isinstance(est, RecordSet):
-        hold = _hold_candidates(cur, cur_prob, sel, margin, tol, criterion, say)
-        steps.extend(step for step, _ in hold)
-        won = [(step, c) for step, c in hold if step.accepted]
-        if won:
-            for step, _ in won:
-                step.accepted = False  # choose marks the one kept
-            best_step, cand = choose(won, float(selection_noise(cur_prob, cur, sel)["noise"]),
-                                     tol, criterion)
-            say(f"  accepted {best_step.effect}")
-            est, sel, held = cand.records(est, sel, held)
-            data = data.with_intersample(cand.kind)
-            cfg = replace(cfg, est=est, sel=sel, data=data)
-            cur, cur_prob = cand.result, cand.problem
-    est_range = _output_range(cur_prob, _free_values(cur_prob, cur), cur_prob.data)
-    stop = "max_effects"
-    compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
-                if executor is None and background and backend != "casadi" else None)
-    try:
-        rnd = 0
-        # One round per accepted candidate while nothing is removed; each removal takes
-        # a name out of the candidates for good, so the loop ends.
-        while len(chosen) < max_effects:
-            rnd += 1
-            remaining = [n for n in names if n not in chosen and n not in dropped]
-            if not remaining and not discover:
-                stop = "no candidates left"
-                break
-            level, at_noise = noise_stop(cur_prob, cur, sel, tol, stop_on)
-            levels.append(level)
-            if at_noise:
-                stop = _noise_stop_text(level, stop_on)
-                say(f"round {rnd}: {stop}; stop")
-                break
-            crit_cur = information_criterion(cur, criterion)
-            rmse_cur = float(cur.metrics["val"]["rmse"])
-            queue: list[tuple[tuple[bool, float], str, Any]] = []
-            jobs: list[_Job] = []
-            if remaining:
-                diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
-                               effect_kw=effect_kw)
-                diagnoses.append(diag)
-                for ev in diag.evidence:
-                    if ev.note.startswith("skipped"):
-                        skipped[ev.name] = ev.note.removeprefix("skipped: ")
-                names = [n for n in names if n not in skipped]
-                ranked = diag.ranked()
-                say(f"round {rnd}: ranking\n" + diag.summary())
-                jobs = [_Job(cfg, rnd, ev.name, dict((effect_kw or {}).get(ev.name, {})),
-                             cur_prob.model, tuple(cur_free), _values(cur), dict(cur.x0),
-                             ev.to_json(), cand_pop, cand_iter, crit_cur, rmse_cur, est_range,
-                             tuple(n for n in cur_free if n not in base_free)
-                             if joint_search else ())
-                        for ev in (ranked if top_k is None else ranked[:top_k])]
-                queue += [((not job.evidence["identifiable"], -float(job.evidence["score"])),
-                           "effect", job) for job in jobs]
-            if discover:
-                disc = _discovery(cfg, cur, cur_prob, cur_free, rnd, criterion,
-                                  discover_kw, say, skipped)
-                if disc is None:
-                    discover = False
-                else:
-                    queue += [((False, -p.score), "discovered", p) for p in disc.proposals()]
-            if not queue:
-                stop = "no candidates left"
-                break
-            queue.sort(key=lambda q: q[0])  # one ranking of every kind (stable: library order)
-            if compiler is not None:
-                for job in jobs:
-                    try:
-                        m_c, new, _ = _candidate_model(job)
-                    except Exception:  # noqa: BLE001 - the refit reports it
-                        continue
-                    compiler.submit(_warm_compile, cfg, m_c, 2 * _search_size(
-                        len(new) + len(job.previous), cand_pop, cand_iter)[0])
-            library = iter(map_stopping(executor, refit_candidate, jobs)
-                           if executor is not None else map(refit_candidate, jobs))
-            noise_sel = float(level["noise"])
-            noise_est = float(level["estimation"]["noise"])
-            tried: list[tuple[Step, Any]] = []
-            # A candidate at the noise level on both parts settles the round for its kind
-            # (library effects, discovered terms and modes): the kind's later candidates are
-            # not refitted. The other kind goes on until one of its own settles, so that a
-            # library effect and a discovered term that both reach the noise meet in the tie
-            # rule (choose) instead of the first-ranked taking the round.
-            settlers: dict[str, Step] = {}
-            not_refitted: dict[str, list[str]] = {}
-            for _, kind, item in queue:
-                if kind in settlers:
-                    not_refitted.setdefault(kind, []).append(
-                        item.effect if kind == "effect" else f"discovery at {item.entry}")
-                    continue
-                if kind == "effect":
-                    out = next(library)
-                    if out.step is None:
-                        skipped[item.effect] = out.error
-                        names = [n for n in names if n != item.effect]
-                        say(f"  skipped {item.effect}: {out.error}")
-                        continue
-                    step, payload, veto = out.step, (item, out), ""
-                else:
-                    got = disc.refit(item)
-                    if got is None:
-                        continue
-                    step, fitted, veto = got
-                    payload = fitted
-                ok = judge(step, rmse_cur, crit_cur, noise_sel, margin, tol, criterion)
-                if veto:
-                    ok, step.reason = False, f"dropped: {veto} ({step.reason})"
-                say(f"  tried {step.effect}"
-                    + (f": {step.expression}" if isinstance(step, DiscoveredStep) else "")
-                    + f"; {step.reason} [{step.seconds:.1f} s]")
-                steps.append(step)
-                if ok:
-                    tried.append((step, payload))
-                if round_settled(step, noise_sel, noise_est, tol, ok):
-                    settlers[kind] = step
-            for kind, rest in not_refitted.items():
-                step = settlers[kind]
-                what = "library effect" if kind == "effect" else "discovered candidate"
-                note = (f"leaves both parts at the noise level, so no later {what} can beat "
-                        f"it by more than the noise allowance: not refitted this round: "
-                        f"{', '.join(rest)}")
-                step.notes.append(note)
-                settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
-                say(f"  {step.effect} {note}")
-            if hasattr(library, "close"):
-                library.close()  # cancels library refits queued but not started
-            if not tried:
-                stop = "no candidate accepted"
-                say(f"round {rnd}: nothing accepted; stop")
-                break
-            best_step, payload = choose(tried, noise_sel, tol, criterion)
-            chosen.append(best_step.effect)
-            if isinstance(payload, tuple):
-                # Rebuild the accepted fit here from its values (wherever it ran), so the
-                # serial and distributed loops continue from the same numbers.
-                job, best = payload
-                model_c, _, _ = _candidate_model(job)
-                if best.boxes:  # its widened boxes stay with it
-                    cfg = replace(cfg, default_bounds={**cfg.default_bounds, **best.boxes})
-                free_c, vals_c, x0_c = best.free, best.values, best.x0
-            else:
-                model_c = payload.problem.model
-                free_c = payload.free
-                vals_c, x0_c = _values(payload.result), dict(payload.result.x0)
-            # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one
-            # is polished to convergence before the next round.
-            cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
-            cur = _run(cfg, cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
-            cur_free = list(free_c)
-            say(f"round {rnd}: accepted {best_step.effect}")
-            if backward and len(chosen) >= 2:
-                cur, cur_prob, cur_free, back, gone = _backward_step(
-                    cfg, cur, cur_prob, cur_free, chosen, base_free, rnd, margin, tol,
-                    cand_pop, cand_iter, say)
-                steps.extend(back)
-                if gone is not None:
-                    chosen.remove(gone)
-                    dropped.append(gone)
+
+class _Loop:
+    """One run of :func:`augment`: its state, and one method per stage of the data path
+    (base fit, inter-sample candidates, rounds of candidates, acceptance, result)."""
+
+    def __init__(self, data: Dataset | Sequence[Dataset], model: Model | None,
+                 opts: LoopOptions, validation: Any, base: FitResult | None,
+                 executor: Executor | None, progress: Callable[[str], None] | None) -> None:
+        self.o, self.executor, self.base_given = opts, executor, base is not None
+        self.say = progress or (lambda s: None)
+        self.tol = NOISE_TOL if opts.noise_tol is None else float(opts.noise_tol)
+        self.t0 = time.perf_counter()
+        est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
+        if isinstance(est, RecordSet):
+            data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
+        self.data, self.est, self.sel, self.held = data, est, sel, held
+        self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
+        if model is None:
+            from hhra_phys.models.hhra import HHRAModel
+
+            model = HHRAModel(output="pressure" if data.output_name == "pressure" else "angle")
+        if base is not None and int(base.settings["data"]["n_est"]) != est.n:
+            raise ParameterError(
+                f"base was fitted on {base.settings['data']['n_est']} estimation samples, "
+                f"the loop's estimation part has {est.n} (split={opts.split}): fit it with "
+                "the same split")
+        self.cfg = _Settings(est, sel, data, dict(opts.bounds or {}), opts.backend, opts.seed,
+                             opts.ipopt_iter, opts.initial_state, None, opts.split,
+                             opts.criterion, dict(opts.default_bounds or {}))
+        self.discover = opts.discover
+        self.steps: list[Step] = []
+        self.chosen: list[str] = []
+        self.diagnoses: list[Diagnosis] = []
+        self.warnings: list[str] = []
+        self.skipped: dict[str, str] = {}
+        self.dropped: list[str] = []  # removed by the backward step, never proposed again
+        self.levels: list[dict[str, Any]] = []
+        self.settled: list[dict[str, Any]] = []  # rounds whose rest was skipped
+        self._fit_base(model, base)
+
+    # -- base fit and inter-sample candidates -----------------------------------------------
+    def _fit_base(self, model: Model, base: FitResult | None) -> None:
+        o, cfg, say = self.o, self.cfg, self.say
+        if base is None:
+            base_free = list(o.free) if o.free is not None else default_free(model)
+            say(f"base fit: {', '.join(base_free)} (pop {o.pop_size}, {o.max_iter} iterations)")
+            # The plain fit's simulator (default block): its compiled code is shared with
+            # `hhra-phys fit` of the same model through the cache.
+            prob = _problem(cfg, model, base_free, {}, {},
+                            simulator=Simulator(model, fs=self.est.fs, backend=o.backend))
+            cur = _base_fit(cfg, prob, o.pop_size, o.max_iter)
         else:
-            stop = "max_effects"
-    finally:
-        if compiler is not None:
-            compiler.shutdown(wait=True, cancel_futures=True)
-    final_level, _ = noise_stop(cur_prob, cur, sel, tol)
-    final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
-        n for n in names if n not in chosen]) if names else None
-    lo, hi = est_range
-    if any(getattr(part, "position_dependent", False) for part in cur_prob.model.parts):
-        vr = _output_range(cur_prob, _free_values(cur_prob, cur), sel)
-        if vr[0] < lo or vr[1] > hi:
-            warnings.append(
-                f"selection output range [{vr[0]:.3g}, {vr[1]:.3g}] {data.output_unit or ''} "
-                f"(simulated) leaves the estimation range [{lo:.3g}, {hi:.3g}]: "
-                "position-dependent effects are extrapolated there")
-    test_scores = {"base": _test_score(prob, base_res, held_base),
-                   "final": _test_score(cur_prob, cur, held)}
-    settings = {"split": split, "test": test, "candidates": names, "max_effects": max_effects,
-                "top_k": top_k, "pop_size": pop_size, "max_iter": max_iter,
-                "cand_pop": cand_pop, "cand_iter": cand_iter, "seed": seed, "margin": margin,
-                "noise_tol": tol, "criterion": criterion, "backend": backend,
-                "discover": discover_asked, "stop_on": stop_on, "joint_search": joint_search,
-                "backward": backward, "removed": list(dropped), "settled": settled,
-                "executor": type(executor).__name__ if executor is not None else None,
-                "base_given": base is not None, "stop": stop,
-                "noise_levels": levels + [final_level],
-                "seconds": time.perf_counter() - t0,
-                "data": {"name": data.name, "n": data.n, "fs": data.fs, "n_est": est.n,
-                         "n_sel": sel.n, "n_test": held.n if held is not None else 0}}
-    return LoopResult(base_res, cur, steps, chosen, diagnoses, final_diag, settings, warnings,
-                      skipped, test_scores)
+            base_free = [n for n in base.free if not n.startswith("x0_")]
+            say(f"base fit given: {', '.join(base_free)}")
+            prob = _problem(cfg, base.model, base_free, {}, base.values, base.x0,
+                            simulator=Simulator(base.model, fs=self.est.fs, backend=o.backend))
+            cur = _run(cfg, prob, "none", 0, 0, refine="none")
+        self.cfg = replace(cfg, substeps=_substeps(prob))
+        self.base_res, self.base_prob, self.base_free = cur, prob, base_free
+        self.cur, self.cur_prob, self.cur_free = cur, prob, list(base_free)
+        say(f"  base: est RMSE {cur.metrics['est']['rmse']:.4g}, "
+            f"selection RMSE {cur.metrics['val']['rmse']:.4g}")
+        self.held_base = self.held  # the base is scored on the test part with its own hold
+        if o.intersample and not isinstance(self.est, RecordSet):
+            self._hold()
+        self.est_range = _output_range(self.cur_prob, _free_values(self.cur_prob, self.cur),
+                                       self.cur_prob.data)
+
+    def _hold(self) -> None:
+        """The other inter-sample behaviours, judged and chosen by the one rule."""
+        hold = _hold_candidates(self.cur, self.cur_prob, self.sel, self.o.margin, self.tol,
+                                self.o.criterion, self.say)
+        self.steps.extend(step for step, _ in hold)
+        won = [(step, c) for step, c in hold if step.accepted]
+        if not won:
+            return
+        for step, _ in won:
+            step.accepted = False  # choose marks the one kept
+        noise = float(selection_noise(self.cur_prob, self.cur, self.sel)["noise"])
+        best_step, cand = choose(won, noise, self.tol, self.o.criterion)
+        self.say(f"  accepted {best_step.effect}")
+        self.est, self.sel, self.held = cand.records(self.est, self.sel, self.held)
+        self.data = self.data.with_intersample(cand.kind)
+        self.cfg = replace(self.cfg, est=self.est, sel=self.sel, data=self.data)
+        self.cur, self.cur_prob = cand.result, cand.problem
+
+    # -- rounds -----------------------------------------------------------------------------
+    def run(self) -> LoopResult:
+        """Rounds until one accepts nothing, ``max_effects`` are in, or the noise stop."""
+        o = self.o
+        self.stop = "max_effects"
+        self.compiler = (ThreadPoolExecutor(1, thread_name_prefix="hhra-compile")
+                         if self.executor is None and o.background and o.backend != "casadi"
+                         else None)
+        try:
+            rnd = 0
+            # One round per accepted candidate while nothing is removed; each removal
+            # takes a name out of the candidates for good, so the loop ends.
+            while len(self.chosen) < o.max_effects:
+                rnd += 1
+                stop = self._round(rnd)
+                if stop:
+                    self.stop = stop
+                    break
+        finally:
+            if self.compiler is not None:
+                self.compiler.shutdown(wait=True, cancel_futures=True)
+        return self._result()
+
+    def _round(self, rnd: int) -> str | None:
+        """One round; the reason the loop stops, or None to go on."""
+        say, o = self.say, self.o
+        remaining = [n for n in self.names if n not in self.chosen and n not in self.dropped]
+        if not remaining and not self.discover:
+            return "no candidates left"
+        level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol, o.stop_on)
+        self.levels.append(level)
+        if at_noise:
+            stop = _noise_stop_text(level, o.stop_on)
+            say(f"round {rnd}: {stop}; stop")
+            return stop
+        queue, jobs, disc = self._queue(rnd, remaining)
+        if not queue:
+            return "no candidates left"
+        tried = self._refit_all(rnd, queue, jobs, disc, level)
+        if not tried:
+            say(f"round {rnd}: nothing accepted; stop")
+            return "no candidate accepted"
+        best_step, payload = choose(tried, float(level["noise"]), self.tol, o.criterion)
+        self._accept(rnd, best_step, payload)
+        return None
+
+    def _queue(self, rnd: int, remaining: list[str]
+               ) -> tuple[list[tuple[tuple[bool, float], str, Any]], list[_Job], Any]:
+        """Every candidate of the round, library and discovered, in one ranking."""
+        o, cur, cur_prob = self.o, self.cur, self.cur_prob
+        crit_cur = information_criterion(cur, o.criterion)
+        rmse_cur = float(cur.metrics["val"]["rmse"])
+        queue: list[tuple[tuple[bool, float], str, Any]] = []
+        jobs: list[_Job] = []
+        if remaining:
+            diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,
+                           effect_kw=o.effect_kw)
+            self.diagnoses.append(diag)
+            for ev in diag.evidence:
+                if ev.note.startswith("skipped"):
+                    self.skipped[ev.name] = ev.note.removeprefix("skipped: ")
+            self.names = [n for n in self.names if n not in self.skipped]
+            ranked = diag.ranked()
+            self.say(f"round {rnd}: ranking\n" + diag.summary())
+            previous = (tuple(n for n in self.cur_free if n not in self.base_free)
+                        if o.joint_search else ())
+            jobs = [_Job(self.cfg, rnd, ev.name, dict((o.effect_kw or {}).get(ev.name, {})),
+                         cur_prob.model, tuple(self.cur_free), _values(cur), dict(cur.x0),
+                         ev.to_json(), o.cand_pop, o.cand_iter, crit_cur, rmse_cur,
+                         self.est_range, previous)
+                    for ev in (ranked if o.top_k is None else ranked[:o.top_k])]
+            queue += [((not job.evidence["identifiable"], -float(job.evidence["score"])),
+                       "effect", job) for job in jobs]
+        disc = None
+        if self.discover:
+            disc = _discovery(self.cfg, cur, cur_prob, self.cur_free, rnd, o.criterion,
+                              o.discover_kw, self.say, self.skipped)
+            if disc is None:
+                self.discover = False
+            else:
+                queue += [((False, -p.score), "discovered", p) for p in disc.proposals()]
+        queue.sort(key=lambda q: q[0])  # one ranking of every kind (stable: library order)
+        if self.compiler is not None:
+            for job in jobs:
+                try:
+                    m_c, new, _ = _candidate_model(job)
+                except Exception:  # noqa: BLE001 - the refit reports it
+                    continue
+                self.compiler.submit(_warm_compile, self.cfg, m_c, 2 * _search_size(
+                    len(new) + len(job.previous), o.cand_pop, o.cand_iter)[0])
+        return queue, jobs, disc
+
+    def _refit_all(self, rnd: int, queue: list[tuple[tuple[bool, float], str, Any]],
+                   jobs: list[_Job], disc: Any, level: Mapping[str, Any]
+                   ) -> list[tuple[Step, Any]]:
+        """Refit the queue in order, judge each refit; the acceptable ones.
+
+        A candidate at the noise level on both parts settles the round for its kind
+        (library effects, discovered terms and modes): the kind's later candidates are not
+        refitted. The other kind goes on until one of its own settles, so that a library
+        effect and a discovered term that both reach the noise meet in the tie rule
+        (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round.
+        """
+        o, say = self.o, self.say
+        crit_cur = information_criterion(self.cur, o.criterion)
+        rmse_cur = float(self.cur.metrics["val"]["rmse"])
+        noise_sel = float(level["noise"])
+        noise_est = float(level["estimation"]["noise"])
+        library = iter(map_stopping(self.executor, refit_candidate, jobs)
+                       if self.executor is not None else map(refit_candidate, jobs))
+        tried: list[tuple[Step, Any]] = []
+        settlers: dict[str, Step] = {}
+        not_refitted: dict[str, list[str]] = {}
+        for _, kind, item in queue:
+            if kind in settlers:
+                not_refitted.setdefault(kind, []).append(
+                    item.effect if kind == "effect" else f"discovery at {item.entry}")
+                continue
+            got = self._refit_one(kind, item, library, disc)
+            if got is None:
+                continue
+            step, payload, veto = got
+            ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
+            if veto:
+                ok, step.reason = False, f"dropped: {veto} ({step.reason})"
+            say(f"  tried {step.effect}"
+                + (f": {step.expression}" if isinstance(step, DiscoveredStep) else "")
+                + f"; {step.reason} [{step.seconds:.1f} s]")
+            self.steps.append(step)
+            if ok:
+                tried.append((step, payload))
+            if round_settled(step, noise_sel, noise_est, self.tol, ok):
+                settlers[kind] = step
+        if hasattr(library, "close"):
+            library.close()  # cancels library refits queued but not started
+        for kind, rest in not_refitted.items():
+            step = settlers[kind]
+            what = "library effect" if kind == "effect" else "discovered candidate"
+            note = (f"leaves both parts at the noise level, so no later {what} can beat it "
+                    f"by more than the noise allowance: not refitted this round: "
+                    f"{', '.join(rest)}")
+            step.notes.append(note)
+            self.settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
+            say(f"  {step.effect} {note}")
+        return tried
+
+    def _refit_one(self, kind: str, item: Any, library: Any, disc: Any
+                   ) -> tuple[Step, Any, str] | None:
+        """The refit of one queued candidate: (step, what to continue from, veto) or None."""
+        if kind == "effect":
+            out = next(library)
+            if out.step is None:
+                self.skipped[item.effect] = out.error
+                self.names = [n for n in self.names if n != item.effect]
+                self.say(f"  skipped {item.effect}: {out.error}")
+                return None
+            return out.step, (item, out), ""
+        got = disc.refit(item)
+        if got is None:
+            return None
+        step, fitted, veto = got
+        return step, fitted, veto
+
+    def _accept(self, rnd: int, best_step: Step, payload: Any) -> None:
+        """Add the chosen candidate, polish the model, then the backward step."""
+        o, cfg = self.o, self.cfg
+        self.chosen.append(best_step.effect)
+        if isinstance(payload, tuple):
+            # Rebuild the accepted fit here from its values (wherever it ran), so the
+            # serial and distributed loops continue from the same numbers.
+            job, best = payload
+            model_c, _, _ = _candidate_model(job)
+            if best.boxes:  # its widened boxes stay with it
+                cfg = self.cfg = replace(cfg, default_bounds={**cfg.default_bounds,
+                                                               **best.boxes})
+            free_c, vals_c, x0_c = best.free, best.values, best.x0
+        else:
+            model_c = payload.problem.model
+            free_c = payload.free
+            vals_c, x0_c = _values(payload.result), dict(payload.result.x0)
+        # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one is
+        # polished to convergence before the next round.
+        self.cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
+        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+        self.cur_free = list(free_c)
+        self.say(f"round {rnd}: accepted {best_step.effect}")
+        if o.backward and len(self.chosen) >= 2:
+            self.cur, self.cur_prob, self.cur_free, back, gone = _backward_step(
+                cfg, self.cur, self.cur_prob, self.cur_free, self.chosen, self.base_free, rnd,
+                o.margin, self.tol, o.cand_pop, o.cand_iter, self.say)
+            self.steps.extend(back)
+            if gone is not None:
+                self.chosen.remove(gone)
+                self.dropped.append(gone)
+
+    # -- result -----------------------------------------------------------------------------
+    def _result(self) -> LoopResult:
+        o, cur, cur_prob, data = self.o, self.cur, self.cur_prob, self.data
+        final_level, _ = noise_stop(cur_prob, cur, self.sel, self.tol)
+        final_diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=[
+            n for n in self.names if n not in self.chosen]) if self.names else None
+        lo, hi = self.est_range
+        if any(getattr(part, "position_dependent", False) for part in cur_prob.model.parts):
+            vr = _output_range(cur_prob, _free_values(cur_prob, cur), self.sel)
+            if vr[0] < lo or vr[1] > hi:
+                self.warnings.append(
+                    f"selection output range [{vr[0]:.3g}, {vr[1]:.3g}] "
+                    f"{data.output_unit or ''} (simulated) leaves the estimation range "
+                    f"[{lo:.3g}, {hi:.3g}]: position-dependent effects are extrapolated there")
+        test_scores = {"base": _test_score(self.base_prob, self.base_res, self.held_base),
+                       "final": _test_score(cur_prob, cur, self.held)}
+        settings = {
+            "split": o.split, "test": o.test, "candidates": self.names,
+            "max_effects": o.max_effects, "top_k": o.top_k, "pop_size": o.pop_size,
+            "max_iter": o.max_iter, "cand_pop": o.cand_pop, "cand_iter": o.cand_iter,
+            "seed": o.seed, "margin": o.margin, "noise_tol": self.tol,
+            "criterion": o.criterion, "backend": o.backend, "discover": o.discover,
+            "stop_on": o.stop_on, "joint_search": o.joint_search, "backward": o.backward,
+            "intersample": o.intersample, "removed": list(self.dropped),
+            "settled": self.settled,
+            "executor": type(self.executor).__name__ if self.executor is not None else None,
+            "base_given": self.base_given, "stop": self.stop,
+            "noise_levels": self.levels + [final_level],
+            "seconds": time.perf_counter() - self.t0,
+            "data": {"name": data.name, "n": data.n, "fs": data.fs, "n_est": self.est.n,
+                     "n_sel": self.sel.n, "n_test": self.held.n if self.held is not None else 0},
+        }
+        return LoopResult(self.base_res, cur, self.steps, self.chosen, self.diagnoses,
+                          final_diag, settings, self.warnings, self.skipped, test_scores)
 
 
 def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
