@@ -42,6 +42,7 @@ from scipy import stats
 from hhra_phys.data import Dataset
 from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
 from hhra_phys.errors import ParameterError
+from hhra_phys.noise import noise_level
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
 from hhra_phys.problem import Problem
 
@@ -172,16 +173,6 @@ class Diagnosis:
 
 
 # --- statistics ---------------------------------------------------------------------
-
-
-def noise_level(residual: np.ndarray) -> float:
-    """Robust white-noise standard deviation from the sample-to-sample differences.
-
-    Differencing removes the slow model error, so ``MAD(diff(r)) / 0.6745 / sqrt(2)``
-    estimates the measurement noise even when the residual is not white.
-    """
-    d = np.diff(np.asarray(residual, dtype=float))
-    return float(stats.median_abs_deviation(d, scale="normal") / math.sqrt(2))
 
 
 def whiteness(residual: np.ndarray, lags: int | None = None) -> dict[str, Any]:
@@ -450,7 +441,8 @@ def analyse(
     names = problem.model.state_names
     states = {n: X[:, i] for i, n in enumerate(names)}
     theta, omega = states.get("theta"), states.get("omega")
-    noise = noise_level(r)
+    # The input and the simulated output carry the model error; the rest is noise.
+    noise = noise_level(r, (data.u, yhat))
     white = whiteness(r)
     max_lag = int(min(50, data.n // 10))
     lags, xc = cross_correlation(r, data.u, max_lag)

@@ -1650,7 +1650,8 @@ def discover_step(
     index = 1 + sum(isinstance(p, DiscoveredTerm) for p in cur_prob.model.parts)
     crit_cur = information_criterion(cur, criterion)
     rmse_cur = float(cur.metrics["val"]["rmse"])
-    noise = noise_level(cur_prob.data.y - cur_prob.simulate_values(values))
+    y_cur = cur_prob.simulate_values(values)
+    noise = noise_level(cur_prob.data.y - y_cur, (cur_prob.data.u, y_cur))
     before = _residuals(cur_prob, cur, fitter.val)
     steps: list[DiscoveredStep] = []
     ok: list[tuple[DiscoveredStep, _Fitted]] = []

@@ -408,18 +408,21 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
 def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
     """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
 
-    The noise is the residual's own (:func:`hhra_phys.diagnose.noise_level`, from its
-    sample-to-sample differences); one simulation.
+    The noise is the residual's own (:func:`hhra_phys.noise.noise_level`: the part not
+    coherent with the input and the simulated output); one simulation.
     """
-    from hhra_phys.diagnose import noise_level
+    from hhra_phys.noise import noise_level
 
-    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    yhat = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float)))
+    r = yhat - problem.y
     total = float(r @ r)
     if not np.isfinite(total):
         return np.inf, 1.0
     if total <= 0:
         return 0.0, 0.0
-    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r) ** 2 / total)
+    u = getattr(getattr(problem, "data", None), "u", None)
+    inputs = (u, yhat) if u is not None and np.shape(u) == r.shape else None
+    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r, inputs) ** 2 / total)
 
 
 def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) -> list[float]:

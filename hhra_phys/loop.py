@@ -575,7 +575,7 @@ def selection_noise(problem: Problem, res: FitResult, sel: Dataset | None) -> di
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
-    sigma = noise_level(r)
+    sigma = noise_level(r, ((problem.data if sel is None else sel).u, y))
     rmse = float(np.sqrt(np.mean(r ** 2)))
     w = whiteness(r)
     return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
@@ -587,14 +587,17 @@ def _records_noise(problem: MultiProblem, res: FitResult,
     """:func:`selection_noise` of several records (its docstring)."""
     v = _free_values(problem, res)
     parts = [None] * len(problem.records) if sel is None else list(sel)
-    rs = [(pr.data if ds is None else ds).y
-          - pr.simulate_values(problem.record_values(v, k), data=ds)
+    ys = [pr.simulate_values(problem.record_values(v, k), data=ds)
           for k, (pr, ds) in enumerate(zip(problem.records, parts, strict=True))]
+    datas = [pr.data if ds is None else ds
+             for pr, ds in zip(problem.records, parts, strict=True)]
+    rs = [d.y - yk for d, yk in zip(datas, ys, strict=True)]
     r = np.concatenate(rs)
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
-    sigma = float(np.sqrt(sum(rk.size * noise_level(rk) ** 2 for rk in rs) / r.size))
+    sigma = float(np.sqrt(sum(rk.size * noise_level(rk, (d.u, yk)) ** 2
+                              for rk, d, yk in zip(rs, datas, ys, strict=True)) / r.size))
     rmse = float(np.sqrt(np.mean(r ** 2)))
     tests = [whiteness(rk) for rk in rs]
     p = float(chi2.sf(sum(w["ljung_box_q"] for w in tests), sum(w["lags"] for w in tests)))
