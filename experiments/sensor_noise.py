@@ -19,8 +19,9 @@ earlier difference estimate, selection and test RMSE, why it stopped and the tim
 ``--estimator difference`` swaps the earlier estimator (sample-to-sample
 differences) back in at the loop's call sites, to measure the change.
 
-    python experiments/sensor_noise.py [--seeds 5] [--cases white,ar,quant,drift,ar+valve_deadzone]
-        [--estimator spectral|difference] [--discover] [--out docs/figures/measuring_sensor_noise.json]
+    python experiments/sensor_noise.py [--seeds 5] [--estimator spectral|difference]
+        [--cases white,ar,quant,drift,ar+valve_deadzone] [--discover]
+        [--out docs/figures/measuring_sensor_noise.json]
 """
 
 from __future__ import annotations

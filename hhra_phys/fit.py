@@ -52,7 +52,7 @@ from hhra_phys.refine import (
     refine_ipopt,
     refine_nlopt,
 )
-from hhra_phys.result import FitResult, uncertainty
+from hhra_phys.result import FitResult, uncertainty, weak_directions
 
 __all__ = [
     "MAX_WIDEN_DECADES",
@@ -681,6 +681,13 @@ def _intervals(
                     )
     if undetermined:
         interval_info["undetermined"] = undetermined
+    weak = weak_directions(J, list(problem.free_names))
+    if weak:
+        # Which parameters trade off, and why their intervals are missing.
+        interval_info["weak_directions"] = weak
+        interval_info["reasons"] = {
+            name: next(d["reason"] for d in weak if name in d["params"])
+            for name in undetermined if any(name in d["params"] for d in weak)}
 
     edges = dict(at_edges(problem, z))
     for i, name in enumerate(problem.free_names):

@@ -192,7 +192,8 @@ def fit_noise_model(spec: dict[str, Any], quantile: float | None = None) -> dict
     best = None
     lam0 = float(np.median(target))
     for a0 in (0.0, 0.5, 0.9, 0.99):
-        x0 = np.array([lam0 + math.log(1 - a0) * 2 if a0 else lam0, math.atanh(min(a0, 0.99 * pole_max) / pole_max), 0.0])
+        a_start = min(a0, 0.99 * pole_max)
+        x0 = np.array([lam0 + 2 * math.log(1 - a_start), math.atanh(a_start / pole_max), 0.0])
         r = optimize.minimize(loss, x0, method="Nelder-Mead",
                               options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
         if best is None or r.fun < best.fun:

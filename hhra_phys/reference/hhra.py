@@ -84,8 +84,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.integrate import solve_ivp
 from scipy import signal as sps
+from scipy.integrate import solve_ivp
 
 from hhra_phys.data import Dataset
 from hhra_phys.excitation import irregular_steps, samples
@@ -833,7 +833,8 @@ def reference_record(
     -------
     Dataset
         ``t`` [s], ``u`` [mA], ``y`` [deg]. ``metadata``: ``generator`` (``"reference"``),
-        ``seed``, ``noise_deg``, ``noise_ar``, ``drift_deg``, ``quantization_deg``, ``valve``, ``true_params``
+        ``seed``, ``noise_deg``, ``noise_ar``, ``drift_deg``, ``quantization_deg``, ``valve``,
+        ``true_params``
         (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
         ``truth``: everything :func:`simulate_reference` needs to reproduce the
         noise-free output (``params``, ``effects`` with settings, ``valve``,
