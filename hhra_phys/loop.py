@@ -264,6 +264,10 @@ class LoopResult:
         final = part(self.final, "final")
         final["params"] = self.final.values
         final["ci95"] = {k: list(v) for k, v in self.final.ci95.items()}
+        # The final fit's own warnings (identifiability, bounds, extrapolation) and how
+        # its intervals were had (the directions the data cannot determine, with why).
+        final["warnings"] = list(self.final.warnings)
+        final["intervals"] = self.final.intervals
         return jsonable({
             "base": part(self.base, "base"),
             "test": ({m: self.test_scores["final"].get(m) for m in METRIC_KEYS}
@@ -274,7 +278,8 @@ class LoopResult:
             "diagnosis_before": self.diagnoses[0].to_json() if self.diagnoses else None,
             "diagnosis_after": (self.final_diagnosis.to_json()
                                 if self.final_diagnosis is not None else None),
-            "warnings": self.warnings,
+            "warnings": self.warnings + [w for w in self.final.warnings
+                                         if w not in self.warnings],
             "skipped": dict(self.skipped),
             "settings": self.settings,
         })
