@@ -106,7 +106,7 @@ from hhra_phys.parts import (
     register_part,
 )
 from hhra_phys.problem import Problem
-from hhra_phys.result import FitResult
+from hhra_phys.result import FitResult, redundant
 
 __all__ = [
     "DiscoveredTerm",
@@ -1664,6 +1664,8 @@ def discover_step(
         new = [p.name for p in term.parameters]
         accepted, reason = acceptance(rmse_cur, fitted.val_rmse, crit_cur, fitted.crit,
                                       margin, criterion, sel_noise, noise_tol)
+        # A term the model's own parameters can trade against changes nothing.
+        veto = veto or (redundant(res, new) or "")
         if veto:
             accepted, reason = False, f"dropped: {veto} ({reason})"
         expr = term.expression(res.values)
