@@ -40,7 +40,7 @@ from scipy import signal as sps
 from scipy import stats
 
 from hhra_phys.data import Dataset
-from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
+from hhra_phys.effects import EFFECTS, Effect, Signals, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.noise import noise_level
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
@@ -471,7 +471,8 @@ def analyse(
     r_norm2 = float(r_p @ r_p) or 1e-300
     sig = Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat)
     fitted = problem.model.params.as_dict(P)
-    names_c = list(candidates) if candidates is not None else list(EFFECTS)
+    names_c = (list(dict.fromkeys(effect_name(n) for n in candidates))
+               if candidates is not None else list(EFFECTS))
     umax = float(np.max(np.abs(data.u))) or 1.0
     evidence = []
     for name in names_c:

@@ -50,7 +50,7 @@ from scipy.stats import chi2
 
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
-from hhra_phys.effects import EFFECTS, make_effect
+from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.interrupt import map_stopping
@@ -1121,7 +1121,9 @@ def augment(
     est, sel, held = _loop_parts(data, split, test, validation, base)
     if isinstance(est, RecordSet):
         data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
-    names = list(candidates) if candidates is not None else list(EFFECTS)
+    # Generic aliases (input_deadzone, ...) name the same library parts.
+    names = (list(dict.fromkeys(effect_name(n) for n in candidates)) if candidates is not None
+             else list(EFFECTS))
     for n in names:
         if n not in EFFECTS:
             raise ParameterError(f"unknown effect {n!r}; library: {', '.join(EFFECTS)}")
