@@ -83,6 +83,13 @@ def add_record_arguments(
     add_delimiter_argument(p)
     p.add_argument("--time-unit", choices=tuple(TIME_UNITS), default=None,
                    help="unit of the file's time column (default s; ms divides it by 1000)")
+    for side, example in (("input", "V"), ("output", "mV")):
+        p.add_argument(f"--{side}-unit", default=None, metavar="UNIT",
+                       help=f"unit of the {side} column (e.g. {example}; overrides the file's; "
+                            "default: the file's, else the HHRA's for the HHRA, the --model's "
+                            "declared unit, or none)")
+        p.add_argument(f"--{side}-name", default=None, metavar="NAME",
+                       help=f"name of the {side} channel in plots and reports")
 
 
 def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
@@ -119,7 +126,12 @@ def add_delimiter_argument(p: argparse.ArgumentParser) -> None:
 #: Options of :func:`add_record_arguments` that describe a file (not the rig or 'public').
 FILE_OPTIONS = (("time_col", "--time-col"), ("input_col", "--input-col"),
                  ("output_col", "--output-col"), ("fs", "--fs"), ("delimiter", "--delimiter"),
-                 ("time_unit", "--time-unit"))
+                 ("time_unit", "--time-unit"), ("input_unit", "--input-unit"),
+                 ("output_unit", "--output-unit"), ("input_name", "--input-name"),
+                 ("output_name", "--output-name"))
+
+#: The channel labels of :func:`add_record_arguments`.
+LABEL_OPTIONS = ("input_name", "input_unit", "output_name", "output_unit")
 
 
 def is_builtin(data: str | None) -> bool:
@@ -140,6 +152,9 @@ def read_record(args: argparse.Namespace) -> Dataset:
             kw[key] = value
     if args.fs is not None:
         kw["fs"] = args.fs
+    for opt in LABEL_OPTIONS:  # the command line's labels win over the file's
+        if getattr(args, opt, None) is not None:
+            kw[opt] = getattr(args, opt)
     kw["delimiter"] = getattr(args, "delimiter", None)
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
@@ -179,11 +194,20 @@ def load_data(args: argparse.Namespace) -> Dataset:
 def record_for_model(args: argparse.Namespace, data: Dataset) -> tuple[Dataset, list[str]]:
     """``data`` in the built-in HHRA's units, and warnings about implausible ranges.
 
-    With ``--model`` (a user's model, whose units hhra-phys does not know) the record is
-    returned unchanged. Conversions are printed on stderr; the warnings are printed and
-    returned, so they can also go into the result.
+    With ``--model`` (a user's model, whose units hhra-phys does not know) the values are
+    unchanged; channels the record does not label take the model's declared names and
+    units (attributes ``input_unit`` ... of the model), else generic ones, never the
+    HHRA's mA and deg (:func:`~hhra_phys.units.label_record`). Conversions are printed on
+    stderr; the warnings are printed and returned, so they can also go into the result.
     """
     if getattr(args, "model", None):
+        from hhra_phys.extensions import model_from_spec
+        from hhra_phys.units import label_record
+
+        given = {k: getattr(args, k, None) for k in LABEL_OPTIONS}
+        data, notes = label_record(data, given, model_from_spec(args.model, data))
+        for line in notes:
+            print(f"note: {line}", file=sys.stderr)
         return data, []
     from hhra_phys.models.hhra.defaults import prepare_record
 
