@@ -85,7 +85,8 @@ def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
     eigval, eigvec = np.linalg.eigh(normed)
     top = max(float(eigval[-1]), np.finfo(float).tiny)
     for k in range(live.size):
-        cond = top / max(float(eigval[k]), np.finfo(float).tiny)
+        lam = float(eigval[k])
+        cond = top / lam if lam > 0 else float("inf")  # rounding can make it <= 0
         if cond <= IDENTIFIABILITY_COND:
             break
         v = eigvec[:, k] / np.max(np.abs(eigvec[:, k]))
@@ -96,8 +97,8 @@ def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
             continue
         combo = " with ".join(f"{n} ({w:+.3g})" for n, w in weights.items())
         out.append({"condition": float(cond), "params": weights,
-                    "reason": f"moving {combo} together leaves the output unchanged to "
-                              f"1/{cond:.2g} of its strongest direction: the data cannot "
+                    "reason": f"moving {combo} together leaves the output unchanged "
+                              f"(information-matrix condition {cond:.2g}): the data cannot "
                               "tell them apart"})
     return out
 
@@ -134,9 +135,8 @@ def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str
         a = [n for n in involved if n in new]
         b = [n for n in involved if n in old]
         if a and b:
-            return (f"only reparametrises the model: {', '.join(a)} and "
-                    f"{', '.join(b)} are not identifiable separately (condition "
-                    f"{d['condition']:.2g}; {d['reason']})")
+            return (f"only reparametrises the model ({', '.join(a)} against "
+                    f"{', '.join(b)}): {d['reason']}")
     return None
 
 FORMAT_VERSION = 1
