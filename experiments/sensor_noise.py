@@ -22,6 +22,12 @@ differences) back in at the loop's call sites, to measure the change.
     python experiments/sensor_noise.py [--seeds 5] [--estimator spectral|difference]
         [--cases white,ar,quant,drift,ar+valve_deadzone] [--discover]
         [--out docs/figures/measuring_sensor_noise.json]
+
+``--estimates FIGURE.png`` runs no loop: for every case (and ``white+EFFECT``) and seed
+the base HHRA is fitted once (pop 20 x 30, estimation half) and both noise estimates of
+its estimation residual are compared with what the sensor added; the figure shows
+the ratios and, for two residuals, the input-free periodogram under which the noise
+model is fitted (JSON beside the figure).
 """
 
 from __future__ import annotations
@@ -111,6 +117,85 @@ def run_case(case: str, seed: int, duration: float, loop_kw: dict) -> dict:
     }
 
 
+def estimates(cases: list[str], seeds: list[int], duration: float, figure: str) -> None:
+    """Both noise estimates of base-fit residuals against the sensor's own noise (no loop)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hhra_phys.fit import fit
+    from hhra_phys.models.hhra import HHRAModel
+    from hhra_phys.noise import fit_noise_model, noise_spectrum
+
+    rows, examples = [], {}
+    for case in cases:
+        for seed in seeds:
+            ds = make_record(case, seed, duration)
+            effect = case.partition("+")[2]
+            clean = reference_record(seed=seed, duration=duration, levels=4, noise_deg=0.0,
+                                     effects={effect: EFFECTS[effect]} if effect else None)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                res = fit(ds, HHRAModel(), pop_size=20, max_iter=30, seed=seed, split=0.5)
+            pr = res.problem
+            y = res.simulate(pr.data.u, x0=res.x0)
+            r = pr.data.y - y
+            sensor = float(np.std((ds.y - clean.y)[:len(pr.data)]))
+            row = {"case": case, "seed": seed, "sensor_std": sensor,
+                   "rmse": float(np.sqrt(np.mean(r ** 2))),
+                   "spectral": noise_level(r, (pr.data.u, y)), "difference": difference_level(r)}
+            rows.append(row)
+            print(f"{case:24s} seed {seed}: sensor {sensor:.4f} rmse {row['rmse']:.4f} "
+                  f"spectral {row['spectral']:.4f} difference {row['difference']:.4f}",
+                  flush=True)
+            if seed == seeds[0] and case in ("ar", "white+valve_deadzone"):
+                spec = noise_spectrum(r, (pr.data.u, y), fs=ds.fs)
+                examples[case] = (spec, fit_noise_model(spec), ds.fs)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    ax = axes[0]
+    for k, case in enumerate(cases):
+        rr = [r for r in rows if r["case"] == case]
+        jit = np.linspace(-0.12, 0.12, len(rr))
+        ax.plot(k + jit - 0.15, [r["difference"] / r["sensor_std"] for r in rr], "v",
+                color="tab:red", label="differences (earlier)" if k == 0 else None)
+        ax.plot(k + jit + 0.15, [r["spectral"] / r["sensor_std"] for r in rr], "o",
+                color="tab:blue", label="input-free spectrum (now)" if k == 0 else None)
+        ax.plot(k + jit, [r["rmse"] / r["sensor_std"] for r in rr], "_", color="0.4",
+                markersize=10, label="residual RMSE" if k == 0 else None)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(cases)), cases, rotation=30, ha="right")
+    ax.set_ylabel("estimate / sensor noise std")
+    ax.set_title("noise level of the base fit's residual")
+    ax.legend(fontsize=8)
+    for ax, case in zip(axes[1:], ("ar", "white+valve_deadzone"), strict=True):
+        if case not in examples:
+            ax.set_visible(False)
+            continue
+        spec, model, fs = examples[case]
+        f = spec["f"][1:]
+        w = 2 * np.pi * f / fs
+        lam, a, c = model["lam"], model["a"], model["c"]
+        fitted = lam * (1 + c * c + 2 * c * np.cos(w)) / (1 + a * a - 2 * a * np.cos(w))
+        # Periodogram units to one-sided density: x 2/fs.
+        ax.loglog(f, spec["residual"][1:], color="0.6", label="residual")
+        ax.loglog(f, spec["noise"][1:], color="tab:blue", label="not coherent with input")
+        ax.loglog(f, fitted * 2 / fs, "k--", label=f"noise model a={a:.2f}, c={c:+.2f}")
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("density [deg^2/Hz]")
+        level = min(model["variance"], spec["variance"]) ** 0.5
+        ax.set_title(f"{case}, seed {seeds[0]}: noise level {level:.4f} deg")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = check_output_path(figure, overwrite=True, what="--estimates", suffixes=(".png",))
+    fig.savefig(out, dpi=110)
+    atomic_write_text(str(out.with_suffix(".json")), json.dumps(jsonable(
+        {"rows": rows, "duration": duration, "sensors": SENSORS, "effects": EFFECTS,
+         "loadavg": os.getloadavg(), "command": "python " + " ".join(sys.argv)}), indent=1))
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="5", help="N (seeds 1..N) or a comma-separated list")
@@ -123,6 +208,8 @@ def main() -> None:
     ap.add_argument("--discover", action="store_true", help="let the loop discover terms too")
     ap.add_argument("--max-effects", type=int, default=2)
     ap.add_argument("--out", default="docs/figures/measuring_sensor_noise.json")
+    ap.add_argument("--estimates", default=None, metavar="FIGURE.png",
+                    help="no loop: compare the noise estimates on base-fit residuals")
     args = ap.parse_args()
     try:
         seeds = ([int(x) for x in args.seeds.split(",")] if "," in args.seeds
@@ -136,6 +223,9 @@ def main() -> None:
             ap.error(f"--cases: unknown case {c!r}")
     if args.duration <= 0 or args.max_effects < 1:
         ap.error("--duration and --max-effects must be positive")
+    if args.estimates:
+        estimates(cases, seeds, args.duration, args.estimates)
+        return
     out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
     if args.estimator == "difference":
         _use_difference()

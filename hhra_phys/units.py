@@ -261,7 +261,8 @@ def label_record(data: Dataset, given: Mapping[str, str | None] | None = None,
     Precedence per channel: ``given`` (the command line's ``--input-unit`` ...) > what
     the record states (header, side-car) > what the model declares (attributes
     ``input_name``, ``input_unit``, ``output_name``, ``output_unit`` of the model
-    object, if it has them) > :data:`GENERIC_LABELS`. A channel whose name and unit
+    object, if it has them; :class:`~hhra_phys.model.Model`'s own symbols ``u`` and
+    ``y`` are not a declaration) > :data:`GENERIC_LABELS`. A channel whose name and unit
     are both the HHRA's (:data:`HHRA_LABELS`, the loaders' default) is taken as not
     stated: a plain CSV of volts is then not read as mA and degrees.
 
@@ -295,7 +296,9 @@ def label_record(data: Dataset, given: Mapping[str, str | None] | None = None,
                 continue
             else:
                 declared = getattr(model, key, None)
-                value = declared if isinstance(declared, str) else GENERIC_LABELS[key]
+                # The base Model's own "u"/"y" are symbols, not a declaration.
+                value = (declared if isinstance(declared, str) and declared
+                         and declared not in ("u", "y") else GENERIC_LABELS[key])
             if value != getattr(data, key):
                 new[key] = value
     if new:
