@@ -126,12 +126,12 @@ def add_delimiter_argument(p: argparse.ArgumentParser) -> None:
 #: Options of :func:`add_record_arguments` that describe a file (not the rig or 'public').
 FILE_OPTIONS = (("time_col", "--time-col"), ("input_col", "--input-col"),
                  ("output_col", "--output-col"), ("fs", "--fs"), ("delimiter", "--delimiter"),
-                 ("time_unit", "--time-unit"), ("input_unit", "--input-unit"),
-                 ("output_unit", "--output-unit"), ("input_name", "--input-name"),
-                 ("output_name", "--output-name"))
+                 ("time_unit", "--time-unit"))
 
-#: The channel labels of :func:`add_record_arguments`.
-LABEL_OPTIONS = ("input_name", "input_unit", "output_name", "output_unit")
+#: The channel labels of :func:`add_record_arguments` (they describe a file too).
+LABEL_FLAGS = (("input_unit", "--input-unit"), ("output_unit", "--output-unit"),
+               ("input_name", "--input-name"), ("output_name", "--output-name"))
+LABEL_OPTIONS = tuple(opt for opt, _ in LABEL_FLAGS)
 
 
 def is_builtin(data: str | None) -> bool:
@@ -172,7 +172,8 @@ def load_data(args: argparse.Namespace) -> Dataset:
         record that is not the rig: they would be silently ignored.
     """
     if is_builtin(args.data):
-        given = [flag for opt, flag in FILE_OPTIONS if getattr(args, opt, None) is not None]
+        given = [flag for opt, flag in FILE_OPTIONS + LABEL_FLAGS
+                 if getattr(args, opt, None) is not None]
         if given:
             verb = "describes" if len(given) == 1 else "describe"
             raise ParameterError(f"{', '.join(given)} {verb} a DATA file; the "
