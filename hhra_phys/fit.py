@@ -40,6 +40,7 @@ from hhra_phys.interrupt import interruptible, map_stopping
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
+from hhra_phys.noise import interval_factor
 from hhra_phys.optim import minimize
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
     MAX_WIDEN_DECADES,
@@ -382,6 +383,9 @@ WIDEN_MIN_GAIN = 1e-3
 #: 0.04-0.13 for the heavily damped rig whose group lies beyond its box, 0.86-0.93 for base
 #: fits lacking a sharp friction, 0.53-0.99 for the loop's candidate fits there.
 WIDEN_MAX_EXCESS = 0.5
+#: Intervals at least this much too narrow under the residual's noise colour are
+#: warned about (:func:`hhra_phys.noise.interval_factor`).
+COLOURED_FACTOR = 2.0
 
 
 def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
@@ -681,6 +685,16 @@ def _intervals(
                     )
     if undetermined:
         interval_info["undetermined"] = undetermined
+    if not diverged:
+        colour = interval_factor(r)
+        if colour["factor"] > COLOURED_FACTOR:
+            # Intervals stay the white-noise ones; the user is told by how much they
+            # understate a slowly varying sensitivity's uncertainty.
+            interval_info["coloured_noise"] = colour
+            warnings.append(
+                f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
+                f"{colour['c']:+.2f}): the linearised intervals assume white residuals and "
+                f"are up to {colour['factor']:.1f}x too narrow")
     weak = weak_directions(J, list(problem.free_names))
     if weak:
         # Which parameters trade off, and why their intervals are missing.

@@ -38,7 +38,8 @@ from typing import Any
 import numpy as np
 from scipy import optimize, stats
 
-__all__ = ["difference_level", "noise_level", "noise_spectrum"]
+__all__ = ["difference_level", "fit_noise_model", "interval_factor", "noise_level",
+           "noise_spectrum"]
 
 #: Welch segment length [samples] for records long enough (shorter ones use N/8).
 SEGMENT = 256
@@ -112,11 +113,10 @@ def noise_spectrum(residual: np.ndarray, inputs: Sequence[np.ndarray] = (),
     if m:
         sxx = S[:, 1:, 1:]
         sxr = S[:, 1:, 0]
-        # Solve per frequency; a regressor with no power at a frequency drops out there.
-        explained = np.zeros_like(srr)
-        for k in range(srr.size):
-            coef, *_ = np.linalg.lstsq(sxx[k], sxr[k], rcond=1e-10)
-            explained[k] = float(np.real(np.vdot(sxr[k], coef)))
+        # Per frequency (batched); a regressor with no power at a frequency drops out
+        # there (the pseudo-inverse's cut-off).
+        coef = np.linalg.pinv(sxx, rcond=1e-10) @ sxr[:, :, None]
+        explained = np.real(np.einsum("fi,fi->f", sxr.conj(), coef[:, :, 0]))
         svv = np.clip(srr - explained, 0.0, None)
     else:
         svv = srr.copy()
@@ -228,3 +228,27 @@ def noise_level(residual: np.ndarray, inputs: Sequence[np.ndarray] | None = None
         return float(math.sqrt(max(spec["noise_variance"], 0.0)))
     fitm = fit_noise_model(spec)
     return float(math.sqrt(max(min(fitm["variance"], spec["variance"]), 0.0)))
+
+
+def interval_factor(residual: np.ndarray, inputs: Sequence[np.ndarray] = ()) -> dict[str, float]:
+    """How much too narrow white-noise intervals are under the residual's noise colour.
+
+    Linearised (Gauss-Newton) intervals assume white residuals. Under coloured noise
+    the variance of a parameter whose output sensitivity varies slowly grows by the
+    ratio of the noise's long-run variance to its variance, ``S(0) / var``; for the
+    ARMA(1,1) noise model (:func:`fit_noise_model`)
+    ``(1 + c)^2 (1 - a^2) / ((1 - a)^2 (1 + 2ac + c^2))``, 19 for AR(1) with ``a = 0.9``.
+
+    Returns
+    -------
+    dict
+        ``factor`` (the square root of that ratio: how much wider an honest interval
+        of such a parameter is), ``a``, ``c``.
+    """
+    r = np.asarray(residual, dtype=float)
+    if r.size < 64 or not np.all(np.isfinite(r)):
+        return {"factor": 1.0, "a": 0.0, "c": 0.0}
+    m = fit_noise_model(noise_spectrum(r, inputs))
+    a, c = m["a"], m["c"]
+    ratio = (1 + c) ** 2 * (1 - a * a) / ((1 - a) ** 2 * (1 + 2 * a * c + c * c))
+    return {"factor": float(math.sqrt(max(ratio, 0.0))), "a": a, "c": c}

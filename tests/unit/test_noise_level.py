@@ -74,3 +74,13 @@ def test_spectrum_parts_add_up():
     assert spec["noise_variance"] < 0.5 * spec["variance"]
     assert np.all((spec["coherence"] >= 0) & (spec["coherence"] <= 1))
     assert spec["f"][-1] == pytest.approx(125.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_interval_factor_of_coloured_noise(seed):
+    """AR(1) 0.9: intervals about sqrt(19) = 4.4x too narrow; white: about 1."""
+    from hhra_phys.noise import interval_factor
+
+    rng = np.random.default_rng(seed)
+    assert interval_factor(_ar1(rng, 2000, 0.9, 0.05))["factor"] == pytest.approx(4.36, rel=0.3)
+    assert interval_factor(0.05 * rng.standard_normal(2000))["factor"] < 1.3
