@@ -257,7 +257,7 @@ def main() -> None:
         spec = [r["base_estimates"].get("spectral", np.nan) / r["sensor_std"] for r in rr]
         diff = [r["base_estimates"].get("difference", np.nan) / r["sensor_std"] for r in rr]
         found = (f"{sum(r['found'] for r in rr)} of {len(rr)}" if rr[0]["hidden"] else "-")
-        stops = ", ".join(sorted({str(r["stop"]) for r in rr}))
+        stops = ", ".join(sorted({str(r["stop"]).split(" (")[0] for r in rr}))
         print(f"| {case} | {len(rr)} | {sum(bool(r['added']) for r in rr)} | {found} | "
               f"{np.median([r['sensor_std'] for r in rr]):.4f} | {np.median(spec):.2f} | "
               f"{np.median(diff):.2f} | {stops} |")
