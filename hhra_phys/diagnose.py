@@ -40,8 +40,9 @@ from scipy import signal as sps
 from scipy import stats
 
 from hhra_phys.data import Dataset
-from hhra_phys.effects import EFFECTS, Effect, Signals, make_effect
+from hhra_phys.effects import EFFECTS, Effect, Signals, effect_name, make_effect
 from hhra_phys.errors import ParameterError
+from hhra_phys.noise import noise_level
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
 from hhra_phys.problem import Problem
 
@@ -172,16 +173,6 @@ class Diagnosis:
 
 
 # --- statistics ---------------------------------------------------------------------
-
-
-def noise_level(residual: np.ndarray) -> float:
-    """Robust white-noise standard deviation from the sample-to-sample differences.
-
-    Differencing removes the slow model error, so ``MAD(diff(r)) / 0.6745 / sqrt(2)``
-    estimates the measurement noise even when the residual is not white.
-    """
-    d = np.diff(np.asarray(residual, dtype=float))
-    return float(stats.median_abs_deviation(d, scale="normal") / math.sqrt(2))
 
 
 def whiteness(residual: np.ndarray, lags: int | None = None) -> dict[str, Any]:
@@ -450,7 +441,8 @@ def analyse(
     names = problem.model.state_names
     states = {n: X[:, i] for i, n in enumerate(names)}
     theta, omega = states.get("theta"), states.get("omega")
-    noise = noise_level(r)
+    # The input and the simulated output carry the model error; the rest is noise.
+    noise = noise_level(r, (data.u, yhat))
     white = whiteness(r)
     max_lag = int(min(50, data.n // 10))
     lags, xc = cross_correlation(r, data.u, max_lag)
@@ -479,7 +471,8 @@ def analyse(
     r_norm2 = float(r_p @ r_p) or 1e-300
     sig = Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat)
     fitted = problem.model.params.as_dict(P)
-    names_c = list(candidates) if candidates is not None else list(EFFECTS)
+    names_c = (list(dict.fromkeys(effect_name(n) for n in candidates))
+               if candidates is not None else list(EFFECTS))
     umax = float(np.max(np.abs(data.u))) or 1.0
     evidence = []
     for name in names_c:

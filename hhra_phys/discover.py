@@ -94,7 +94,7 @@ from hhra_phys.diagnose import linear_response, noise_level, nuisance_basis
 from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
 from hhra_phys.problem import Problem
-from hhra_phys.result import FitResult
+from hhra_phys.result import FitResult, redundant
 from hhra_phys.selection import Step, information_criterion
 from hhra_phys.terms import (
     _NP,
@@ -1171,7 +1171,8 @@ class Discovery:
         self.m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
         self.crit_cur = information_criterion(cur, criterion)
         self.rmse_cur = float(cur.metrics["val"]["rmse"])
-        self.noise = noise_level(self.sub.data.y - self.sub.simulate_values(self.sub_values))
+        y_sub = self.sub.simulate_values(self.sub_values)
+        self.noise = noise_level(self.sub.data.y - y_sub, (self.sub.data.u, y_sub))
         self._before: tuple[np.ndarray, np.ndarray] | None = None
         self.say(f"round {round_no}: discovery, entry points by first-order score"
                  + (f" (modes screened on record {self.record_index + 1})"
@@ -1235,6 +1236,8 @@ class Discovery:
         res, term = fitted.result, fitted.term
         new = [p.name for p in term.parameters]
         view = self._view(fitted)
+        # A term the model's own parameters can trade against changes nothing.
+        veto = veto or (redundant(res, new) or "")
         step = DiscoveredStep(
             self.round_no, term.name, {"score": scr.score, "detectability": float("nan"),
                                        "noise": self.noise},

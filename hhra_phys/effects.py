@@ -62,7 +62,8 @@ from hhra_phys.parts import (
     smooth_sign,
 )
 
-__all__ = ["EFFECTS", "LIBRARY", "Effect", "Signals", "make_effect", "register_effect", "RIG_ACCEL",
+__all__ = ["EFFECTS", "EFFECT_ALIASES", "LIBRARY", "Effect", "Signals", "effect_name",
+           "make_effect", "register_effect", "RIG_ACCEL",
            "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu",
            "output_offsets", "output_slope"]
 
@@ -725,6 +726,20 @@ class SensorOffset(Effect):
 #: Names of the library's own effects (:data:`EFFECTS` also holds a user's registered ones).
 LIBRARY: tuple[str, ...] = tuple(EFFECTS)
 
+#: Generic names of the input effects, for any model's input (a pump voltage, a DAC
+#: command), beside the valve names the HHRA keeps: the same parts, not new candidates.
+EFFECT_ALIASES: dict[str, str] = {
+    "input_deadzone": "valve_deadzone",
+    "input_saturation": "valve_saturation",
+    "input_lag": "valve_dynamics",
+}
+
+
+def effect_name(name: str) -> str:
+    """The registered name of an effect given by its name or a generic alias
+    (:data:`EFFECT_ALIASES`); a registered effect of the alias's name wins."""
+    return name if name in EFFECTS else EFFECT_ALIASES.get(name, name)
+
 
 # --- structural checks ----------------------------------------------------------------
 
@@ -788,9 +803,10 @@ def make_effect(
     ModelError
         Unknown name or field.
     """
-    cls = EFFECTS.get(name)
+    cls = EFFECTS.get(effect_name(name))
     if cls is None:
-        raise ModelError(f"unknown effect {name!r}; library: {', '.join(sorted(EFFECTS))}")
+        raise ModelError(f"unknown effect {name!r}; library: {', '.join(sorted(EFFECTS))} "
+                         f"(generic names: {', '.join(EFFECT_ALIASES)})")
     fields = set(cls.__dataclass_fields__)
     auto: dict[str, Any] = {}
     if data is not None:

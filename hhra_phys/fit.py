@@ -42,6 +42,7 @@ from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.multi import MultiProblem, pooled_score
+from hhra_phys.noise import interval_factor
 from hhra_phys.optim import minimize
 from hhra_phys.parameters import split_record_name
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
@@ -55,7 +56,7 @@ from hhra_phys.refine import (
     refine_ipopt,
     refine_nlopt,
 )
-from hhra_phys.result import FitResult, uncertainty
+from hhra_phys.result import FitResult, uncertainty, weak_directions
 
 __all__ = [
     "FitOptions",
@@ -463,6 +464,9 @@ WIDEN_MAX_EXCESS = 0.5
 #: effect whose coefficient stops at a guessed bound (a gravity load at a third of its true
 #: size) leaves a residual far above the noise, and without the widening a stand-in follows.
 WIDEN_CLEAR_GAIN = 0.1
+#: Intervals at least this much too narrow under the residual's noise colour are
+#: warned about (:func:`hhra_phys.noise.interval_factor`).
+COLOURED_FACTOR = 2.0
 
 
 def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[int, str]]:
@@ -489,18 +493,21 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
 def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
     """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
 
-    The noise is the residual's own (:func:`hhra_phys.diagnose.noise_level`, from its
-    sample-to-sample differences); one simulation.
+    The noise is the residual's own (:func:`hhra_phys.noise.noise_level`: the part not
+    coherent with the input and the simulated output); one simulation.
     """
-    from hhra_phys.diagnose import noise_level
+    from hhra_phys.noise import noise_level
 
-    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    yhat = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float)))
+    r = yhat - problem.y
     total = float(r @ r)
     if not np.isfinite(total):
         return np.inf, 1.0
     if total <= 0:
         return 0.0, 0.0
-    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r) ** 2 / total)
+    u = getattr(getattr(problem, "data", None), "u", None)
+    inputs = (u, yhat) if u is not None and np.shape(u) == r.shape else None
+    return 0.5 * total, max(0.0, 1.0 - r.size * noise_level(r, inputs) ** 2 / total)
 
 
 def _release_gains(problem: Any, z: np.ndarray, edges: list[tuple[int, str]]) -> list[float]:
@@ -768,6 +775,23 @@ def _intervals(
                     )
     if undetermined:
         interval_info["undetermined"] = undetermined
+    if not diverged:
+        colour = interval_factor(r)
+        if colour["factor"] > COLOURED_FACTOR:
+            # Intervals stay the white-noise ones; the user is told by how much they
+            # understate a slowly varying sensitivity's uncertainty.
+            interval_info["coloured_noise"] = colour
+            warnings.append(
+                f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
+                f"{colour['c']:+.2f}): the linearised intervals assume white residuals and "
+                f"are up to {colour['factor']:.1f}x too narrow")
+    weak = weak_directions(J, list(problem.free_names))
+    if weak:
+        # Which parameters trade off, and why their intervals are missing.
+        interval_info["weak_directions"] = weak
+        interval_info["reasons"] = {
+            name: next(d["reason"] for d in weak if name in d["params"])
+            for name in undetermined if any(name in d["params"] for d in weak)}
 
     edges = dict(at_edges(problem, z))
     for i, name in enumerate(problem.free_names):

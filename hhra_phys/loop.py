@@ -55,7 +55,7 @@ from scipy.stats import chi2
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
-from hhra_phys.effects import EFFECTS, make_effect
+from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import MAX_WIDEN_DECADES, at_edges, fit, fit_stacked
 from hhra_phys.interrupt import map_stopping
@@ -150,6 +150,10 @@ class LoopResult:
         final = part(self.final, "final")
         final["params"] = self.final.values
         final["ci95"] = {k: list(v) for k, v in self.final.ci95.items()}
+        # The final fit's own warnings (identifiability, bounds, extrapolation) and how
+        # its intervals were had (the directions the data cannot determine, with why).
+        final["warnings"] = list(self.final.warnings)
+        final["intervals"] = self.final.intervals
         return jsonable({
             "base": part(self.base, "base"),
             "test": ({m: self.test_scores["final"].get(m) for m in METRIC_KEYS}
@@ -160,7 +164,8 @@ class LoopResult:
             "diagnosis_before": self.diagnoses[0].to_json() if self.diagnoses else None,
             "diagnosis_after": (self.final_diagnosis.to_json()
                                 if self.final_diagnosis is not None else None),
-            "warnings": self.warnings,
+            "warnings": self.warnings + [w for w in self.final.warnings
+                                         if w not in self.warnings],
             "skipped": dict(self.skipped),
             "settings": self.settings,
         })
@@ -426,7 +431,7 @@ def selection_noise(problem: Problem, res: FitResult, sel: Dataset | None) -> di
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
-    sigma = noise_level(r)
+    sigma = noise_level(r, ((problem.data if sel is None else sel).u, y))
     rmse = float(np.sqrt(np.mean(r ** 2)))
     w = whiteness(r)
     return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
@@ -438,14 +443,17 @@ def _records_noise(problem: MultiProblem, res: FitResult,
     """:func:`selection_noise` of several records (its docstring)."""
     v = _free_values(problem, res)
     parts = [None] * len(problem.records) if sel is None else list(sel)
-    rs = [(pr.data if ds is None else ds).y
-          - pr.simulate_values(problem.record_values(v, k), data=ds)
+    ys = [pr.simulate_values(problem.record_values(v, k), data=ds)
           for k, (pr, ds) in enumerate(zip(problem.records, parts, strict=True))]
+    datas = [pr.data if ds is None else ds
+             for pr, ds in zip(problem.records, parts, strict=True)]
+    rs = [d.y - yk for d, yk in zip(datas, ys, strict=True)]
     r = np.concatenate(rs)
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
-    sigma = float(np.sqrt(sum(rk.size * noise_level(rk) ** 2 for rk in rs) / r.size))
+    sigma = float(np.sqrt(sum(rk.size * noise_level(rk, (d.u, yk)) ** 2
+                              for rk, d, yk in zip(rs, datas, ys, strict=True)) / r.size))
     rmse = float(np.sqrt(np.mean(r ** 2)))
     tests = [whiteness(rk) for rk in rs]
     p = float(chi2.sf(sum(w["ljung_box_q"] for w in tests), sum(w["lags"] for w in tests)))
@@ -977,7 +985,12 @@ class LoopOptions:
         for key in ("candidates", "free"):  # sequences are kept as tuples (hashable, frozen)
             if overrides.get(key) is not None:
                 overrides[key] = tuple(overrides[key])
-        return replace(base, **overrides).validate()
+        opts = replace(base, **overrides)
+        if opts.candidates is not None:  # generic aliases (input_deadzone, ...) name the
+            # same library parts: each is tried once
+            opts = replace(opts, candidates=tuple(dict.fromkeys(
+                effect_name(n) for n in opts.candidates)))
+        return opts.validate()
 
 
 def augment(

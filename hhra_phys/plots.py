@@ -37,6 +37,11 @@ COST_LABELS = {
 }
 
 
+def _axis(name: str, unit: str) -> str:
+    """``name [unit]``, or ``name`` alone for a record with no unit (scale unknown)."""
+    return f"{name} [{unit}]" if unit else name
+
+
 def plot_fit(
     path: str | Path,
     parts: Sequence[tuple[str, Dataset, np.ndarray]],
@@ -113,9 +118,9 @@ def plot_fit(
                 ax.axvline(float(x[0]), color="0.3", lw=0.8, ls=":")
                 if k % 2:  # alternate parts shaded
                     ax.axvspan(float(x[0]), float(x[-1]), color="C2", alpha=0.06)
-    ax_u.set_ylabel(f"{ds0.input_name} [{u_unit}]")
-    ax_y.set_ylabel(f"{ds0.output_name} [{y_unit}]")
-    ax_r.set_ylabel(f"residual y - y_model [{y_unit}]")
+    ax_u.set_ylabel(_axis(ds0.input_name, u_unit))
+    ax_y.set_ylabel(_axis(ds0.output_name, y_unit))
+    ax_r.set_ylabel(_axis("residual y - y_model", y_unit))
     placed = any(x is not ds.t for x, (_, ds, _) in zip(xs, parts, strict=True))
     ax_r.set_xlabel(f"time [{t_unit}]" + (" (records placed end to end)" if placed else ""))
     plt.setp(ax_u.get_xticklabels(), visible=False)
@@ -130,7 +135,7 @@ def plot_fit(
     sl = slice(a, a + width)
     ax_z.plot(ds.t[sl], ds.y[sl], marker=".", ms=2.5, label="measured", **measured)
     ax_z.plot(ds.t[sl], y_sim[sl], label="model", **model)
-    ax_z.set(xlabel=f"time [{t_unit}]", ylabel=f"{ds0.output_name} [{y_unit}]")
+    ax_z.set(xlabel=f"time [{t_unit}]", ylabel=_axis(ds0.output_name, y_unit))
     ax_z.set_title(f"zoom: {label}, around its largest residual", fontsize=9)
     ax_z.legend(fontsize=7)
     ax_y.axvspan(float(x[sl][0]), float(x[sl][-1]), color="C1", alpha=0.35,
@@ -169,7 +174,7 @@ def _convergence(
     """Global search best cost per iteration (left), refiners' least squares (right)."""
     glob = [st for st in stages if "nit" in (st.get("info") or {})]
     cost = (glob[0]["info"].get("cost") if glob else None) or "itae"
-    name = COST_LABELS.get(cost, cost).format(y=y_unit, t=t_unit)
+    name = COST_LABELS.get(cost, cost).format(y=y_unit or 'output unit', t=t_unit)
     h = np.asarray(history, dtype=float)
     if h.size:
         ax.semilogy(np.arange(h.size), np.where(np.isfinite(h), h, np.nan), color="C0",
@@ -198,7 +203,7 @@ def _convergence(
                                + (f" ({its} it.)" if its is not None else ""))
             ax2.annotate("", xy=(x, c1), xytext=(x, c0),
                          arrowprops={"arrowstyle": "->", "color": f"C{k + 1}"})
-        ax2.set_ylabel(f"refiners: 0.5 sum r^2  [{y_unit}^2]", fontsize=8)
+        ax2.set_ylabel(f"refiners: 0.5 sum r^2  [{y_unit or 'output unit'}^2]", fontsize=8)
         _plain_log_ticks(ax2)
         ax2.legend(fontsize=6, loc="upper right")
     if h.size:
@@ -233,7 +238,7 @@ def plot_outputs(
     for label, y in outputs.items():
         ax.plot(data.t, y, lw=0.8, ls="--", label=label)
     ax.set_xlabel("time")
-    ax.set_ylabel(f"{data.output_name} [{data.output_unit}]")
+    ax.set_ylabel(_axis(data.output_name, data.output_unit))
     ax.legend(fontsize=7, ncol=3)
     if title:
         ax.set_title(title)

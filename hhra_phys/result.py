@@ -6,8 +6,13 @@ CasADi) gives the Gauss-Newton covariance of the fitting coordinates,
 intervals are ``z +- 1.96 sigma_z`` mapped back to physical units (so they are
 asymmetric for log-scaled groups and never cross zero). They assume white
 residuals; :mod:`hhra_phys.diagnose` checks that assumption. When ``J^T J`` is
-near singular the parameters along its weakest direction are named in a
-warning: they are not identifiable from this record.
+near singular the parameters along its weak directions (eigenvalues below
+``1/IDENTIFIABILITY_COND`` of the largest, scaled) are named in a warning and get
+no interval (infinite variance, ``(nan, nan)`` in :attr:`FitResult.ci95`): the data
+cannot tell them apart, and the pseudo-inverse's finite variance along such a
+direction would only reflect its cut-off, not the data. :func:`weak_directions`
+lists those directions; :func:`redundant` refuses a candidate whose new parameters
+only move along one with a parameter the model already had.
 """
 
 from __future__ import annotations
@@ -27,7 +32,9 @@ from hhra_phys.simulate import Simulator
 
 __all__ = [
     "FitResult",
+    "redundant",
     "uncertainty",
+    "weak_directions",
 ]
 
 #: Condition number of the scaled information matrix beyond which parameters are
@@ -35,6 +42,102 @@ __all__ = [
 IDENTIFIABILITY_COND = 1e10
 #: |correlation| beyond which a pair is reported as practically not separable.
 CORRELATION_LIMIT = 0.999
+#: Share of a weak direction (its unit eigenvector's component) from which a
+#: parameter counts as involved in it.
+WEAK_SHARE = 0.3
+
+
+def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
+    """Directions of parameter space the data cannot determine.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, n)
+        Residual Jacobian at the optimum (fitting coordinates).
+    names : list of str
+        Free parameter names.
+
+    Returns
+    -------
+    list of dict
+        One per eigenvector of the scaled information matrix ``J^T J`` whose
+        eigenvalue is below ``1/IDENTIFIABILITY_COND`` of the largest, weakest first:
+        ``condition`` (largest eigenvalue over this one), ``params`` (name to the
+        eigenvector's component, for components of at least ``WEAK_SHARE``) and
+        ``reason`` (words). Parameters the output does not see at all are one
+        direction each (``condition`` ``inf``). Empty when the matrix is well
+        conditioned or not finite.
+    """
+    J = np.asarray(J, dtype=float)
+    if J.ndim != 2 or J.shape[1] == 0 or not np.all(np.isfinite(J)):
+        return []
+    info = J.T @ J
+    scale = np.sqrt(np.diag(info))
+    out: list[dict[str, Any]] = []
+    dead = ~(np.isfinite(scale) & (scale > 0))
+    for i in np.flatnonzero(dead):
+        out.append({"condition": float("inf"), "params": {names[i]: 1.0},
+                    "reason": f"{names[i]} does not change the output at the optimum"})
+    live = np.flatnonzero(~dead)
+    if live.size < 2:
+        return out
+    normed = info[np.ix_(live, live)] / np.outer(scale[live], scale[live])
+    eigval, eigvec = np.linalg.eigh(normed)
+    top = max(float(eigval[-1]), np.finfo(float).tiny)
+    for k in range(live.size):
+        lam = float(eigval[k])
+        cond = top / lam if lam > 0 else float("inf")  # rounding can make it <= 0
+        if cond <= IDENTIFIABILITY_COND:
+            break
+        v = eigvec[:, k] / np.max(np.abs(eigvec[:, k]))
+        v = v * np.sign(v[np.argmax(np.abs(v))])
+        weights = {names[live[i]]: float(v[i]) for i in np.argsort(-np.abs(v))
+                   if abs(eigvec[i, k]) >= WEAK_SHARE}
+        if len(weights) < 1:
+            continue
+        combo = " with ".join(f"{n} ({w:+.3g})" for n, w in weights.items())
+        out.append({"condition": float(cond), "params": weights,
+                    "reason": f"moving {combo} together leaves the output unchanged "
+                              f"(information-matrix condition {cond:.2g}): the data cannot "
+                              "tell them apart"})
+    return out
+
+
+def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str | None:
+    """Why a candidate only reparametrises the model, or ``None`` if it does not.
+
+    A candidate's new parameters (a discovered term's coefficients, an effect's
+    parameters) are redundant when the fit with them has a direction the data
+    cannot determine (:func:`weak_directions`, recorded in
+    ``result.intervals["weak_directions"]``) that joins a new parameter with one the
+    model already had: the candidate then changes nothing the model could not
+    already do (a term ``a*u`` beside an input gain), and whatever gain it shows is
+    the refit's, not the term's. A high correlation alone is not enough (an
+    integrating plant's initial state and an output offset are correlated near 1
+    on one record and still separate through position-dependent terms).
+
+    Parameters
+    ----------
+    result : FitResult
+        The candidate's fit.
+    new_params : sequence of str
+        The candidate's new parameter names.
+
+    Returns
+    -------
+    str or None
+        The reason (naming the parameters and the condition), or ``None``.
+    """
+    new = [n for n in new_params if n in result.free]
+    old = [n for n in result.free if n not in new]
+    for d in result.intervals.get("weak_directions", []):
+        involved = list(d.get("params", {}))
+        a = [n for n in involved if n in new]
+        b = [n for n in involved if n in old]
+        if a and b:
+            return (f"only reparametrises the model ({', '.join(a)} against "
+                    f"{', '.join(b)}): {d['reason']}")
+    return None
 
 FORMAT_VERSION = 1
 
@@ -100,6 +203,17 @@ def uncertainty(
             cov_n = np.linalg.inv(normed)
         except np.linalg.LinAlgError:  # exactly singular although well scaled
             cov_n = np.linalg.pinv(normed, rcond=1e-12)
+    # Parameters along a direction the data cannot determine: the pseudo-inverse
+    # gives them a finite variance set by its cut-off, not by the data. Their
+    # correlations are kept from it (they say which parameters trade off), their
+    # variances become infinite (no interval).
+    unresolved = np.zeros(n, dtype=bool)
+    if cond > IDENTIFIABILITY_COND and not dead.all():
+        for k in range(n):
+            if eigval[-1] / max(eigval[k], np.finfo(float).tiny) <= IDENTIFIABILITY_COND:
+                break
+            unresolved |= np.abs(eigvec[:, k]) >= WEAK_SHARE
+        unresolved &= ~dead
     cov = s2 * cov_n / np.outer(scale, scale)
     # A parameter the output does not see has no variance to report: infinite, so its
     # interval is marked undetermined rather than given the pseudo-inverse's zero.
@@ -112,6 +226,13 @@ def uncertainty(
     corr = np.where(np.isfinite(np.outer(sd, sd)), corr, 0.0)
     corr = np.where(np.isfinite(corr), corr, 0.0)
     np.fill_diagonal(corr, 1.0)
+    if unresolved.any():
+        cov[unresolved, unresolved] = np.inf
+        warnings.append(
+            f"{', '.join(names[i] for i in np.flatnonzero(unresolved))}: no confidence "
+            "interval, the data do not determine them (a direction of the information "
+            "matrix with condition above "
+            f"{IDENTIFIABILITY_COND:.0e}; see the warning above)")
     for i in range(n):
         for j in range(i + 1, n):
             if abs(corr[i, j]) > CORRELATION_LIMIT:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -25,14 +25,25 @@ from hhra_phys.data import Dataset
 from hhra_phys.errors import DataError, ParameterError
 
 __all__ = [
+    "GENERIC_LABELS",
+    "HHRA_LABELS",
     "SCALE_FREE_UNITS",
     "TIME_UNITS",
     "ChannelRange",
     "conversion_factor",
     "convert_record",
     "range_warnings",
+    "label_record",
     "rescale_time",
 ]
+
+#: The HHRA's channel names and units: what the loaders give a record that states none.
+HHRA_LABELS: dict[str, str] = {"input_name": "current", "input_unit": "mA",
+                               "output_name": "angle", "output_unit": "deg"}
+#: Labels of a record that states none, for a model that is not the HHRA and declares
+#: none (an empty unit: scale unknown, never converted).
+GENERIC_LABELS: dict[str, str] = {"input_name": "input", "input_unit": "",
+                                  "output_name": "output", "output_unit": ""}
 
 #: Units that say "the scale is unknown": never converted, never a conflict.
 SCALE_FREE_UNITS = ("", "raw", "-", "1", "counts", "a.u.")
@@ -241,3 +252,57 @@ def range_warnings(
             out.append(f"{where}: sample rate {data.fs:.3g} Hz is above the plausible "
                        f"{hi:g} Hz: is the time column in s while labelled otherwise?")
     return out
+
+
+def label_record(data: Dataset, given: Mapping[str, str | None] | None = None,
+                 model: object | None = None) -> tuple[Dataset, list[str]]:
+    """A record's channel names and units for a model that is not the HHRA.
+
+    Precedence per channel: ``given`` (the command line's ``--input-unit`` ...) > what
+    the record states (header, side-car) > what the model declares (attributes
+    ``input_name``, ``input_unit``, ``output_name``, ``output_unit`` of the model
+    object, if it has them; :class:`~hhra_phys.model.Model`'s own symbols ``u`` and
+    ``y`` are not a declaration) > :data:`GENERIC_LABELS`. A channel whose name and unit
+    are both the HHRA's (:data:`HHRA_LABELS`, the loaders' default) is taken as not
+    stated: a plain CSV of volts is then not read as mA and degrees.
+
+    Parameters
+    ----------
+    data : Dataset
+        The record as loaded.
+    given : mapping, optional
+        Explicit labels by field name (``None`` values: not given).
+    model : object, optional
+        The user's model.
+
+    Returns
+    -------
+    data : Dataset
+        Relabelled (a new dataset; values unchanged).
+    notes : list of str
+        What was relabelled, in words.
+    """
+    given = {k: v for k, v in (given or {}).items() if v is not None}
+    new: dict[str, str] = {}
+    notes: list[str] = []
+    for side in ("input", "output"):
+        nk, uk = f"{side}_name", f"{side}_unit"
+        stated = not (getattr(data, nk) == HHRA_LABELS[nk]
+                      and getattr(data, uk) == HHRA_LABELS[uk])
+        for key in (nk, uk):
+            if key in given:
+                value = given[key]
+            elif stated:
+                continue
+            else:
+                declared = getattr(model, key, None)
+                # The base Model's own "u"/"y" are symbols, not a declaration.
+                value = (declared if isinstance(declared, str) and declared
+                         and declared not in ("u", "y") else GENERIC_LABELS[key])
+            if value != getattr(data, key):
+                new[key] = value
+    if new:
+        notes.append("record labelled " + ", ".join(f"{k} {v!r}" for k, v in new.items())
+                     + " (--input-unit, --output-unit, --input-name, --output-name set them)")
+        data = replace(data, **new)
+    return data, notes

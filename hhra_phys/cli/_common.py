@@ -88,6 +88,13 @@ def add_record_arguments(
                         "'foh' linear from one sample to the next (a continuous input that was "
                         "only sampled), 'cubic' the cubic convolution through four samples (a "
                         "smooth band-limited input); default: the record's side-car, else zoh")
+    for side, example in (("input", "V"), ("output", "mV")):
+        p.add_argument(f"--{side}-unit", default=None, metavar="UNIT",
+                       help=f"unit of the {side} column (e.g. {example}; overrides the file's; "
+                            "default: the file's, else the HHRA's for the HHRA, the --model's "
+                            "declared unit, or none)")
+        p.add_argument(f"--{side}-name", default=None, metavar="NAME",
+                       help=f"name of the {side} channel in plots and reports")
 
 
 def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> None:
@@ -126,6 +133,11 @@ FILE_OPTIONS = (("time_col", "--time-col"), ("input_col", "--input-col"),
                  ("output_col", "--output-col"), ("fs", "--fs"), ("delimiter", "--delimiter"),
                  ("time_unit", "--time-unit"))
 
+#: The channel labels of :func:`add_record_arguments` (they describe a file too).
+LABEL_FLAGS = (("input_unit", "--input-unit"), ("output_unit", "--output-unit"),
+               ("input_name", "--input-name"), ("output_name", "--output-name"))
+LABEL_OPTIONS = tuple(opt for opt, _ in LABEL_FLAGS)
+
 
 def is_builtin(data: str | None) -> bool:
     """Whether DATA names a built-in record (nothing, 'rig' or 'public') rather than a file."""
@@ -145,6 +157,9 @@ def read_record(args: argparse.Namespace) -> Dataset:
             kw[key] = value
     if args.fs is not None:
         kw["fs"] = args.fs
+    for opt in LABEL_OPTIONS:  # the command line's labels win over the file's
+        if getattr(args, opt, None) is not None:
+            kw[opt] = getattr(args, opt)
     kw["delimiter"] = getattr(args, "delimiter", None)
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
@@ -168,7 +183,8 @@ def load_data(args: argparse.Namespace) -> Dataset:
         record that is not the rig: they would be silently ignored.
     """
     if is_builtin(args.data):
-        given = [flag for opt, flag in FILE_OPTIONS if getattr(args, opt, None) is not None]
+        given = [flag for opt, flag in FILE_OPTIONS + LABEL_FLAGS
+                 if getattr(args, opt, None) is not None]
         if given:
             verb = "describes" if len(given) == 1 else "describe"
             raise ParameterError(f"{', '.join(given)} {verb} a DATA file; the "
@@ -190,11 +206,20 @@ def load_data(args: argparse.Namespace) -> Dataset:
 def record_for_model(args: argparse.Namespace, data: Dataset) -> tuple[Dataset, list[str]]:
     """``data`` in the built-in HHRA's units, and warnings about implausible ranges.
 
-    With ``--model`` (a user's model, whose units hhra-phys does not know) the record is
-    returned unchanged. Conversions are printed on stderr; the warnings are printed and
-    returned, so they can also go into the result.
+    With ``--model`` (a user's model, whose units hhra-phys does not know) the values are
+    unchanged; channels the record does not label take the model's declared names and
+    units (attributes ``input_unit`` ... of the model), else generic ones, never the
+    HHRA's mA and deg (:func:`~hhra_phys.units.label_record`). Conversions are printed on
+    stderr; the warnings are printed and returned, so they can also go into the result.
     """
     if getattr(args, "model", None):
+        from hhra_phys.extensions import model_from_spec
+        from hhra_phys.units import label_record
+
+        given = {k: getattr(args, k, None) for k in LABEL_OPTIONS}
+        data, notes = label_record(data, given, model_from_spec(args.model, data))
+        for line in notes:
+            print(f"note: {line}", file=sys.stderr)
         return data, []
     from hhra_phys.models.hhra.defaults import prepare_record
 

@@ -137,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
             )
         res.warnings.extend(data_warnings)
         out = res.to_json()
+        for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
+            print(f"warning: {w}", file=sys.stderr)
         print(f"chosen: {', '.join(res.chosen) or 'none'}")
         for part in ("est", "val", "test"):
             b, f = out["base"].get(part, {}), out["final"].get(part, {})

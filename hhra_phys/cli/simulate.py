@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from hhra_phys.cli._common import report_error
@@ -45,6 +46,12 @@ def register(subparsers: Any) -> None:
                    help="with --generator reference: what the valve current does between "
                         "samples, 'zoh' held (default, a DAC) or 'foh' linear to the next "
                         "sample; the side-car records it")
+    p.add_argument("--noise-ar", type=float, default=0.0, metavar="A",
+                   help="with --generator reference: coloured (AR(1)) angle noise with this "
+                        "coefficient in (-1, 1), --noise its standard deviation (default 0: white)")
+    p.add_argument("--drift", type=float, default=0.0, metavar="DEG",
+                   help="with --generator reference: a sensor drift of DEG over the record, "
+                        "linear in time (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(func=run)
 
@@ -78,16 +85,22 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_save_path(args.out, args.overwrite)  # before simulating
         effects = _parse_effects(args.effect)
+        if not (math.isfinite(args.noise_ar) and abs(args.noise_ar) < 1):
+            raise ParameterError(f"--noise-ar must lie in (-1, 1), got {args.noise_ar}")
+        if not math.isfinite(args.drift):
+            raise ParameterError(f"--drift must be finite, got {args.drift}")
         if args.generator == "reference":
             from hhra_phys.reference import reference_record
 
             ds = reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
                                   fs=args.fs, amplitude=args.amplitude,
                                   quantization=args.quantization, effects=effects or None,
-                                  intersample=args.intersample or "zoh")
+                                  intersample=args.intersample or "zoh",
+                                  noise_ar=args.noise_ar, drift_deg=args.drift)
         else:
-            if effects:
-                raise ParameterError("--effect needs --generator reference")
+            if effects or args.noise_ar or args.drift:
+                raise ParameterError("--effect, --noise-ar and --drift need --generator "
+                                     "reference")
             if args.intersample not in (None, "zoh"):
                 raise ParameterError("--intersample foh needs --generator reference (the "
                                      "built-in rig's valve current is held by its DAC)")

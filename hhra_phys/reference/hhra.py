@@ -84,6 +84,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy import signal as sps
 from scipy.integrate import solve_ivp
 
 from hhra_phys.data import Dataset
@@ -795,6 +796,8 @@ def reference_record(
     levels: int = 4,
     angle_limit_deg: float = 80.0,
     quantization: float | None = None,
+    noise_ar: float = 0.0,
+    drift_deg: float = 0.0,
     smooth: bool = True,
     rtol: float = 1e-10,
     atol: float = 1e-12,
@@ -808,7 +811,8 @@ def reference_record(
     of :func:`hhra_phys.excitation.irregular_steps`, one M-sequence period per 20 s,
     scaled down if a linear estimate of the angle would leave +-``angle_limit_deg``),
     the shaft started so the linear estimate's stroke is centred on 0 deg, Gaussian
-    angle noise and optional quantisation.
+    angle noise (white, or coloured: first-order autoregressive), an optional slow
+    drift of the sensor and optional quantisation.
 
     Parameters
     ----------
@@ -819,7 +823,8 @@ def reference_record(
     fs : float
         Sample rate [Hz].
     noise_deg : float
-        Standard deviation of the angle noise [deg].
+        Standard deviation of the angle noise [deg] (of the noise process itself, also
+        when it is coloured).
     params : mapping, optional
         Groups (and effect parameters) by name; missing groups take
         :data:`REFERENCE_GROUPS` (the rig's values as printed in ``docs/model.md``).
@@ -836,7 +841,14 @@ def reference_record(
     angle_limit_deg : float
         Half range [deg] the linear angle estimate may reach before the input is scaled.
     quantization : float, optional
-        Encoder resolution [deg].
+        Encoder resolution [deg] (a 12-bit encoder: ``360 / 4096``).
+    noise_ar : float
+        Coefficient ``a`` of first-order autoregressive (coloured) sensor noise,
+        ``n[k] = a n[k-1] + sqrt(1 - a^2) noise_deg w[k]`` with white ``w`` and a
+        stationary start; 0 (default): white noise. ``|a| < 1``.
+    drift_deg : float
+        A slow sensor drift [deg]: the output moves by this much, linearly in time,
+        over the record (0: none).
     smooth, rtol, atol, method, intersample
         As in :func:`simulate_reference`; the record carries ``intersample`` (what its
         input did between samples).
@@ -845,7 +857,8 @@ def reference_record(
     -------
     Dataset
         ``t`` [s], ``u`` [mA], ``y`` [deg]. ``metadata``: ``generator`` (``"reference"``),
-        ``seed``, ``noise_deg``, ``quantization_deg``, ``valve``, ``true_params``
+        ``seed``, ``noise_deg``, ``noise_ar``, ``drift_deg``, ``quantization_deg``, ``valve``,
+        ``true_params``
         (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
         ``truth``: everything :func:`simulate_reference` needs to reproduce the
         noise-free output (``params``, ``effects`` with settings, ``valve``,
@@ -854,6 +867,12 @@ def reference_record(
     """
     if not (math.isfinite(noise_deg) and noise_deg >= 0):
         raise ValueError(f"noise_deg must be >= 0, got {noise_deg}")
+    if not (math.isfinite(noise_ar) and abs(noise_ar) < 1):
+        raise ValueError(f"noise_ar must lie in (-1, 1), got {noise_ar}")
+    if not math.isfinite(drift_deg):
+        raise ValueError(f"drift_deg must be finite, got {drift_deg}")
+    if quantization is not None and not (math.isfinite(quantization) and quantization >= 0):
+        raise ValueError(f"quantization must be >= 0, got {quantization}")
     p = dict(REFERENCE_GROUPS)
     if valve == "orifice":
         p.pop("g_kp")
@@ -877,7 +896,15 @@ def reference_record(
     y_true = simulate_reference(u, fs, p, valve=valve, spool_lag=spool_lag, effects=effects,
                                 x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method,
                                 intersample=intersample)
-    y = y_true + noise_deg * rng.standard_normal(u.size)
+    w = noise_deg * rng.standard_normal(u.size)
+    if noise_ar:
+        # Stationary AR(1) with the standard deviation noise_deg: first sample at the
+        # stationary spread, then innovations scaled by sqrt(1 - a^2).
+        w[1:] *= math.sqrt(1.0 - noise_ar ** 2)
+        w = sps.lfilter([1.0], [1.0, -noise_ar], w)
+    y = y_true + w
+    if drift_deg:
+        y = y + drift_deg * np.arange(u.size) / max(u.size - 1, 1)
     if quantization:
         y = np.round(y / quantization) * quantization
     eff = {k: dict(v) for k, v in (effects or {}).items()}
@@ -888,6 +915,8 @@ def reference_record(
         "generator": "reference",
         "seed": seed,
         "noise_deg": noise_deg,
+        "noise_ar": noise_ar,
+        "drift_deg": drift_deg,
         "quantization_deg": quantization,
         "valve": valve,
         "intersample": intersample,
