@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.cli._guards import seed
 from hhra_phys.data import Dataset, load, load_public_actuator
 from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
@@ -96,7 +97,7 @@ def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> Non
                 "per record)" if several else ""),
     )
     add_record_arguments(p)
-    p.add_argument("--rig-seed", type=int, default=None,
+    p.add_argument("--rig-seed", type=seed, default=None,
                    help="seed of the simulated rig (only without DATA; default 0)")
 
 
@@ -309,7 +310,20 @@ def model_for(args: argparse.Namespace, data: Dataset,
         if valve is not None:
             raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
                                  "combined with --model")
-        return model_from_spec(args.model, data), {}
+        model = model_from_spec(args.model, data)
+        check_model_builds(model, data, f"--model {args.model}")
+        return model, {}
     from hhra_phys.fit import default_model
 
     return default_model(data, valve=valve or "orifice")
+
+
+def check_model_builds(model: Any, data: Dataset, what: str) -> None:
+    """Build ``model``'s equations once (cheap, symbolic), so a user's part that fails
+    does so before any fit starts, with the part and the file named."""
+    from hhra_phys.errors import ModelError
+
+    try:
+        model.assemble(*model.symbols(), float(data.dt))
+    except ModelError as exc:
+        raise ModelError(f"{what}: {exc}") from None

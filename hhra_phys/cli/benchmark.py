@@ -8,6 +8,7 @@ from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
 from hhra_phys.cli._common import report_error
+from hhra_phys.cli._guards import seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
@@ -31,7 +32,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--runs", type=int, default=30, help="seeded runs per cell (default 30)")
     p.add_argument("--pop", type=int, default=30, help="population size (default 30)")
     p.add_argument("--iters", type=int, default=100, help="iterations (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="base seed (default 0)")
     p.add_argument(
         "--functions",
         type=_names,

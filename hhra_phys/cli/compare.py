@@ -17,6 +17,7 @@ from hhra_phys.cli._common import (
     read_record,
     report_error,
 )
+from hhra_phys.cli._guards import seed
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
 
@@ -76,7 +77,7 @@ def register(subparsers: Any) -> None:
         default=None,
         help="estimation fraction in (0, 1) or split sample index (default 0.5; public: 512)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the methods and the rig")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the methods and the rig")
     p.add_argument(
         "--methods",
         type=_methods,

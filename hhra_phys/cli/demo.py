@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from hhra_phys.cli._common import report_error
+from hhra_phys.cli._guards import seed
 from hhra_phys.data import check_save_path, save_csv
 from hhra_phys.errors import HHRAError
 from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
@@ -31,7 +32,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output directory (default: a new hhra-demo-<time> directory)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the rig and the search")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the rig and the search")
     p.add_argument("--quick", action="store_true",
                    help="short record and small search (a smoke run, about a minute)")
     p.add_argument("--overwrite", action="store_true", help="replace files in an existing --out")

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from hhra_phys.cli._common import report_error
+from hhra_phys.cli._guards import seed
 from hhra_phys.design import CRITERIA, MIN_HOLD_S, OUTPUT_LIMIT_DEG, InformationModel
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
@@ -45,7 +46,7 @@ def register(subparsers: Any) -> None:
                    help=f"shortest hold, the switching time [s] (default {MIN_HOLD_S:g})")
     p.add_argument("--criterion", choices=CRITERIA, default="d",
                    help="d: log det (default), a: trace, e: largest eigenvalue of the covariance")
-    p.add_argument("--seed", type=int, default=0, help="seed of the search and the draws")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the search and the draws")
     p.add_argument("--draws", type=int, default=4,
                    help="parameter draws from the fit's covariance averaged over (default 4)")
     p.add_argument("--data", default=None, metavar="FILE",

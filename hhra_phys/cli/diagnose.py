@@ -21,6 +21,7 @@ from hhra_phys.cli._common import (
     positive_int,
     report_error,
 )
+from hhra_phys.cli._guards import seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, jsonable
@@ -59,7 +60,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--effects", default=None,
                    help="comma-separated effects to consider (default: all registered, the "
                         "library's and those of --effects-from)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the global searches")
     p.add_argument("--split", type=fraction, default=None,
                    help="estimation fraction of the record (default 0.5)")
     p.add_argument("--test", type=float, default=0.25,
@@ -91,7 +92,6 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the loop and write the outputs; 0 on success, 2 on a usage error, 1 otherwise."""
     from hhra_phys.cli._common import parse_names
-    from hhra_phys.extensions import import_effects
     from hhra_phys.loop import augment
 
     figs: list[str | None] = []
@@ -105,12 +105,13 @@ def run(args: argparse.Namespace) -> int:
         if args.split is not None and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
-        added = import_effects(args.effects_from)
+        added = user_effects(args.effects_from)
         if added:
             print(f"registered effects: {', '.join(added)}", file=sys.stderr)
         records, validation, data_warnings = _records(args)
         data = records[0]
         model, bounds = model_for(args, data)
+        check_effects_build(model, data, added)
         for other in records[1:] + (validation or []):  # the widest automatic box of all
             for k, (lo, hi) in model_for(args, other)[1].items():
                 if k in bounds:
@@ -163,6 +164,60 @@ def run(args: argparse.Namespace) -> int:
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0
+
+
+def user_effects(sources: list[str] | None) -> list[str]:
+    """Import each ``--effects-from`` source; the names of the effects they registered.
+
+    Raises
+    ------
+    ParameterError
+        A source that registers no effect (a typo, or a file without
+        ``@register_effect``), or one that registers an effect under a name already taken
+        (the library's ``coulomb_friction`` would be silently replaced).
+    """
+    from hhra_phys.extensions import import_effects
+    from hhra_phys.parts import EFFECTS
+
+    added: list[str] = []
+    for source in sources or []:
+        before = dict(EFFECTS)
+        new = import_effects([source])
+        replaced = [n for n, cls in before.items() if EFFECTS.get(n) is not cls]
+        if replaced:
+            for n in replaced:  # put the library's back: the refusal changes nothing
+                EFFECTS[n] = before[n]
+            raise ParameterError(
+                f"--effects-from {source}: registers {', '.join(map(repr, replaced))}, a name "
+                "already registered (the library's effect would be replaced); give the "
+                "effect a name of its own")
+        if not new:
+            raise ParameterError(
+                f"--effects-from {source}: registered no effect (decorate Effect subclasses "
+                "with @register_effect; see docs/guide.md)")
+        added += new
+    return added
+
+
+def check_effects_build(model: Any, data: Any, names: list[str]) -> None:
+    """Build the model with each user effect once, so one whose ``apply`` raises is named
+    now rather than dropped from the candidates with its reason in the JSON only."""
+    from hhra_phys.cli._common import check_model_builds
+    from hhra_phys.effects import make_effect
+    from hhra_phys.errors import ModelError
+
+    for name in names:
+        try:
+            eff = make_effect(name, data=data)
+        except Exception as exc:  # noqa: BLE001 - a user's effect class
+            raise ModelError(f"--effects-from: effect {name!r} cannot be made: "
+                             f"{type(exc).__name__}: {exc}") from None
+        why = eff.applicable(model)
+        if why is None:
+            check_model_builds(model.with_parts(eff), data, f"--effects-from effect {name!r}")
+        elif "does not assemble" in why:  # Effect.applicable's words for a failing apply
+            raise ModelError(f"--effects-from effect {name!r}: {why}")
+        # other reasons: not a candidate for this model, and the loop says so
 
 
 def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, list[str]]:

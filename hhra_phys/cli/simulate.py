@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from hhra_phys.cli._common import report_error
+from hhra_phys.cli._guards import seed
 from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
@@ -24,7 +25,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--out", required=True, metavar="FILE.csv",
                    help="output file (.csv with a .json side-car, or .npz)")
-    p.add_argument("--seed", type=int, default=0, help="seed of excitation and noise (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of excitation and noise (default 0)")
     p.add_argument("--noise", type=float, default=DEFAULT_NOISE_DEG, metavar="DEG",
                    help=f"angle noise standard deviation in deg (default {DEFAULT_NOISE_DEG})")
     p.add_argument("--duration", type=float, default=20.0, metavar="S",
