@@ -610,6 +610,16 @@ def at_noise_level(level: Mapping[str, Any], noise_tol: float) -> bool:
     return bool(level["ratio"] <= 1 + noise_tol or level["white"])
 
 
+def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
+    """Which rule of :func:`at_noise_level` holds, in words (one need not imply the other:
+    an RMSE within the allowance can still be a coloured residual)."""
+    p = level["ljung_box_p"]
+    if level["white"]:
+        return f"white: Ljung-Box p {p:.2g} > 0.05"
+    return (f"within the allowance 1 + noise_tol = {1 + noise_tol:.3g} x noise, though not "
+            f"white: Ljung-Box p {p:.2g}")
+
+
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
                parts: str = "both") -> tuple[dict[str, Any], bool]:
     """The loop's noise-level stop: both non-test parts must be at the noise level.
@@ -1176,11 +1186,11 @@ def augment(
             if at_noise:
                 e = level["estimation"]
                 stop = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
-                        f"{level['ratio']:.3f} x noise {level['noise']:.3g}, Ljung-Box p "
-                        f"{level['ljung_box_p']:.2g})")
+                        f"{level['ratio']:.3f} x noise {level['noise']:.3g}, "
+                        f"{_why_at_noise(level, tol)})")
                 if stop_on == "both":
                     stop += (f", estimation residual too (RMSE {e['rmse']:.4g} = "
-                             f"{e['ratio']:.3f} x noise, Ljung-Box p {e['ljung_box_p']:.2g})")
+                             f"{e['ratio']:.3f} x noise, {_why_at_noise(e, tol)})")
                 say(f"round {rnd}: {stop}; stop")
                 break
             diag = analyse(cur_prob, _free_values(cur_prob, cur), candidates=remaining,

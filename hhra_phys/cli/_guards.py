@@ -315,3 +315,45 @@ def check_arguments(args: argparse.Namespace, outputs: Mapping[str, str | Path |
     for flag in ("--report", "--markdown"):
         check_suffix(flag, outputs.get(flag), allowed=REPORT_SUFFIXES)
     check_run_files(_inputs_of(args), outputs)
+
+
+def split_value(text: str) -> float | int:
+    """argparse type of ``--split``, one meaning in every command.
+
+    A number in (0, 1] is the estimation fraction (1: all of it); an integer above 1 is
+    the sample index the estimation part ends before (the public record's 512).
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction in (0, 1] or a sample index (an integer > 1), got {text!r}"
+        ) from None
+    if 0.0 < value <= 1.0:
+        return value
+    if value > 1.0 and value.is_integer():
+        return int(value)
+    raise argparse.ArgumentTypeError(
+        f"expected a fraction in (0, 1] or a sample index (an integer > 1), got {text!r}")
+
+
+def split_fraction(split: float | int, n_samples: Sequence[int]) -> float:
+    """``--split`` as the fraction the fit takes: a sample index k of an n-sample record is
+    k / n (the fit's split index ``round(fraction * n)`` is then k again).
+
+    Raises
+    ------
+    ParameterError
+        An index with several records (each would split elsewhere), or one that leaves an
+        empty part.
+    """
+    if not isinstance(split, int):
+        return float(split)
+    if len(n_samples) != 1:
+        raise ParameterError(f"--split {split}: a sample index splits one record; with "
+                             f"{len(n_samples)} records give a fraction in (0, 1]")
+    n = n_samples[0]
+    if not 0 < split < n:
+        raise ParameterError(f"--split {split}: the record has {n} samples; give an index "
+                             f"between 1 and {n - 1}, or a fraction in (0, 1]")
+    return split / n

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -17,9 +18,9 @@ from hhra_phys.cli._common import (
     read_record,
     report_error,
 )
-from hhra_phys.cli._guards import seed
+from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed, split_value
 from hhra_phys.errors import HHRAError, ParameterError
-from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
+from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path, jsonable
 
 #: Words accepted as DATA for the built-in records.
 PUBLIC_WORDS = ("public",)
@@ -31,23 +32,6 @@ def _methods(text: str) -> tuple[str, ...]:
     if not names:
         raise argparse.ArgumentTypeError("give at least one method name")
     return names
-
-
-def _split(text: str) -> float | int:
-    """'0.5' -> fraction, '512' -> sample index."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a fraction in (0, 1) or a sample index, got {text!r}"
-        ) from None
-    if 0.0 < value < 1.0:
-        return value
-    if value >= 1.0 and value.is_integer():
-        return int(value)
-    raise argparse.ArgumentTypeError(
-        f"expected a fraction in (0, 1) or a positive integer sample index, got {text!r}"
-    )
 
 
 def register(subparsers: Any) -> None:
@@ -73,9 +57,10 @@ def register(subparsers: Any) -> None:
     add_record_arguments(p, input_aliases=("--u",), output_aliases=("--y",))
     p.add_argument(
         "--split",
-        type=_split,
+        type=split_value,
         default=None,
-        help="estimation fraction in (0, 1) or split sample index (default 0.5; public: 512)",
+        help="estimation fraction in (0, 1) or the sample index the estimation part ends "
+             "before, as in fit and diagnose (default 0.5; public: 512)",
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of the methods and the rig")
     p.add_argument(
@@ -111,14 +96,17 @@ def register(subparsers: Any) -> None:
         help="import MODULE first (it registers more methods); repeatable",
     )
     add_model_arguments(p)
-    p.add_argument("--json", metavar="OUT", help="write the JSON report")
+    p.add_argument("--json", type=output_path, metavar="OUT",
+                   help="write the JSON report ('-': to stdout, the table then goes to stderr)")
     p.add_argument(
         "--plot",
+        type=output_path,
         metavar="OUT.png",
         help="figure of measured vs simulated output (.png, .svg or .pdf); convergence goes "
              "to OUT_convergence with the same suffix",
     )
-    p.add_argument("--report", metavar="OUT.md", help="write the Markdown table")
+    p.add_argument("--report", type=output_path, metavar="OUT.md",
+                   help="write the Markdown table (.md)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=run)
@@ -173,8 +161,11 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
         else None,
         "report": Path(args.report) if args.report else None,
     }
+    check_arguments(args, {"--json": args.json, "--plot": plot,
+                           "--plot's convergence figure": paths["convergence"],
+                           "--report": args.report})
     for key, p in paths.items():
-        if p is not None:
+        if p is not None and str(p) != STDOUT:
             suffixes = FIGURE_SUFFIXES if key in ("plot", "convergence") else None
             check_output_path(p, overwrite=args.overwrite, what=key, suffixes=suffixes)
     return paths
@@ -197,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     try:
         paths = _outputs(args)  # before any work, so a clash fails fast
-        registered = C.load_plugins(args.plugin)
+        registered = load_plugins(C, args.plugin)
         unknown = [m for m in args.methods or () if m not in registered]
         if unknown:  # checked before the data are loaded or simulated
             raise ParameterError(
@@ -208,6 +199,9 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError("--plot draws one record; with several DATA records use "
                                  "--json/--report (scores per record)")
         split = default_split if args.split is None else args.split
+        if split == 1.0 and not isinstance(split, int):
+            raise ParameterError("--split 1: the comparison scores every method on a "
+                                 "validation part; give a fraction below 1 or a sample index")
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
             say(f"compare: {what}, split {split}")
@@ -228,7 +222,9 @@ def run(args: argparse.Namespace) -> int:
         )
         report = comp.to_dict()
         table = C.markdown_table(report)
-        if paths["json"]:
+        if paths["json"] and str(paths["json"]) == STDOUT:
+            print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
+        elif paths["json"]:
             C.write_json(report, paths["json"], overwrite=args.overwrite)
         if paths["report"]:
             text = f"# Identification comparison: {report['dataset']}\n\n{table}"
@@ -239,5 +235,30 @@ def run(args: argparse.Namespace) -> int:
                 C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
     except (HHRAError, OSError) as exc:
         return report_error("compare", exc)
-    print(table)
+    print(table, file=sys.stderr if args.json == STDOUT else sys.stdout)
+    failed = [name for name, r in comp.results.items() if r.error]
+    if failed and len(failed) == len(comp.results):
+        print(f"hhra-phys compare: error: every method failed ({', '.join(failed)}); see the "
+              "table's notes", file=sys.stderr)
+        return 1
     return 0
+
+
+def load_plugins(C: Any, modules: list[str]) -> list[str]:
+    """Import each ``--plugin`` module; refuse one that registers no method.
+
+    A module counts as registering when a method appears, or one registered is defined
+    in it (imported earlier in the same process).
+    """
+    registered = C.load_plugins([])
+    for mod in modules:
+        before = dict(C.METHODS)
+        registered = C.load_plugins([mod])
+        new = [n for n in C.METHODS if before.get(n) is not C.METHODS[n]]
+        own = [n for n, fn in C.METHODS.items()
+               if getattr(fn, "__module__", "") in (mod,) or
+               getattr(fn, "__module__", "").startswith(mod + ".")]
+        if not new and not own:
+            raise ParameterError(f"--plugin {mod}: importing it registered no comparison "
+                                 "method (call hhra_phys.compare.register_method in it)")
+    return registered

@@ -13,7 +13,6 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
-    fraction,
     model_for,
     model_records,
     nonnegative_int,
@@ -21,7 +20,14 @@ from hhra_phys.cli._common import (
     positive_int,
     report_error,
 )
-from hhra_phys.cli._guards import seed
+from hhra_phys.cli._guards import (
+    STDOUT,
+    check_arguments,
+    output_path,
+    seed,
+    split_fraction,
+    split_value,
+)
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, jsonable
@@ -49,11 +55,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="whole records as the test part (same column options); then every "
                         "DATA record splits into estimation and selection only")
-    p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
-    p.add_argument("--report", metavar="OUT.md",
+    p.add_argument("--json", type=output_path, metavar="OUT.json",
+                   help="write the JSON summary here ('-': to stdout)")
+    p.add_argument("--report", type=output_path, metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
     p.add_argument("--max-effects", type=nonnegative_int, default=3,
-                   help="most effects to add (default 3)")
+                   help="most library effects to add (default 3); 0 adds none of them, "
+                        "but the discovery (off with --no-discover) may still add one term "
+                        "outside the library")
     p.add_argument("--top", type=positive_int, default=None,
                    help="candidates refitted per round, best ranked first, at least 1 "
                         "(default: all)")
@@ -61,8 +70,9 @@ def register(subparsers: Any) -> None:
                    help="comma-separated effects to consider (default: all registered, the "
                         "library's and those of --effects-from)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the global searches")
-    p.add_argument("--split", type=fraction, default=None,
-                   help="estimation fraction of the record (default 0.5)")
+    p.add_argument("--split", type=split_value, default=None,
+                   help="estimation fraction of the record in (0, 1) (default 0.5), or the "
+                        "sample index the estimation part ends before, as in fit and compare")
     p.add_argument("--test", type=float, default=0.25,
                    help="fraction held out at the end as the test part, which chooses nothing "
                         "(default 0.25; 0: the old two-way split, selection = validation)")
@@ -101,8 +111,11 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_discover:
             figs.append(f"{stem}_discovery.png")
     try:
-        check_outputs([args.json, args.report], args.overwrite, figures=figs)
-        if args.split is not None and args.split >= 1:
+        check_arguments(args, {"--json": args.json, "--report": args.report,
+                               **{f"--report's figure {Path(f).name}": f for f in figs}})
+        check_outputs([None if args.json == STDOUT else args.json, args.report],
+                      args.overwrite, figures=figs)
+        if isinstance(args.split, float) and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
         added = user_effects(args.effects_from)
@@ -110,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"registered effects: {', '.join(added)}", file=sys.stderr)
         records, validation, data_warnings = _records(args)
         data = records[0]
+        if args.split is not None:
+            args.split = split_fraction(args.split, [len(d) for d in records])
         model, bounds = model_for(args, data)
         check_effects_build(model, data, added)
         for other in records[1:] + (validation or []):  # the widest automatic box of all
@@ -134,19 +149,23 @@ def run(args: argparse.Namespace) -> int:
             )
         res.warnings.extend(data_warnings)
         out = res.to_json()
-        print(f"chosen: {', '.join(res.chosen) or 'none'}")
+        # With --json - the JSON alone goes to stdout; the summary to stderr.
+        say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
+        say(f"chosen: {', '.join(res.chosen) or 'none'}")
         for part in ("est", "val", "test"):
             b, f = out["base"].get(part, {}), out["final"].get(part, {})
             if not f:
                 continue
-            print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
+            say(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
                   f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
         for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
                           strict=True):
-            print(f"record {rf['name']}: " + ", ".join(
+            say(f"record {rf['name']}: " + ", ".join(
                 f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
                 for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
-        if args.json:
+        if args.json == STDOUT:
+            print(json.dumps(jsonable(out), indent=2), flush=True)
+        elif args.json:
             atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
             print(f"wrote {args.json}")
         if args.report:
@@ -160,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
 
                 paths.append(plot_discovery(found, figs[2], args.overwrite))
             atomic_write_text(args.report, markdown_report(res, paths, args.report))
-            print(f"wrote {args.report}")
+            say(f"wrote {args.report}")
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0

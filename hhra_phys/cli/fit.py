@@ -11,7 +11,6 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
-    fraction,
     model_for,
     model_records,
     parse_fixed,
@@ -20,7 +19,14 @@ from hhra_phys.cli._common import (
     positive_int,
     report_error,
 )
-from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
+from hhra_phys.cli._guards import (
+    STDOUT,
+    check_arguments,
+    output_path,
+    seed,
+    split_fraction,
+    split_value,
+)
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
@@ -57,8 +63,10 @@ def register(subparsers: Any) -> None:
                    help="accept --fix values outside the parameter's box (not its sign)")
     p.add_argument("--no-widen", action="store_true",
                    help="do not widen a default box whose edge a group ends at")
-    p.add_argument("--split", type=fraction, default=0.5,
-                   help="estimation fraction of every record (default 0.5)")
+    p.add_argument("--split", type=split_value, default=0.5,
+                   help="estimation fraction of every record in (0, 1] (default 0.5; 1: no "
+                        "validation part), or the sample index the estimation part ends "
+                        "before, as in compare and diagnose")
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="whole records for validation (same column options); then every DATA "
                         "record is used for estimation")
@@ -103,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
 
         check_records(records + (validation or []))  # a pressure record against an angle fit
         data = records[0]
+        args.split = split_fraction(args.split, [len(d) for d in records])
         model, auto_bounds = model_for(args, data, args.valve)
         # Problem runs the same check in every fit; here it names --fix before any worker
         # starts. Notes about values accepted outside their box come with the result.
