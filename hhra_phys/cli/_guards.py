@@ -29,8 +29,8 @@ STDOUT = "-"
 
 #: Bytes of memory a simulated sample costs at most (time, input, output, the state
 #: trajectory and the integrator's work arrays), measured with ``simulate --duration``
-#: at 250 Hz: peak RSS grows by about 0.9 kB per sample (docs/data.md).
-BYTES_PER_SAMPLE = 1024
+#: at 250 Hz: peak RSS grows by about 91 bytes per sample (docs/data.md).
+BYTES_PER_SAMPLE = 128
 
 #: The most memory a record may cost before it is refused [bytes]: a quarter of the
 #: memory available when the run starts, at most 4 GiB.
