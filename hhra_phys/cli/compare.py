@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -13,12 +14,20 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     add_record_arguments,
     is_builtin,
+    nonnegative_int,
     population,
     positive_int,
     read_record,
     report_error,
 )
-from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed, split_value
+from hhra_phys.cli._guards import (
+    STDOUT,
+    check_arguments,
+    check_size,
+    output_path,
+    seed,
+    split_value,
+)
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path, jsonable
 
@@ -71,9 +80,9 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
-    p.add_argument("--na", type=int, default=3, help="ARX output order (default 3)")
-    p.add_argument("--nb", type=int, default=3, help="ARX input order (default 3)")
-    p.add_argument("--nk", type=int, default=1, help="ARX input delay (default 1)")
+    p.add_argument("--na", type=nonnegative_int, default=3, help="ARX output order (default 3)")
+    p.add_argument("--nb", type=positive_int, default=3, help="ARX input order (default 3)")
+    p.add_argument("--nk", type=nonnegative_int, default=1, help="ARX input delay (default 1)")
     p.add_argument(
         "--box",
         type=float,
@@ -142,8 +151,9 @@ def _load(args: argparse.Namespace) -> Any:
     if args.public or word in PUBLIC_WORDS:
         return load_public_actuator(), 512  # the usual split of that record (its README)
     if not args.data or word in RIG_WORDS:
-        if not args.duration > 0:
-            raise ParameterError(f"--duration must be positive, got {args.duration}")
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ParameterError(f"--duration must be a finite number > 0, got {args.duration}")
+        check_size(args.duration * 250.0, f"--duration {args.duration:g} s of the rig at 250 Hz")
         return simulate_rig(seed=args.seed, duration=args.duration), 0.5
     data = read_record(args)
     for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE

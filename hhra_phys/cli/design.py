@@ -152,8 +152,13 @@ def say_time_estimate(res: Any, duration: float, draws: int) -> None:
     seconds = per_sample * duration * fs * DESIGN_EVALUATIONS * max(draws, 1)
     if seconds > 60:
         print(f"design: about {DESIGN_EVALUATIONS * max(draws, 1)} evaluations of "
-              f"{duration * fs:.3g} samples, estimated {seconds / 60:.3g} min on this machine "
-              "now (--duration and --draws set it)", file=sys.stderr, flush=True)
+              f"{duration * fs:.3g} samples, estimated {_duration(seconds)} on this machine "
+              "now (--duration and --draws set it; Ctrl-C stops it, writing nothing)",
+              file=sys.stderr, flush=True)
+
+
+def _duration(seconds: float) -> str:
+    return (f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.3g} h")
 
 
 def _geomean(widths: dict[str, float]) -> float:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from hhra_phys.cli._common import report_error
-from hhra_phys.cli._guards import seed
+from hhra_phys.cli._guards import check_size, output_path, seed
 from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
@@ -23,7 +24,7 @@ def register(subparsers: Any) -> None:
             "side-car with the true parameters."
         ),
     )
-    p.add_argument("--out", required=True, metavar="FILE.csv",
+    p.add_argument("--out", type=output_path, required=True, metavar="FILE.csv",
                    help="output file (.csv with a .json side-car, or .npz)")
     p.add_argument("--seed", type=seed, default=0, help="seed of excitation and noise (default 0)")
     p.add_argument("--noise", type=float, default=DEFAULT_NOISE_DEG, metavar="DEG",
@@ -66,15 +67,83 @@ def _parse_effects(items: list[str] | None) -> dict[str, dict[str, float]]:
                     f"--effect {item!r}: expected PARAM=VALUE, got {pair!r}") from None
             if not eq:
                 raise ParameterError(f"--effect {item!r}: expected PARAM=VALUE, got {pair!r}")
+        check_effect_values(item, name, values)
         out[name] = values
     return out
+
+
+def check_effect_values(item: str, name: str, values: dict[str, float]) -> None:
+    """Every parameter of ``--effect NAME:...`` is one the effect has, inside its box.
+
+    Raises
+    ------
+    ParameterError
+        Naming the ``--effect`` item, the parameter and its box (or the parameters
+        the effect has).
+    """
+    import math
+
+    from hhra_phys.effects import make_effect
+
+    params = {p.name: p for p in make_effect(name).parameters}
+    for key, value in values.items():
+        if key not in params:
+            raise ParameterError(f"--effect {item!r}: {name} has no parameter {key!r}; its "
+                                 f"parameters: {', '.join(params) or 'none'}")
+        par = params[key]
+        if not (math.isfinite(value) and par.lower <= value <= par.upper):
+            raise ParameterError(
+                f"--effect {item!r}: {key}={value:g} is outside its box "
+                f"[{par.lower:g}, {par.upper:g}] {par.unit} (the values the library fits)")
+    lacking = [k for k in params if k not in values]
+    if lacking:
+        raise ParameterError(f"--effect {item!r}: give every parameter of {name}; missing: "
+                             f"{', '.join(f'{k}=VALUE' for k in lacking)}")
+
+
+def check_settings(args: argparse.Namespace) -> None:
+    """The numbers of a simulated record, before anything is simulated.
+
+    Raises
+    ------
+    ParameterError
+        A value outside what the rig can mean (naming the flag and the range), or a
+        record whose memory would exceed the budget (:func:`check_size`).
+    """
+    import math
+
+    from hhra_phys.models.hhra.defaults import PLAUSIBLE, PLAUSIBLE_FS
+
+    for flag, value in (("--duration", args.duration), ("--fs", args.fs),
+                        ("--amplitude", args.amplitude)):
+        if not (math.isfinite(value) and value > 0):
+            raise ParameterError(f"{flag} must be a finite number > 0, got {value:g}")
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise ParameterError(f"--noise must be a standard deviation >= 0 in deg, got "
+                             f"{args.noise:g}")
+    if args.quantization is not None and not (math.isfinite(args.quantization)
+                                              and args.quantization > 0):
+        raise ParameterError(f"--quantization must be a resolution > 0 in deg, got "
+                             f"{args.quantization:g}")
+    lo, hi = PLAUSIBLE_FS
+    if not lo <= args.fs <= hi:
+        raise ParameterError(f"--fs {args.fs:g} Hz: the rig is sampled between {lo:g} and "
+                             f"{hi:g} Hz (the paper's 250 Hz)")
+    top = PLAUSIBLE["input"].high
+    if args.amplitude > top:
+        raise ParameterError(f"--amplitude {args.amplitude:g} mA: above the {top:g} mA of the "
+                             "largest servo-valve rated currents")
+    check_size(args.duration * args.fs, f"--duration {args.duration:g} s at --fs {args.fs:g} Hz")
 
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the record; returns the exit code."""
     try:
         check_save_path(args.out, args.overwrite)  # before simulating
+        check_settings(args)
         effects = _parse_effects(args.effect)
+        if effects and args.generator != "reference":
+            raise ParameterError("--effect needs --generator reference")
         if args.generator == "reference":
             from hhra_phys.reference import reference_record
 
@@ -88,8 +157,21 @@ def run(args: argparse.Namespace) -> int:
                               fs=args.fs, amplitude=args.amplitude,
                               quantization=args.quantization)
         path = save(ds, args.out, overwrite=args.overwrite)
+    except ParameterError as exc:
+        if "cannot hold" not in str(exc):  # the excitation's words for too few samples
+            return report_error("simulate", exc)
+        return report_error("simulate", ParameterError(
+            f"--duration {args.duration:g} s at --fs {args.fs:g} Hz gives "
+            f"{round(args.duration * args.fs)} samples, too few for the excitation ({exc}); "
+            "lengthen --duration or raise --fs"))
     except (HHRAError, OSError) as exc:
         return report_error("simulate", exc)
+    except ValueError as exc:  # the reference implementation's own checks
+        return report_error("simulate", ParameterError(f"--generator reference: {exc}"))
+    peak = float(abs(ds.u).max())
+    if peak < 0.999 * args.amplitude:
+        print(f"note: --amplitude {args.amplitude:g} mA would turn the shaft past its stroke; "
+              f"the current was scaled to {peak:.4g} mA", file=sys.stderr)
     print(f"wrote {path} ({len(ds)} samples, {ds.duration:.2f} s, angle "
           f"{ds.y.min():.1f}..{ds.y.max():.1f} deg)")
     return 0
