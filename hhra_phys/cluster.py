@@ -72,7 +72,7 @@ WORKER_TIMEOUT = 20.0
 MAX_HANDSHAKE_BYTES = 2**20
 
 
-def check_scheduler_answers(address: str, timeout: float = PROBE_TIMEOUT) -> None:
+def check_scheduler_answers(address: str, timeout: float | None = None) -> None:
     """Check that a Dask scheduler, not another server, listens at a ``tcp://`` address.
 
     A scheduler sends its handshake as soon as a client connects, led by its length as
@@ -84,12 +84,13 @@ def check_scheduler_answers(address: str, timeout: float = PROBE_TIMEOUT) -> Non
     Raises
     ------
     ParameterError
-        Nothing listens, nothing answers within ``timeout`` s, or the answer is not a
-        scheduler's handshake.
+        Nothing listens, nothing answers within ``timeout`` s (default
+        :data:`PROBE_TIMEOUT`), or the answer is not a scheduler's handshake.
     """
     import socket
     import struct
 
+    timeout = PROBE_TIMEOUT if timeout is None else timeout
     text = address.strip()
     if "://" in text and not text.startswith("tcp://"):
         return

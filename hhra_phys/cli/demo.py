@@ -70,7 +70,10 @@ def run(args: argparse.Namespace) -> int:
     new = [p for p in paths if not p.exists()]
     try:
         return _run(args, out, files, new)
-    except BaseException:  # Ctrl-C or an error: nothing of this run stays
+    except (HHRAError, OSError) as exc:  # nothing of this run stays
+        _remove(out, new, created)
+        return report_error("demo", exc)
+    except BaseException:  # Ctrl-C too
         _remove(out, new, created)
         raise
 
@@ -97,32 +100,27 @@ def _run(args: argparse.Namespace, out: Path, files: dict[str, Path],
 
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
     n_steps = 6
-    try:
-        _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
-        data = simulate_rig(seed=args.seed, duration=duration)
-        _step(2, n_steps, f"fitting the physical model: H-GWO (pop {pop}, {iters} it.) + IPOPT")
-        res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)
-        _step(3, n_steps, "fitting black-box ARX models (LS, RLS, FFRLS) on the same split")
-        arx_rows = _arx_rows(data)
-        _step(4, n_steps, "linearising the fitted model for controller design (python-control)")
-        design = _linear_summary(res, data)
-        hidden, truth_e = hidden_effect(args.seed)
-        _step(5, n_steps, "closing the loop: a rig record with an effect the model does not "
-                          "declare (drawn from the seed), diagnosed with the effect library")
-        loop, loop_data = _close_loop(args, duration, pop, iters, hidden, truth_e)
-        _step(6, n_steps, f"writing results to {out}/")
-        save_csv(data, files["data"], overwrite=args.overwrite)
-        res.save(files["json"], overwrite=args.overwrite)
-        est, val = data.split(0.5)
-        plot_fit(files["plot"], [("estimation", est, res.predict(est)),
-                                 ("validation", val, res.predict(val))],
-                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
-                 stages=res.stages)
-        _write_loop(args, files, loop, loop_data, hidden)
-    except (HHRAError, OSError) as exc:
-        _remove(out, new, False)
-        new.clear()
-        return report_error("demo", exc)
+    _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
+    data = simulate_rig(seed=args.seed, duration=duration)
+    _step(2, n_steps, f"fitting the physical model: H-GWO (pop {pop}, {iters} it.) + IPOPT")
+    res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)
+    _step(3, n_steps, "fitting black-box ARX models (LS, RLS, FFRLS) on the same split")
+    arx_rows = _arx_rows(data)
+    _step(4, n_steps, "linearising the fitted model for controller design (python-control)")
+    design = _linear_summary(res, data)
+    hidden, truth_e = hidden_effect(args.seed)
+    _step(5, n_steps, "closing the loop: a rig record with an effect the model does not "
+                      "declare (drawn from the seed), diagnosed with the effect library")
+    loop, loop_data = _close_loop(args, duration, pop, iters, hidden, truth_e)
+    _step(6, n_steps, f"writing results to {out}/")
+    save_csv(data, files["data"], overwrite=args.overwrite)
+    res.save(files["json"], overwrite=args.overwrite)
+    est, val = data.split(0.5)
+    plot_fit(files["plot"], [("estimation", est, res.predict(est)),
+                             ("validation", val, res.predict(val))],
+             res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
+             stages=res.stages)
+    _write_loop(args, files, loop, loop_data, hidden)
 
     truth = data.metadata["true_params"]
     print("\nParameter groups: truth, fit and 95 % confidence interval")
