@@ -141,9 +141,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_save_path(args.out, args.overwrite)  # before simulating
         check_settings(args)
-        effects = _parse_effects(args.effect)
-        if effects and args.generator != "reference":
+        if args.effect and args.generator != "reference":
             raise ParameterError("--effect needs --generator reference")
+        effects = _parse_effects(args.effect)
         if args.generator == "reference":
             from hhra_phys.reference import reference_record
 
