@@ -148,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
                 backward=not args.no_backward,
             )
         res.warnings.extend(data_warnings)
+        for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
+            if "failed" in str(why) or "does not assemble" in str(why):
+                print(f"warning: candidate {name} was dropped: {why}", file=sys.stderr)
         out = res.to_json()
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
