@@ -430,11 +430,15 @@ def classify(case: Case) -> tuple[str, str, int | None]:
     return "vague", text, code
 
 
-def run(report: Callable[[str], None] = print) -> dict[str, dict[str, int]]:
-    """Run every case; returns ``{group: {class: count}}`` and prints non-clear cases."""
+def run(report: Callable[[str], None] = print,
+        groups: list[str] | None = None) -> dict[str, dict[str, int]]:
+    """Run every case (of the groups whose name contains one of ``groups``); returns
+    ``{group: {class: count}}`` and prints the cases that are not clear."""
     table: dict[str, dict[str, int]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases(Path(tmp)):
+            if groups and not any(g in case.group for g in groups):
+                continue
             kind, text, found = outcomes(case, Path(tmp))
             row = table.setdefault(case.group, {"inputs": 0, "clear": 0, "vague": 0,
                                                 "silent": 0, "traceback": 0,
@@ -463,8 +467,10 @@ def markdown(table: dict[str, dict[str, int]]) -> str:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", help="also write the counts as JSON")
+    ap.add_argument("--groups", nargs="+", default=None, metavar="TEXT",
+                    help="only the classes whose name contains one of these (e.g. 'issue 24')")
     a = ap.parse_args()
-    result = run(lambda line: print(line, file=sys.stderr))
+    result = run(lambda line: print(line, file=sys.stderr), a.groups)
     print(markdown(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))
