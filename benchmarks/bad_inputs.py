@@ -398,13 +398,16 @@ def outcomes(case: Case, folder: Path) -> tuple[str, str, list[str]]:
     if peak > MAX_ALLOCATION:
         found.append("allocation")
     after = _files(folder)
-    if any(p in after and after[p] != b for p, b in before.items()):
+    changed = [p for p, b in before.items() if after.get(p) != b]
+    if changed:
         found.append("replaced")
     new = [p for p in after if p not in before]
     if code not in (0, None) and new:
         found.append("partial")
     for p in new:  # the next case starts from the same files
         p.unlink()
+    for p in changed:
+        p.write_bytes(before[p])
     return kind, text, found
 
 
