@@ -310,6 +310,10 @@ def check_arguments(args: argparse.Namespace, outputs: Mapping[str, str | Path |
     data = getattr(args, "data", None)
     check_distinct_records({"DATA": data if isinstance(data, list) else [data],
                             "--validate": getattr(args, "validate", None)})
+    for flag, path in outputs.items():
+        if path is not None and str(path) == STDOUT and flag != "--json":
+            raise ParameterError(f"{flag} -: only --json writes to stdout ('-'); give a file "
+                                 "name")
     for flag in ("--json",):
         check_suffix(flag, outputs.get(flag), refused=FIGURE_SUFFIXES + DATA_SUFFIXES)
     for flag in ("--report", "--markdown"):

@@ -673,6 +673,20 @@ def test_an_empty_output_name_is_a_usage_error(cmd, flag, d, tmp_path, capsys) -
     assert code == 2 and flag in err and "empty" in err
 
 
+@pytest.mark.parametrize(("argv", "flag"), [
+    (["diagnose", "{rig}", "--report", "-"], "--report"),
+    (["compare", "{rig}", "--methods", "ls", "--report", "-"], "--report"),
+    (["benchmark", "--runs", "1", "--markdown", "-"], "--markdown"),
+    (["design", "{fit}", "--duration", "2", "--out", "-"], "--out"),
+    (["fit", "{rig}", "--plot", "-"], "--plot"),
+])
+def test_only_json_goes_to_stdout(argv, flag, d, tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run([a.format(**d) for a in argv], capsys)
+    assert code == 2 and flag in err
+    assert not list(tmp_path.iterdir())  # no file named '-'
+
+
 @pytest.mark.parametrize("cmd", ["fit", "diagnose", "compare", "benchmark"])
 def test_json_dash_goes_to_stdout(cmd, d, tmp_path, capsys, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
