@@ -263,7 +263,14 @@ def load_plugins(C: Any, modules: list[str]) -> list[str]:
     registered = C.load_plugins([])
     for mod in modules:
         before = dict(C.METHODS)
-        registered = C.load_plugins([mod])
+        try:
+            registered = C.load_plugins([mod])
+        except HHRAError:
+            raise
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a user's module
+            what = (f"called sys.exit({exc.code!r})" if isinstance(exc, SystemExit)
+                    else f"raised {type(exc).__name__}: {exc}")
+            raise ParameterError(f"--plugin {mod}: importing it {what}") from None
         new = [n for n in C.METHODS if before.get(n) is not C.METHODS[n]]
         own = [n for n, fn in C.METHODS.items()
                if getattr(fn, "__module__", "") in (mod,) or

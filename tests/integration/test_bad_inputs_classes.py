@@ -803,6 +803,19 @@ def test_design_of_a_user_model_fit_needs_and_takes_model(tmp_path, capsys,
     assert (tmp_path / "u.csv").exists() and (tmp_path / "u.json").exists()
 
 
+@pytest.mark.parametrize(("body", "words"), [
+    ("import sys\nsys.exit(3)\n", "sys.exit(3)"),
+    ("raise RuntimeError('plugin broken')\n", "RuntimeError: plugin broken"),
+])
+def test_a_plugin_that_exits_or_raises_is_named(body, words, d, tmp_path, capsys,
+                                                monkeypatch) -> None:
+    name = f"plugin_t24_{abs(hash(body)) % 10**6}"
+    (tmp_path / f"{name}.py").write_text(body)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    code, _, err = run(["compare", d["rig"], "--plugin", name, "--methods", "ls"], capsys)
+    assert code == 2 and f"--plugin {name}" in err and words in err
+
+
 def test_compare_where_every_method_failed_exits_1(d, tmp_path, capsys, monkeypatch) -> None:
     plugin = tmp_path / "failing_rows_t24.py"
     plugin.write_text(textwrap.dedent("""
