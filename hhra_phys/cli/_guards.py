@@ -290,6 +290,31 @@ def _inputs_of(args: argparse.Namespace) -> dict[str, object]:
     return out
 
 
+def check_ranges(args: argparse.Namespace) -> None:
+    """The numeric options whose range the library checks under its own (Python) names,
+    checked here under the flag's name: ``--lam``, ``--margin``, ``--noise-tol``,
+    ``--zeta``, ``--box``."""
+    import math
+
+    def number(flag: str, value: float | None, ok: bool, want: str) -> None:
+        if value is not None and not (math.isfinite(value) and ok):
+            raise ParameterError(f"{flag} must be {want}, got {value}")
+
+    lam = getattr(args, "lam", None)
+    number("--lam", lam, True, "a finite number")
+    margin = getattr(args, "margin", None)
+    number("--margin", margin, margin is not None and 0 <= margin < 1, "in [0, 1)")
+    tol = getattr(args, "noise_tol", None)
+    number("--noise-tol", tol, tol is not None and tol >= 0, "a finite number >= 0")
+    zeta = getattr(args, "zeta", None)
+    number("--zeta", zeta, zeta is not None and 0 < zeta <= 1, "in (0, 1]")
+    box = getattr(args, "box", None)
+    if box is not None:
+        lo, hi = box
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ParameterError(f"--box LO HI must be finite with LO < HI, got {lo} {hi}")
+
+
 def check_arguments(args: argparse.Namespace, outputs: Mapping[str, str | Path | None]) -> None:
     """The checks of this module that apply to ``args``, before any work.
 
@@ -307,6 +332,7 @@ def check_arguments(args: argparse.Namespace, outputs: Mapping[str, str | Path |
     check_fix_items(getattr(args, "fix", None))
     check_refine(getattr(args, "refine", None))
     check_dask_address(getattr(args, "dask", None))
+    check_ranges(args)
     data = getattr(args, "data", None)
     check_distinct_records({"DATA": data if isinstance(data, list) else [data],
                             "--validate": getattr(args, "validate", None)})

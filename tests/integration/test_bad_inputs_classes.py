@@ -588,6 +588,11 @@ def test_the_demo_stopped_in_its_last_step_leaves_nothing(stop, quick_demo, tmp_
     (["diagnose", "{rig}", "--effects-from", "{raising_effect}", "--pop", "8"], 1,
      ["broken_friction_t24", "raising_effect.py", "RuntimeError: broken on purpose"]),
     (["compare", "{rig}", "--split", "1", "--methods", "ls"], 2, ["--split 1"]),
+    (["compare", "{rig}", "--box", "5", "-5", "--methods", "gwo"], 2, ["--box"]),
+    (["compare", "{rig}", "--zeta", "-1", "--methods", "hgwo"], 2, ["--zeta"]),
+    (["diagnose", "{rig}", "--margin", "-1"], 2, ["--margin"]),
+    (["diagnose", "{rig}", "--noise-tol", "nan"], 2, ["--noise-tol"]),
+    (["fit", "{rig}", "--lam", "nan"], 2, ["--lam"]),
     (["fit", "{rig}", "--split", "5000"], 2, ["--split 5000", "500 samples"]),
 ])
 def test_silent_acceptance_is_refused(argv, code, words, d, tmp_path, capsys) -> None:
