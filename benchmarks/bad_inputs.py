@@ -231,6 +231,9 @@ def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> It
 
     ds = simulate_rig(seed=0, duration=4.0)
     fitjs = str(fit(ds, optimizer="none", refine="none").save(d / "fit2.json"))
+    file("exit_plugin2.py", "import sys\nsys.exit(3)\n")
+    if str(d) not in sys.path:
+        sys.path.insert(0, str(d))  # --plugin takes a module name
     sub = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
     need = {"simulate": ["--out", str(d / "s2.csv")],
             "design": [fitjs, "--duration", "2", "--out", str(d / "u2.csv")],
@@ -343,6 +346,16 @@ def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> It
     np.save(d / "one.npy", np.c_[ds.t, ds.u, ds.y])
     (d / "one.npy").rename(d / "renamed2.npz")
     yield Case(g, ["fit", str(d / "renamed2.npz"), *QUICK], 1, ".npy")
+    # options the library checked under its Python names (lam, margin, zeta_s, bounds)
+    for argv, flag in ((["compare", str(rig), "--box", "5", "-5", "--methods", "gwo"], "--box"),
+                       (["compare", str(rig), "--zeta", "-1", "--methods", "hgwo"], "--zeta"),
+                       (["diagnose", str(rig), "--margin", "-1"], "--margin"),
+                       (["diagnose", str(rig), "--noise-tol", "nan"], "--noise-tol"),
+                       (["fit", str(rig), "--lam", "nan", *QUICK], "--lam"),
+                       (["diagnose", str(rig), "--report", "-"], "--report"),
+                       (["compare", str(rig), "--methods", "ls", "--plugin", "exit_plugin2"],
+                        "sys.exit(3)")):
+        yield Case(g, argv, 2, flag)
 
 
 def _server(reply: bytes) -> int:
