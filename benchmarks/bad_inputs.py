@@ -349,10 +349,12 @@ def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> It
     # options the library checked under its Python names (lam, margin, zeta_s, bounds)
     for argv, flag in ((["compare", str(rig), "--box", "5", "-5", "--methods", "gwo"], "--box"),
                        (["compare", str(rig), "--zeta", "-1", "--methods", "hgwo"], "--zeta"),
-                       (["diagnose", str(rig), "--margin", "-1"], "--margin"),
-                       (["diagnose", str(rig), "--noise-tol", "nan"], "--noise-tol"),
+                       (["diagnose", str(rig), "--margin", "-1", *QUICK[:4]], "--margin"),
+                       (["diagnose", str(rig), "--noise-tol", "nan", *QUICK[:4]],
+                        "--noise-tol"),
                        (["fit", str(rig), "--lam", "nan", *QUICK], "--lam"),
-                       (["diagnose", str(rig), "--report", "-"], "--report"),
+                       (["diagnose", str(rig), "--report", "-", "--pop", "4", "--iters", "1",
+                         "--max-effects", "0", "--no-discover"], "--report"),
                        (["compare", str(rig), "--methods", "ls", "--plugin", "exit_plugin2"],
                         "sys.exit(3)")):
         yield Case(g, argv, 2, flag)
