@@ -8,9 +8,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from hhra_phys.cli._guards import seed
+from hhra_phys.cli._guards import (
+    check_hopeless_range,
+    check_model_builds,
+    check_output_varies,
+    check_sample_rate,
+    seed,
+)
 from hhra_phys.data import Dataset, load, load_public_actuator
 from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
@@ -155,53 +159,6 @@ def read_record(args: argparse.Namespace) -> Dataset:
     return rescale_time(data, args.time_unit) if args.time_unit else data
 
 
-def check_output_varies(data: Dataset, args: argparse.Namespace) -> None:
-    """Refuse a record whose output never changes, before any fit (nothing to fit to)."""
-    from hhra_phys.errors import DataError
-
-    if data.n and float(np.ptp(data.y)) == 0.0:
-        col = getattr(args, "output_col", None) or "y"
-        raise DataError(f"{args.data}: the output column {col!r} is constant ({data.y[0]:g} in "
-                        "every row): there is no response to fit; is --output-col the right "
-                        "column?")
-
-
-#: A record sampled this many times faster than the model's fastest mode is implausible:
-#: 10 kHz for a 1 Hz mode. Hydraulic and mechanical records take 10 to 100 per period.
-MAX_SAMPLES_PER_PERIOD = 1e4
-
-
-def check_sample_rate(args: argparse.Namespace, data: Dataset, model: Any) -> None:
-    """Refuse ``--time-unit`` when it makes the record absurdly fast for the model.
-
-    The model's own time constants decide: its fastest mode (the largest eigenvalue of
-    its linearisation at the nominal values, at rest) should see a few to a few hundred
-    samples per period. When the rescaled rate is more than :data:`MAX_SAMPLES_PER_PERIOD`
-    times that mode while the file's column, read in seconds, already gives a rate above
-    it, the column was in seconds and ``--time-unit`` is wrong.
-    """
-    unit = getattr(args, "time_unit", None)
-    if unit in (None, "s") or data.time_unit != "s" or not data.fs:
-        return
-    try:
-        a = model.linearize(dt=float(data.dt))[0]
-        fastest = float(np.max(np.abs(np.linalg.eigvals(np.asarray(a, dtype=float))))) / (
-            2 * math.pi)
-    except Exception:  # noqa: BLE001 - a model that cannot be linearised: no check
-        return
-    if not (math.isfinite(fastest) and fastest > 0):
-        return
-    raw = data.fs * TIME_UNITS[unit]
-    if data.fs > MAX_SAMPLES_PER_PERIOD * fastest and raw >= 2 * fastest:
-        from hhra_phys.errors import DataError
-
-        raise DataError(
-            f"{data.source or 'the record'}: --time-unit {unit} makes the sample rate "
-            f"{data.fs:.4g} Hz, {data.fs / fastest:.3g} samples per period of the model's "
-            f"fastest mode ({fastest:.3g} Hz); read in seconds the time column gives "
-            f"{raw:.4g} Hz, a plausible rate: leave --time-unit out")
-
-
 def load_data(args: argparse.Namespace) -> Dataset:
     """The dataset named on the command line (or the simulated rig).
 
@@ -249,29 +206,6 @@ def record_for_model(args: argparse.Namespace, data: Dataset) -> tuple[Dataset, 
     for line in warns:
         print(f"warning: {line}", file=sys.stderr)
     return data, warns
-
-
-#: How far beyond the HHRA's plausible ranges a record is refused rather than warned
-#: about: a million times (an angle span of 3.6e10 deg). Far beyond, the initial angle's
-#: box loses its width in double precision and the fit cannot even start.
-HOPELESS_FACTOR = 1e6
-
-
-def check_hopeless_range(data: Dataset) -> None:
-    """Refuse an HHRA record whose input or output is :data:`HOPELESS_FACTOR` times beyond
-    its plausible range (the warning of :func:`record_for_model` is not enough there)."""
-    from hhra_phys.errors import DataError
-    from hhra_phys.models.hhra.defaults import PLAUSIBLE
-
-    for role, values, what in (("input", data.u, "peak"), ("output", data.y, "span")):
-        rng = PLAUSIBLE[role]
-        size = float(np.max(np.abs(values))) if what == "peak" else float(np.ptp(values))
-        if size > HOPELESS_FACTOR * rng.high:
-            raise DataError(
-                f"{data.source or data.name or 'the record'}: the {role} has a {what} of "
-                f"{size:.3g} {rng.unit}, {size / rng.high:.2g} times the plausible "
-                f"{rng.high:g} {rng.unit} of an HHRA: {rng.too_high} Convert the column (or "
-                "give your own --model)")
 
 
 def exit_code(exc: BaseException) -> int:
@@ -397,14 +331,3 @@ def model_for(args: argparse.Namespace, data: Dataset,
     model, bounds = default_model(data, valve=valve or "orifice")
     check_sample_rate(args, data, model)
     return model, bounds
-
-
-def check_model_builds(model: Any, data: Dataset, what: str) -> None:
-    """Build ``model``'s equations once (cheap, symbolic), so a user's part that fails
-    does so before any fit starts, with the part and the file named."""
-    from hhra_phys.errors import ModelError
-
-    try:
-        model.assemble(*model.symbols(), float(data.dt))
-    except ModelError as exc:
-        raise ModelError(f"{what}: {exc}") from None
