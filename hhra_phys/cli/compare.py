@@ -154,7 +154,14 @@ def _load(args: argparse.Namespace) -> Any:
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ParameterError(f"--duration must be a finite number > 0, got {args.duration}")
         check_size(args.duration * 250.0, f"--duration {args.duration:g} s of the rig at 250 Hz")
-        return simulate_rig(seed=args.seed, duration=args.duration), 0.5
+        try:
+            return simulate_rig(seed=args.seed, duration=args.duration), 0.5
+        except ParameterError as exc:
+            if "cannot hold" not in str(exc):  # the excitation's words for too few samples
+                raise
+            raise ParameterError(f"--duration {args.duration:g} s of the rig at 250 Hz is too "
+                                 f"short for its excitation ({exc}); lengthen --duration"
+                                 ) from None
     data = read_record(args)
     for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
         print(f"warning: {line}", file=sys.stderr)

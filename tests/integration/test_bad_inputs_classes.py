@@ -401,6 +401,11 @@ def test_simulate_values_outside_what_the_rig_means(argv, words, tmp_path, capsy
     assert not list(tmp_path.iterdir())
 
 
+def test_compare_on_a_rig_too_short_names_duration(capsys) -> None:
+    code, _, err = run(["compare", "--duration", "0.05", "--methods", "ls", "--quiet"], capsys)
+    assert code == 2 and "--duration 0.05" in err and "lengthen --duration" in err
+
+
 def test_a_scaled_down_amplitude_is_noted(tmp_path, capsys) -> None:
     code, _, err = run(["simulate", "--out", tmp_path / "s.csv", "--duration", "2",
                         "--amplitude", "50"], capsys)
