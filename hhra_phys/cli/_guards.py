@@ -20,7 +20,8 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -482,3 +483,21 @@ def check_model_builds(model: Any, data: Dataset, what: str) -> None:
         model.assemble(*model.symbols(), float(data.dt))
     except ModelError as exc:
         raise ModelError(f"{what}: {exc}") from None
+
+
+@contextmanager
+def all_or_nothing(paths: Iterable[str | Path | None]) -> Iterator[None]:
+    """A block that writes several files: if it ends by Ctrl-C or an error, the files it
+    created are removed again, so an interrupted run leaves none of its outputs.
+
+    Files that existed before (replaced with ``--overwrite``) are left as they are:
+    each is written atomically, so it is either the old file or the complete new one.
+    """
+    files = [Path(p) for p in paths if p and str(p) != STDOUT]
+    new = [p for p in files if not p.exists()]
+    try:
+        yield
+    except BaseException:
+        for p in new:
+            p.unlink(missing_ok=True)
+        raise

@@ -22,6 +22,7 @@ from hhra_phys.cli._common import (
 )
 from hhra_phys.cli._guards import (
     STDOUT,
+    all_or_nothing,
     check_arguments,
     check_size,
     output_path,
@@ -239,17 +240,18 @@ def run(args: argparse.Namespace) -> int:
         )
         report = comp.to_dict()
         table = C.markdown_table(report)
-        if paths["json"] and str(paths["json"]) == STDOUT:
-            print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
-        elif paths["json"]:
-            C.write_json(report, paths["json"], overwrite=args.overwrite)
-        if paths["report"]:
-            text = f"# Identification comparison: {report['dataset']}\n\n{table}"
-            atomic_write_text(paths["report"], text)
-        if paths["plot"]:
-            C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
-            if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
-                C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
+        with all_or_nothing(paths.values()):  # Ctrl-C: none of them stays
+            if paths["json"] and str(paths["json"]) == STDOUT:
+                print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
+            elif paths["json"]:
+                C.write_json(report, paths["json"], overwrite=args.overwrite)
+            if paths["report"]:
+                text = f"# Identification comparison: {report['dataset']}\n\n{table}"
+                atomic_write_text(paths["report"], text)
+            if paths["plot"]:
+                C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
+                if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
+                    C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
     except (HHRAError, OSError) as exc:
         return report_error("compare", exc)
     print(table, file=sys.stderr if args.json == STDOUT else sys.stdout)

@@ -13,7 +13,13 @@ from typing import Any
 import numpy as np
 
 from hhra_phys.cli._common import add_model_arguments, nonnegative_int, report_error
-from hhra_phys.cli._guards import check_arguments, check_size, output_path, seed
+from hhra_phys.cli._guards import (
+    all_or_nothing,
+    check_arguments,
+    check_size,
+    output_path,
+    seed,
+)
 from hhra_phys.design import CRITERIA, MIN_HOLD_S, OUTPUT_LIMIT_DEG, InformationModel
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
@@ -213,7 +219,6 @@ def run(args: argparse.Namespace) -> int:
     buf = io.StringIO()
     np.savetxt(buf, np.column_stack([design.t, design.u]), delimiter=",", header="t,u",
                comments="", fmt="%.10g")
-    atomic_write_text(out, buf.getvalue())
     report = {
         "format": "hhra-phys design",
         "fit": str(args.fit),
@@ -233,7 +238,9 @@ def run(args: argparse.Namespace) -> int:
         "width": "relative 95 % interval width (hi - lo) / value, predicted from the Fisher "
                  "information at the fitted values",
     }
-    atomic_write_text(side, json.dumps(jsonable(report), indent=1))
+    with all_or_nothing([out, side]):  # Ctrl-C between the two: neither stays
+        atomic_write_text(out, buf.getvalue())
+        atomic_write_text(side, json.dumps(jsonable(report), indent=1))
     print(f"{'parameter':<12} {'designed':>10} {'fitted rec.':>12}")
     for name, w in design.widths.items():
         other = f"{fitted['widths'][name]:12.4g}" if fitted else f"{'-':>12}"

@@ -22,6 +22,7 @@ from hhra_phys.cli._common import (
 )
 from hhra_phys.cli._guards import (
     STDOUT,
+    all_or_nothing,
     check_arguments,
     output_path,
     seed,
@@ -166,23 +167,24 @@ def run(args: argparse.Namespace) -> int:
             say(f"record {rf['name']}: " + ", ".join(
                 f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
                 for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
-        if args.json == STDOUT:
-            print(json.dumps(jsonable(out), indent=2), flush=True)
-        elif args.json:
-            atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
-            print(f"wrote {args.json}")
-        if args.report:
-            from hhra_phys.diagnose import plot_loop_residuals
+        with all_or_nothing([args.json, args.report, *figs]):  # Ctrl-C: none of them stays
+            if args.json == STDOUT:
+                print(json.dumps(jsonable(out), indent=2), flush=True)
+            elif args.json:
+                atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
+                print(f"wrote {args.json}")
+            if args.report:
+                from hhra_phys.diagnose import plot_loop_residuals
 
-            paths = list(plot_loop_residuals(res, records if several else data, figs[0],
-                                             figs[1], args.overwrite))
-            found = [s for s in res.steps if getattr(s, "residuals", None)]
-            if found:
-                from hhra_phys.discover import plot_discovery
+                paths = list(plot_loop_residuals(res, records if several else data, figs[0],
+                                                 figs[1], args.overwrite))
+                found = [s for s in res.steps if getattr(s, "residuals", None)]
+                if found:
+                    from hhra_phys.discover import plot_discovery
 
-                paths.append(plot_discovery(found, figs[2], args.overwrite))
-            atomic_write_text(args.report, markdown_report(res, paths, args.report))
-            say(f"wrote {args.report}")
+                    paths.append(plot_discovery(found, figs[2], args.overwrite))
+                atomic_write_text(args.report, markdown_report(res, paths, args.report))
+                say(f"wrote {args.report}")
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0

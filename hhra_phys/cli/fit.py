@@ -21,6 +21,7 @@ from hhra_phys.cli._common import (
 )
 from hhra_phys.cli._guards import (
     STDOUT,
+    all_or_nothing,
     check_arguments,
     output_path,
     seed,
@@ -156,22 +157,23 @@ def run(args: argparse.Namespace) -> int:
         for st in res.stages:
             say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
                   f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
-        if args.json == STDOUT:
-            print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
-        elif args.json:
-            print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-        if res.status == "diverged":
-            print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
-                  "stay finite with the fitted values); "
-                  + ("the result marked diverged is in the JSON; " if args.json else "")
-                  + "check the units of the record and the --fix values", file=sys.stderr)
-            return 1
-        if args.plot:
-            plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                    args.overwrite)
-                       if several or validation else
-                       plot_result(res, data, args.plot, args.split, args.overwrite))
-            say(f"wrote {plotted}")
+        with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
+            if args.json == STDOUT:
+                print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
+            elif args.json:
+                print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+            if res.status == "diverged":
+                print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+                      "stay finite with the fitted values); "
+                      + ("the result marked diverged is in the JSON; " if args.json else "")
+                      + "check the units of the record and the --fix values", file=sys.stderr)
+                return 1
+            if args.plot:
+                plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                        args.overwrite)
+                           if several or validation else
+                           plot_result(res, data, args.plot, args.split, args.overwrite))
+                say(f"wrote {plotted}")
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
     return 0

@@ -529,6 +529,53 @@ def test_every_output_is_checked_before_any_work(argv, d, tmp_path, capsys) -> N
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, OSError])
+@pytest.mark.parametrize("cmd", ["fit", "compare", "design"])
+def test_a_run_stopped_between_its_writes_leaves_none(cmd, stop, d, tmp_path, capsys,
+                                                       monkeypatch) -> None:
+    """The first output is written, the second write is stopped: neither file stays."""
+    import hhra_phys.compare
+    from hhra_phys.cli import design as design_cli
+    from hhra_phys.cli import fit as fit_cli
+
+    def second_write(*a, **k):
+        raise stop(28, "No space left on device") if stop is OSError else stop
+
+    if cmd == "fit":
+        monkeypatch.setattr(fit_cli, "plot_result", second_write)
+        argv = ["fit", d["rig"], "--json", tmp_path / "f.json", "--plot", tmp_path / "f.png",
+                *QUICK]
+    elif cmd == "compare":
+        monkeypatch.setattr(hhra_phys.compare, "plot_outputs", second_write)
+        argv = ["compare", d["rig"], "--methods", "ls", "--json", tmp_path / "c.json",
+                "--report", tmp_path / "c.md", "--plot", tmp_path / "c.png", "--quiet"]
+    else:
+        import hhra_phys.design
+
+        class Design:  # the search itself is not what is tested
+            t, u = np.arange(50) / 250.0, np.zeros(50)
+            fs, criterion, value, family, peak_output, evaluations = 250.0, "d", 1.0, "x", 1, 1
+            limits = {"duration": 0.2}
+            widths = {"g_valve": 0.1}
+
+            def check(self):
+                return []
+
+        monkeypatch.setattr(hhra_phys.design, "design_input", lambda *a, **k: Design())
+        real = design_cli.atomic_write_text
+        calls = []
+
+        def writes(path, text):
+            calls.append(path)
+            return real(path, text) if len(calls) == 1 else second_write()
+
+        monkeypatch.setattr(design_cli, "atomic_write_text", writes)
+        argv = ["design", d["fit"], "--duration", "2", "--out", tmp_path / "u.csv"]
+    code, _, err = run(argv, capsys)
+    assert code == (130 if stop is KeyboardInterrupt else 1), err
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.fixture
 def quick_demo(monkeypatch):
     """The demo with its fits replaced by quick ones; returns the hook of its last write."""
