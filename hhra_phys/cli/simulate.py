@@ -101,6 +101,32 @@ def check_effect_values(item: str, name: str, values: dict[str, float]) -> None:
                              f"{', '.join(f'{k}=VALUE' for k in lacking)}")
 
 
+#: Records longer than this [samples] get a time estimate before the reference run.
+ESTIMATE_ABOVE = 100_000
+
+
+def say_time_estimate(args: argparse.Namespace, effects: dict[str, dict[str, float]]) -> None:
+    """Time the reference implementation on 2000 samples and print the estimate for the
+    whole record when it is over a minute (it integrates in Python, about 0.1 ms a sample,
+    and prints nothing while it runs)."""
+    import time
+
+    from hhra_phys.reference import reference_record
+
+    n = args.duration * args.fs
+    if n <= ESTIMATE_ABOVE:
+        return
+    short = 2000 / args.fs
+    start = time.perf_counter()
+    reference_record(seed=args.seed, noise_deg=args.noise, duration=short, fs=args.fs,
+                     amplitude=args.amplitude, effects=effects or None)
+    seconds = (time.perf_counter() - start) * n / 2000
+    if seconds > 60:
+        print(f"simulate: {n:.3g} samples with the reference implementation, estimated "
+              f"{seconds / 60:.0f} min on this machine now (--duration and --fs set it; "
+              "Ctrl-C stops it, writing nothing)", file=sys.stderr, flush=True)
+
+
 def check_settings(args: argparse.Namespace) -> None:
     """The numbers of a simulated record, before anything is simulated.
 
@@ -147,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
         if args.generator == "reference":
             from hhra_phys.reference import reference_record
 
+            say_time_estimate(args, effects)
             ds = reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
                                   fs=args.fs, amplitude=args.amplitude,
                                   quantization=args.quantization, effects=effects or None)

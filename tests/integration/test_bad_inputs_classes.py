@@ -426,6 +426,27 @@ def test_the_memory_budget_follows_the_machine(monkeypatch) -> None:
         _guards.check_size(float("nan"), "--duration nan")
 
 
+def test_a_long_reference_simulation_says_how_long_before_it_starts(tmp_path, capsys,
+                                                                     monkeypatch) -> None:
+    import time
+
+    import hhra_phys.reference
+    from hhra_phys.errors import HHRAError
+
+    def slow(*, duration, fs, **kw):
+        if duration * fs <= 2000:  # the calibration: 0.7 s for 2000 samples
+            time.sleep(0.7)
+            return None
+        raise HHRAError("stopped by the test")
+
+    monkeypatch.setattr(hhra_phys.reference, "reference_record", slow)
+    code, _, err = run(["simulate", "--generator", "reference", "--duration", "800", "--out",
+                        tmp_path / "r.csv"], capsys)
+    assert code == 1 and "estimated" in err and "--duration and --fs" in err
+    assert err.index("estimated") < err.index("stopped by the test")
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_long_design_says_how_long_before_it_starts(d, tmp_path, capsys,
                                                       monkeypatch) -> None:
     import hhra_phys.design
