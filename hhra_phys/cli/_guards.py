@@ -12,7 +12,15 @@ can be read, tested and extended on its own:
 - sizes (:func:`check_size`): the memory and time a record of N samples costs, estimated
   before the work and refused with the number and the flag;
 - option values that would be silently ignored or replaced (:func:`check_columns`,
-  :func:`check_fix_items`, :func:`check_refine`, :func:`check_distinct_records`).
+  :func:`check_fix_items`, :func:`check_refine`, :func:`check_distinct_records`,
+  :func:`check_dask_address`) or that the library would check under its Python names
+  (:func:`check_ranges`);
+- records and models (:func:`check_output_varies`, :func:`check_sample_rate`,
+  :func:`check_hopeless_range`, :func:`check_model_builds`): what the data or the model
+  says is impossible, before a fit starts;
+- writing (:func:`all_or_nothing`): an interrupted run leaves none of its outputs.
+
+:func:`check_arguments` runs the option checks that apply to a command's namespace.
 """
 
 from __future__ import annotations
