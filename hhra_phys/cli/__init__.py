@@ -40,7 +40,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     Exit codes, the same on every command: 0 done; 1 data or runtime error (unreadable
     record, diverged fit, simulation refused, a failed write); 2 usage error (bad option or
     value, output path that cannot be written, also argparse's own errors); 130 Ctrl-C,
-    with nothing written (every writer is atomic and runs after the work).
+    with nothing written (every writer is atomic and runs after the work). An error no
+    check foresaw is one line and exit 1 as well; ``HHRA_PHYS_DEBUG=1`` shows its traceback.
     """
     try:  # the command modules import NumPy, CasADi ...: a Ctrl-C may come here
         from hhra_phys.cli._common import report_error
