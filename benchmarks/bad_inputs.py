@@ -19,9 +19,20 @@ silent
 traceback
     an exception escaped.
 
+Four more outcomes are counted on every case, whatever its message (issue 24):
+
+replaced
+    a file that was there before the case (a record, a fit, a model file) changed;
+partial
+    the case failed and left a file behind (an output of a run that did not finish);
+hang
+    the case ran longer than :data:`HANG_S` seconds (stopped there);
+allocation
+    the case's Python-tracked memory peaked above :data:`MAX_ALLOCATION` bytes.
+
 Fits that get past the checks run with ``--pop 4 --iters 1 --refine none`` on a 4 s
-record, so the whole run takes a minute or two. The table goes to stdout; ``docs/data.md``
-quotes it.
+record, so the whole run takes a few minutes. The table goes to stdout; ``docs/data.md``
+and ``docs/testing.md`` quote it.
 """
 
 from __future__ import annotations
@@ -45,6 +56,15 @@ from hhra_phys.models.hhra.model import HHRAModel
 from hhra_phys.models.hhra.rig import simulate_rig
 
 QUICK = ["--pop", "4", "--iters", "1", "--refine", "none", "--quiet"]
+
+#: A case running longer than this [s] is a hang (every case should fail or end in seconds).
+HANG_S = 120
+
+#: A case allocating more than this [bytes] (tracemalloc's peak) is an unguarded allocation.
+MAX_ALLOCATION = 512 * 2**20
+
+#: The outcomes counted on every case besides its class.
+OUTCOMES = ("replaced", "partial", "hang", "allocation")
 
 
 @dataclass
@@ -201,10 +221,214 @@ def cases(d: Path) -> Iterator[Case]:
     yield Case(g, ["design", str(d / "nofit.json"), "--duration", "2", "--out",
                    str(d / "u.csv")], 1, "nofit.json")
     yield Case(g, ["fit", str(rig), "--model", "x.py:make", "--valve", "linear"], 2, "--valve")
+    yield from round_two(d, rig, file)
 
 
-def classify(case: Case) -> tuple[str, str]:
-    """(class, stderr) of one case."""
+def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> Iterator[Case]:
+    """The cases of issue 24 and their neighbours, class by class."""
+    from hhra_phys.cli import build_parser
+    from hhra_phys.fit import fit
+
+    ds = simulate_rig(seed=0, duration=4.0)
+    fitjs = str(fit(ds, optimizer="none", refine="none").save(d / "fit2.json"))
+    file("exit_plugin2.py", "import sys\nsys.exit(3)\n")
+    if str(d) not in sys.path:
+        sys.path.insert(0, str(d))  # --plugin takes a module name
+    sub = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    need = {"simulate": ["--out", str(d / "s2.csv")],
+            "design": [fitjs, "--duration", "2", "--out", str(d / "u2.csv")],
+            "demo": ["--out", str(d / "demo2")], "fit": [str(rig)], "diagnose": [str(rig)],
+            "compare": [str(rig), "--methods", "ls"],
+            "benchmark": ["--runs", "1", "--functions", "f1", "--methods", "gwo"]}
+    # -- tracebacks: every seed flag of every command, user code, --dask, binary files -----
+    g = "issue 24: no traceback"
+    for cmd, p in sub.items():
+        for a in p._actions:
+            if a.dest in ("seed", "rig_seed"):
+                flag = a.option_strings[0]
+                argv = [cmd, flag, "-1"] if flag == "--rig-seed" else [cmd, *need[cmd], flag,
+                                                                       "-1"]
+                yield Case(g, argv, 2, flag)
+    body = _rows(ds.t, ds.u * 1e300, ds.y)
+    yield Case(g, ["fit", file("u300.csv", "t,u,y\n" + body), *QUICK], 1, "'u'")
+    bad = file("badpart2.py", (
+        "from dataclasses import dataclass\n"
+        "from hhra_phys import Model, Parameter, Part, State, register_part\n"
+        "@register_part\n@dataclass(frozen=True)\nclass Leak2(Part):\n"
+        "    name = 'leak2'\n    stage = 'tank'\n"
+        "    @property\n    def parameters(self):\n"
+        "        return (Parameter('k', '1/s', 1.0, 0.1, 10.0, 'log', 'rate'),)\n"
+        "    @property\n    def states(self):\n        return (State('h', 'cm', 0.0, 'level'),)\n"
+        "    def apply(self, ctx):\n        ctx.add_rate('h', ctx.p['nope'] * ctx.u)\n"
+        "        ctx.signals['y'] = ctx.x['h']\n"
+        "def make():\n    return Model([Leak2()])\n"))
+    for cmd in ("fit", "diagnose"):
+        yield Case(g, [cmd, str(rig), "--model", f"{bad}:make", *QUICK[:4]], 1, "'leak2'")
+    yield Case(g, ["fit", str(rig), "--model", file("exit3.py", "import sys\nsys.exit(3)\n")
+                   + ":make", *QUICK], 1, "sys.exit(3)")
+    for address in ("not-an-address", "tcp://host:port", "127.0.0.1:99999"):
+        yield Case(g, ["fit", str(rig), "--dask", address, *QUICK], 2, "--dask")
+    yield Case(g, ["fit", str(rig), "--dask", f"127.0.0.1:{_server(b'HTTP/1.1 400 Bad')}",
+                   *QUICK], 2, "not a Dask scheduler")
+    yield Case(g, ["simulate", "--out", str(d / "e.csv"), "--generator", "reference",
+                   "--effect", "coulomb_friction:nope=1"], 2, "nope")
+    for gen in ("model", "reference"):
+        yield Case(g, ["simulate", "--out", str(d / "n.csv"), "--generator", gen, "--noise",
+                       "-1"], 2, "--noise")
+    binary = file("binary2.json", bytes(range(128, 256)) * 20)
+    yield Case(g, ["design", binary, "--duration", "2", "--out", str(d / "b.csv")], 1,
+               "binary2.json")
+    # -- sizes ---------------------------------------------------------------------------
+    g = "issue 24: size guards"
+    for argv in (["simulate", "--out", str(d / "big.csv"), "--duration", "1e7"],
+                 ["simulate", "--out", str(d / "big.csv"), "--duration", "1e5", "--fs", "1e6"],
+                 ["compare", "--duration", "1e7", "--quiet"],
+                 ["design", fitjs, "--duration", "1e6", "--out", str(d / "big.csv")]):
+        yield Case(g, argv, 2, "--duration")
+    yield Case(g, ["simulate", "--out", str(d / "big.csv"), "--generator", "reference",
+                   "--effect", "input_delay:delay=1e6"], 2, "outside its box")
+    yield Case(g, ["simulate", "--out", str(d / "big.csv"), "--fs", "1e7"], 2, "--fs")
+    # -- a user's file replaced ------------------------------------------------------------
+    g = "issue 24: replacement"
+    yield Case(g, ["fit", str(rig), "--json", str(rig), "--overwrite", *QUICK], 2, "--json")
+    yield Case(g, ["fit", str(rig), "--model", f"{bad}:make", "--json", bad, "--overwrite",
+                   *QUICK], 2, "is the input")
+    yield Case(g, ["design", fitjs, "--duration", "2", "--out", str(d / "fit2.csv"),
+                   "--overwrite"], 2, "is the input")
+    for cmd, extra in (("diagnose", []), ("compare", ["--methods", "ls"])):
+        yield Case(g, [cmd, str(rig), *extra, "--json", str(d / "r.md"), "--report",
+                       str(d / "r.md")], 2, "same file")
+        yield Case(g, [cmd, str(rig), *extra, "--report", str(d / "x.png")], 2, "Markdown")
+    yield Case(g, ["benchmark", "--runs", "1", "--json", str(d / "b.md"), "--markdown",
+                   str(d / "b.md")], 2, "same file")
+    # -- partial outputs -----------------------------------------------------------------
+    g = "issue 24: partial outputs"
+    yield Case(g, ["fit", str(rig), "--json", str(d / "o.png"), "--plot", str(d / "o.png"),
+                   *QUICK], 2, "--json")
+    yield Case(g, ["fit", str(rig), "--json", str(d / "o.json"), "--plot", str(d / "o.xyz"),
+                   *QUICK], 2, "suffix")
+    yield Case(g, ["compare", str(rig), "--methods", "ls", "--report", str(d / "o.md"),
+                   "--json", str(d / "o2.png"), "--quiet"], 2, "--json")
+    # -- silent acceptance ---------------------------------------------------------------
+    g = "issue 24: silent acceptance"
+    for argv, token in (
+            (["fit", str(rig), "--time-unit", "ms", *QUICK], "--time-unit ms"),
+            (["fit", str(rig), str(rig), *QUICK], "twice"),
+            (["fit", str(rig), "--validate", str(rig), *QUICK], "--validate"),
+            (["fit", str(rig), "--refine", "", "--quiet"], "--refine"),
+            (["fit", str(rig), "--input-col", "u", "--output-col", "u", *QUICK], "--output-col"),
+            (["fit", str(rig), "--fix", "g_leak=6.4", "--fix", "g_leak=3", *QUICK], "twice"),
+            (["fit", str(rig), "--dask", "", *QUICK], "--dask"),
+            (["compare", str(rig), "--plugin", "os", "--methods", "ls"], "--plugin os"),
+            (["diagnose", str(rig), "--effects-from", file("nothing2.py", "X = 1\n"),
+              "--pop", "4", "--iters", "1", "--max-effects", "0", "--no-discover"],
+             "registered no effect"),
+            (["simulate", "--out", str(d / "a.csv"), "--amplitude", "1e300"], "--amplitude"),
+            (["fit", str(rig), "--json", "", *QUICK], "--json"),
+            (["compare", str(rig), "--split", "1", "--methods", "ls"], "--split")):
+        yield Case(g, argv, 1 if "--time-unit" in argv else 2, token)
+    # -- weak messages -------------------------------------------------------------------
+    g = "issue 24: messages"
+    yield Case(g, ["fit", file("huge2.csv", "t,u,y\n" + _rows(ds.t, ds.u, ds.y * 1e30)),
+                   *QUICK], 1, "span")
+    cell = ds.y.copy()
+    cell[7] = 1e300
+    yield Case(g, ["fit", file("cell2.csv", "t,u,y\n" + _rows(ds.t, ds.u, cell)), *QUICK], 1,
+               "row 7")
+    yield Case(g, ["fit", file("const2.csv", "t,u,y\n" + _rows(ds.t, ds.u, 0 * ds.y)),
+                   *QUICK], 1, "constant")
+    yield Case(g, ["simulate", "--out", str(d / "short2.csv"), "--duration", "0.1"], 2,
+               "--duration")
+    semi = "\n".join(";".join(f"{v:.5f}".replace(".", ",") for v in r)
+                      for r in zip(ds.t, ds.u, ds.y, strict=True))
+    yield Case(g, ["fit", file("semi2.csv", ("t;u;y\n" + semi).encode("latin-1")), *QUICK],
+               1, "decimal comma")
+    np.save(d / "one.npy", np.c_[ds.t, ds.u, ds.y])
+    (d / "one.npy").rename(d / "renamed2.npz")
+    yield Case(g, ["fit", str(d / "renamed2.npz"), *QUICK], 1, ".npy")
+    # options the library checked under its Python names (lam, margin, zeta_s, bounds)
+    for argv, flag in ((["compare", str(rig), "--box", "5", "-5", "--methods", "gwo"], "--box"),
+                       (["compare", str(rig), "--zeta", "-1", "--methods", "hgwo"], "--zeta"),
+                       (["diagnose", str(rig), "--margin", "-1", *QUICK[:4]], "--margin"),
+                       (["diagnose", str(rig), "--noise-tol", "nan", *QUICK[:4]],
+                        "--noise-tol"),
+                       (["fit", str(rig), "--lam", "nan", *QUICK], "--lam"),
+                       (["diagnose", str(rig), "--report", "-", "--pop", "4", "--iters", "1",
+                         "--max-effects", "0", "--no-discover"], "--report"),
+                       (["compare", str(rig), "--methods", "ls", "--plugin", "exit_plugin2"],
+                        "sys.exit(3)")):
+        yield Case(g, argv, 2, flag)
+
+
+def _server(reply: bytes) -> int:
+    """A local TCP server that answers ``reply`` to every connection; its port."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+
+    def serve() -> None:
+        while True:
+            conn, _ = srv.accept()
+            conn.sendall(reply)
+
+    threading.Thread(target=serve, daemon=True).start()
+    return srv.getsockname()[1]
+
+
+class Hang(BaseException):
+    """Raised in a case that ran longer than :data:`HANG_S` (not an ``Exception``: the
+    CLI's handlers must not catch it)."""
+
+
+def _files(folder: Path) -> dict[Path, bytes]:
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def outcomes(case: Case, folder: Path) -> tuple[str, str, list[str]]:
+    """(class, stderr, outcomes) of one case run in ``folder``'s files."""
+    import signal
+    import tracemalloc
+
+    before = _files(folder)
+
+    def alarm(signum: int, frame: object) -> None:
+        raise Hang
+
+    previous = signal.signal(signal.SIGALRM, alarm)
+    signal.alarm(HANG_S)
+    tracemalloc.start()
+    found: list[str] = []
+    try:
+        kind, text, code = classify(case)
+    except Hang:
+        kind, text, code = "vague", f"ran over {HANG_S} s", None
+        found.append("hang")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    if peak > MAX_ALLOCATION:
+        found.append("allocation")
+    after = _files(folder)
+    changed = [p for p, b in before.items() if after.get(p) != b]
+    if changed:
+        found.append("replaced")
+    new = [p for p in after if p not in before]
+    if code not in (0, None) and new:
+        found.append("partial")
+    for p in new:  # the next case starts from the same files
+        p.unlink()
+    for p in changed:
+        p.write_bytes(before[p])
+    return kind, text, found
+
+
+def classify(case: Case) -> tuple[str, str, int | None]:
+    """(class, stderr, exit code) of one case."""
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
@@ -212,37 +436,45 @@ def classify(case: Case) -> tuple[str, str]:
         except SystemExit as exc:
             code = int(exc.code) if isinstance(exc.code, int) else 2
         except Exception:  # noqa: BLE001 - an escaped exception is what is counted here
-            return "traceback", traceback.format_exc(limit=3)
+            return "traceback", traceback.format_exc(limit=3), 1
     text = err.getvalue()
     if "Traceback" in text:
-        return "traceback", text
+        return "traceback", text, code
     if case.code == 0 and not case.warn:  # a readable record: success expected
-        return ("clear" if code == 0 else "vague"), text
+        return ("clear" if code == 0 else "vague"), text, code
     if code == 0 and not (case.warn and case.token in text):
-        return "silent", text
+        return "silent", text, code
     if code == case.code and case.token in text:
-        return "clear", text
-    return "vague", text
+        return "clear", text, code
+    return "vague", text, code
 
 
-def run(report: Callable[[str], None] = print) -> dict[str, dict[str, int]]:
-    """Run every case; returns ``{group: {class: count}}`` and prints non-clear cases."""
+def run(report: Callable[[str], None] = print,
+        groups: list[str] | None = None) -> dict[str, dict[str, int]]:
+    """Run every case (of the groups whose name contains one of ``groups``); returns
+    ``{group: {class: count}}`` and prints the cases that are not clear."""
     table: dict[str, dict[str, int]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases(Path(tmp)):
-            kind, text = classify(case)
+            if groups and not any(g in case.group for g in groups):
+                continue
+            kind, text, found = outcomes(case, Path(tmp))
             row = table.setdefault(case.group, {"inputs": 0, "clear": 0, "vague": 0,
-                                                "silent": 0, "traceback": 0})
+                                                "silent": 0, "traceback": 0,
+                                                **dict.fromkeys(OUTCOMES, 0)})
             row["inputs"] += 1
             row[kind] += 1
-            if kind != "clear":
-                report(f"[{kind}] {' '.join(map(str, case.argv))}\n    {text.strip()[-300:]}")
+            for o in found:
+                row[o] += 1
+            if kind != "clear" or found:
+                report(f"[{kind}{''.join(' ' + o for o in found)}] "
+                       f"{' '.join(map(str, case.argv))}\n    {text.strip()[-300:]}")
     return table
 
 
 def markdown(table: dict[str, dict[str, int]]) -> str:
     """The table of :func:`run` as Markdown, with a total row."""
-    cols = ("inputs", "clear", "vague", "silent", "traceback")
+    cols = ("inputs", "clear", "vague", "silent", "traceback", *OUTCOMES)
     lines = ["| class of bad input | " + " | ".join(cols) + " |",
              "|---|" + "---|" * len(cols)]
     total = {c: sum(r[c] for r in table.values()) for c in cols}
@@ -254,8 +486,10 @@ def markdown(table: dict[str, dict[str, int]]) -> str:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", help="also write the counts as JSON")
+    ap.add_argument("--groups", nargs="+", default=None, metavar="TEXT",
+                    help="only the classes whose name contains one of these (e.g. 'issue 24')")
     a = ap.parse_args()
-    result = run(lambda line: print(line, file=sys.stderr))
+    result = run(lambda line: print(line, file=sys.stderr), a.groups)
     print(markdown(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))

@@ -25,6 +25,7 @@ from hhra_phys.interrupt import ignore_sigint, stop_on_interrupt
 __all__ = [
     "executor",
     "add_cluster_arguments",
+    "check_scheduler_answers",
     "dask_client",
 ]
 
@@ -44,10 +45,79 @@ def dask_client(address: str) -> Any:
         raise ParameterError(
             "--dask needs Dask's distributed scheduler client: pip install \"hhra-phys[dask]\" "
             "(or dask[distributed])") from None
+    check_scheduler_answers(address)
     try:
-        return Client(address, timeout="10s")
+        client = Client(address, timeout="10s")
     except (OSError, TimeoutError) as exc:
         raise ParameterError(f"--dask {address}: cannot reach the Dask scheduler: {exc}") from None
+    except (ValueError, TypeError) as exc:  # distributed's words for a malformed address
+        raise ParameterError(f"--dask {address}: not a scheduler address: {exc}") from None
+    try:  # jobs sent to a scheduler without workers would wait for ever
+        client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
+    except (OSError, TimeoutError):
+        client.close()
+        raise ParameterError(
+            f"--dask {address}: the scheduler has no worker (none joined within "
+            f"{WORKER_TIMEOUT:g} s); start one with: dask worker {address}") from None
+    return client
+
+
+#: Seconds to wait for a connection and for a scheduler's first bytes.
+PROBE_TIMEOUT = 5.0
+
+#: Seconds to wait for the scheduler's first worker.
+WORKER_TIMEOUT = 20.0
+
+#: The largest first message a Dask scheduler sends (its handshake, a few hundred bytes).
+MAX_HANDSHAKE_BYTES = 2**20
+
+
+def check_scheduler_answers(address: str, timeout: float | None = None) -> None:
+    """Check that a Dask scheduler, not another server, listens at a ``tcp://`` address.
+
+    A scheduler sends its handshake as soon as a client connects, led by its length as
+    8 bytes. Dask's client reads whatever answers as such a length: an HTTP server's
+    ``HTTP/1.1`` became a 3 EiB allocation. Here the first bytes are read with a timeout
+    and their length checked before Dask connects. Other protocols (tls://, ws://) and
+    scheduler files are left to Dask.
+
+    Raises
+    ------
+    ParameterError
+        Nothing listens, nothing answers within ``timeout`` s (default
+        :data:`PROBE_TIMEOUT`), or the answer is not a scheduler's handshake.
+    """
+    import socket
+    import struct
+
+    timeout = PROBE_TIMEOUT if timeout is None else timeout
+    text = address.strip()
+    if "://" in text and not text.startswith("tcp://"):
+        return
+    if text.endswith(".json"):
+        return
+    host, _, port = text.removeprefix("tcp://").rpartition(":")
+    host = host.strip("[]")
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout) as sock:
+            sock.settimeout(timeout)
+            head = b""
+            while len(head) < 8:
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except TimeoutError:
+        raise ParameterError(
+            f"--dask {address}: something listens there but did not answer as a Dask "
+            f"scheduler does within {timeout:g} s; is the address the scheduler's "
+            "(usually port 8786, not the dashboard's 8787)?") from None
+    except (OSError, ValueError) as exc:
+        raise ParameterError(f"--dask {address}: cannot reach the Dask scheduler: {exc}") from None
+    if len(head) < 8 or struct.unpack("<Q", head)[0] > MAX_HANDSHAKE_BYTES:
+        raise ParameterError(
+            f"--dask {address}: the server there is not a Dask scheduler (it answered "
+            f"{head!r}); give the scheduler's address (usually port 8786)")
 
 
 @contextmanager

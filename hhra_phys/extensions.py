@@ -53,16 +53,16 @@ def import_source(source: str, what: str = "--model") -> ModuleType:
         sys.modules[name] = module
         try:
             spec.loader.exec_module(module)
-        except Exception as exc:  # noqa: BLE001 - any error in user code is reported
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - any error in user code
             del sys.modules[name]
             raise ModelError(
-                f"{what} {source}: importing it raised {type(exc).__name__}: {exc}") from exc
+                f"{what} {source}: importing it {_raised(exc)}") from exc
         return module
     try:
         return importlib.import_module(source)
-    except Exception as exc:  # noqa: BLE001
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - sys.exit() too
         raise ModelError(
-            f"{what} {source}: importing it raised {type(exc).__name__}: {exc}") from exc
+            f"{what} {source}: importing it {_raised(exc)}") from exc
 
 
 def load_factory(spec: str, what: str = "--model") -> Callable[..., Any]:
@@ -106,9 +106,9 @@ def model_from_spec(spec: str, data: Any = None, what: str = "--model") -> Model
         kwargs = {"data": data} if "data" in params else {}
     try:
         model = factory(**kwargs)
-    except Exception as exc:  # noqa: BLE001
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - sys.exit() too
         raise ModelError(
-            f"{what} {spec}: calling it raised {type(exc).__name__}: {exc}") from exc
+            f"{what} {spec}: calling it {_raised(exc)}") from exc
     if not isinstance(model, Model):
         raise ModelError(f"{what} {spec}: returned {type(model).__name__}, not a hhra_phys Model")
     return model
@@ -122,3 +122,10 @@ def import_effects(sources: list[str] | None) -> list[str]:
         import_source(source, "--effects-from")
         added += [n for n in EFFECTS if n not in before]
     return added
+
+
+def _raised(exc: BaseException) -> str:
+    """What user code did, in words: 'called sys.exit(3)' or 'raised KeyError: ...'."""
+    if isinstance(exc, SystemExit):
+        return f"called sys.exit({exc.code!r}) (a model or effect file must not exit)"
+    return f"raised {type(exc).__name__}: {exc}"

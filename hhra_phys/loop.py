@@ -461,6 +461,16 @@ def _records_noise(problem: MultiProblem, res: FitResult,
             "ljung_box_p": p, "white": p > 0.05}
 
 
+def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
+    """Which rule of :func:`at_noise_level` holds, in words (one need not imply the other:
+    an RMSE within the allowance can still be a coloured residual)."""
+    p = level["ljung_box_p"]
+    if level["white"]:
+        return f"white: Ljung-Box p {p:.2g} > 0.05"
+    return (f"within the allowance 1 + noise_tol = {1 + noise_tol:.3g} x noise, though not "
+            f"white: Ljung-Box p {p:.2g}")
+
+
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
                parts: str = "both") -> tuple[dict[str, Any], bool]:
     """The loop's noise-level stop: both non-test parts must be at the noise level.
@@ -1176,7 +1186,7 @@ class _Loop:
         level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol, o.stop_on)
         self.levels.append(level)
         if at_noise:
-            stop = _noise_stop_text(level, o.stop_on)
+            stop = _noise_stop_text(level, o.stop_on, self.tol)
             say(f"round {rnd}: {stop}; stop")
             return stop
         queue, jobs, disc = self._queue(rnd, remaining)
@@ -1437,15 +1447,15 @@ def _substeps(problem: Problem | MultiProblem) -> int | tuple[tuple[float, int],
     return problem.sim.substeps
 
 
-def _noise_stop_text(level: Mapping[str, Any], stop_on: str) -> str:
-    """The stop reason of :func:`noise_stop` in words."""
+def _noise_stop_text(level: Mapping[str, Any], stop_on: str, noise_tol: float) -> str:
+    """The stop reason of :func:`noise_stop` in words (which rule held on each part)."""
     e = level["estimation"]
     text = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
-            f"{level['ratio']:.3f} x noise {level['noise']:.3g}, Ljung-Box p "
-            f"{level['ljung_box_p']:.2g})")
+            f"{level['ratio']:.3f} x noise {level['noise']:.3g}, "
+            f"{_why_at_noise(level, noise_tol)})")
     if stop_on == "both":
         text += (f", estimation residual too (RMSE {e['rmse']:.4g} = {e['ratio']:.3f} x noise, "
-                 f"Ljung-Box p {e['ljung_box_p']:.2g})")
+                 f"{_why_at_noise(e, noise_tol)})")
     return text
 
 

@@ -39,7 +39,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from hhra_phys.errors import ModelError
+from hhra_phys.errors import HHRAError, ModelError
 from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import ParameterSet
 from hhra_phys.parts import (
@@ -352,7 +352,12 @@ class Model:
             dt,
         )
         for part in self._ordered:
-            part.apply(ctx)
+            try:
+                part.apply(ctx)
+            except HHRAError:
+                raise
+            except Exception as exc:  # a user's part: say which one failed, and where
+                raise ModelError(_apply_failed(part, exc)) from exc
         if "y" not in ctx.signals:
             raise ModelError(
                 f"model {self.name!r} has no output part: no part sets ctx.signals['y']")
@@ -475,3 +480,21 @@ def _time_power(unit: str) -> int:
     if re.search(r"/\(?s\b", u):
         return 1
     return 0
+
+
+def _apply_failed(part: Part, exc: Exception) -> str:
+    """Which part's ``apply`` raised what, with the file and line of the raise."""
+    import inspect
+    import traceback
+
+    cls = type(part)
+    try:
+        where = inspect.getsourcefile(cls) or cls.__module__
+    except TypeError:
+        where = cls.__module__
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.name == "apply"]
+    line = f", line {frames[-1].lineno}: {frames[-1].line}" if frames else ""
+    return (f"part {part.name!r} ({cls.__name__} in {where}{line}) failed while building the "
+            f"model: its apply(ctx) raised {type(exc).__name__}: {exc} (ctx.p holds the "
+            "parameters the model declares, ctx.x its states, ctx.signals the signals set by "
+            "earlier stages)")

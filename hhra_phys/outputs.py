@@ -100,6 +100,16 @@ def check_output_path(
         raise OutputPathError(f"{label}: folder {parent} does not exist; create it first")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputPathError(f"{label}: folder {parent} is not writable")
+    # Permissions do not tell everything (root, /proc, a read-only or full file system):
+    # create a file where the result's temporary will be, as the writer will.
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".check", dir=parent)
+    except OSError as exc:
+        raise OutputPathError(
+            f"{label}: cannot create a file in folder {parent}: {exc.strerror or exc}"
+        ) from None
+    os.close(fd)
+    os.unlink(probe)
     return p
 
 
@@ -123,7 +133,11 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         Where to write.
     """
     p = Path(path).expanduser()
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=f".tmp{p.suffix}", dir=p.parent)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=f".tmp{p.suffix}",
+                                        dir=p.parent)
+    except OSError as exc:  # the user's path, not the temporary's, in the message
+        raise OSError(exc.errno, f"cannot write {p}: {exc.strerror or exc}") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -133,6 +147,12 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        if exc.filename is None and str(p) in str(exc):
+            raise
+        # A writer's error names the temporary file; the user gave ``path``.
+        raise OSError(exc.errno, f"cannot write {p}: {exc.strerror or exc}") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -8,6 +8,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hhra_phys.cli._guards import (
+    check_hopeless_range,
+    check_model_builds,
+    check_output_varies,
+    check_sample_rate,
+    seed,
+)
 from hhra_phys.data import INTERSAMPLE, Dataset, load, load_public_actuator
 from hhra_phys.data._text import parse_delimiter
 from hhra_phys.errors import ParameterError
@@ -108,7 +115,7 @@ def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> Non
                 "per record)" if several else ""),
     )
     add_record_arguments(p)
-    p.add_argument("--rig-seed", type=int, default=None,
+    p.add_argument("--rig-seed", type=seed, default=None,
                    help="seed of the simulated rig (only without DATA; default 0)")
 
 
@@ -164,6 +171,11 @@ def read_record(args: argparse.Namespace) -> Dataset:
     if suffix == ".mat" and "t" not in kw:
         kw["t"] = None
     data = load(args.data, **kw)
+    if data.time_unit == "samples" and suffix == ".mat":
+        print(f"note: {args.data} has no time variable (looked for {args.time_col or 't'!r}): "
+              "its samples are counted as time steps; give --time-col NAME or --fs HZ for "
+              "a time axis in seconds", file=sys.stderr)
+    check_output_varies(data, args)
     return with_intersample(args, rescale_time(data, args.time_unit) if args.time_unit else data)
 
 
@@ -226,6 +238,7 @@ def record_for_model(args: argparse.Namespace, data: Dataset) -> tuple[Dataset, 
     data, notes, warns = prepare_record(data)
     for line in notes:
         print(f"note: {line}", file=sys.stderr)
+    check_hopeless_range(data)
     for line in warns:
         print(f"warning: {line}", file=sys.stderr)
     return data, warns
@@ -345,7 +358,12 @@ def model_for(args: argparse.Namespace, data: Dataset,
         if valve is not None:
             raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
                                  "combined with --model")
-        return model_from_spec(args.model, data), {}
+        model = model_from_spec(args.model, data)
+        check_model_builds(model, data, f"--model {args.model}")
+        check_sample_rate(args, data, model)
+        return model, {}
     from hhra_phys.fit import default_model
 
-    return default_model(data, valve=valve or "orifice")
+    model, bounds = default_model(data, valve=valve or "orifice")
+    check_sample_rate(args, data, model)
+    return model, bounds

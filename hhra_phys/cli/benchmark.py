@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from typing import Any
 
 from hhra_phys.benchmarks import BENCHMARK_KEYS
-from hhra_phys.cli._common import report_error
+from hhra_phys.cli._common import population, positive_int, report_error
+from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
+from hhra_phys.outputs import jsonable
 from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
 
 
@@ -28,10 +31,11 @@ def register(subparsers: Any) -> None:
             "SciPy's differential_evolution as an external reference. Prints markdown tables."
         ),
     )
-    p.add_argument("--runs", type=int, default=30, help="seeded runs per cell (default 30)")
-    p.add_argument("--pop", type=int, default=30, help="population size (default 30)")
-    p.add_argument("--iters", type=int, default=100, help="iterations (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--runs", type=positive_int, default=30,
+                   help="seeded runs per cell (default 30)")
+    p.add_argument("--pop", type=population, default=30, help="population size (default 30)")
+    p.add_argument("--iters", type=positive_int, default=100, help="iterations (default 100)")
+    p.add_argument("--seed", type=seed, default=0, help="base seed (default 0)")
     p.add_argument(
         "--functions",
         type=_names,
@@ -51,15 +55,18 @@ def register(subparsers: Any) -> None:
         help=f"comma-separated subset of {','.join(TABLES)} (default all)",
     )
     p.add_argument("--no-scipy", action="store_true", help="leave out SciPy's DE reference")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes (default 1)")
     add_cluster_arguments(p, "the benchmark functions (one job each)")
-    p.add_argument("--json", metavar="FILE", help="write the report as JSON")
+    p.add_argument("--json", type=output_path, metavar="FILE",
+                   help="write the report as JSON ('-': to stdout, the tables then go to stderr)")
     p.add_argument(
         "--plot",
+        type=output_path,
         metavar="FILE",
         help="convergence plot of the first table; others go to FILE_<table>.<ext>",
     )
-    p.add_argument("--markdown", metavar="FILE", help="also write the tables to a file")
+    p.add_argument("--markdown", type=output_path, metavar="FILE.md",
+                   help="also write the tables to a Markdown file")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=run)
@@ -69,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the study described by ``args``; returns the exit code (2 on bad input)."""
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr))
     try:
+        check_arguments(args, {"--json": args.json, "--markdown": args.markdown,
+                               "--plot": args.plot})
         settings = StudySettings(
             runs=args.runs,
             pop_size=args.pop,
@@ -80,9 +89,9 @@ def run(args: argparse.Namespace) -> int:
             scipy_reference=not args.no_scipy,
         )
         with executor(args.workers, args.dask) as ex:
-            _, text = run_and_write(
+            report, text = run_and_write(
                 settings,
-                json_path=args.json,
+                json_path=None if args.json == STDOUT else args.json,
                 plot_path=args.plot,
                 markdown_path=args.markdown,
                 overwrite=args.overwrite,
@@ -92,5 +101,9 @@ def run(args: argparse.Namespace) -> int:
             )
     except (HHRAError, OSError) as exc:
         return report_error("benchmark", exc)
-    print(text)
+    if args.json == STDOUT:
+        print(text, file=sys.stderr)
+        print(json.dumps(jsonable(report, default=str), indent=1))
+    else:
+        print(text)
     return 0

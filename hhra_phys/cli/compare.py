@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -12,14 +14,24 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     add_record_arguments,
     is_builtin,
+    nonnegative_int,
     population,
     positive_int,
     read_record,
     report_error,
     with_intersample,
 )
+from hhra_phys.cli._guards import (
+    STDOUT,
+    all_or_nothing,
+    check_arguments,
+    check_size,
+    output_path,
+    seed,
+    split_value,
+)
 from hhra_phys.errors import HHRAError, ParameterError
-from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
+from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path, jsonable
 
 #: Words accepted as DATA for the built-in records.
 PUBLIC_WORDS = ("public",)
@@ -31,23 +43,6 @@ def _methods(text: str) -> tuple[str, ...]:
     if not names:
         raise argparse.ArgumentTypeError("give at least one method name")
     return names
-
-
-def _split(text: str) -> float | int:
-    """'0.5' -> fraction, '512' -> sample index."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a fraction in (0, 1) or a sample index, got {text!r}"
-        ) from None
-    if 0.0 < value < 1.0:
-        return value
-    if value >= 1.0 and value.is_integer():
-        return int(value)
-    raise argparse.ArgumentTypeError(
-        f"expected a fraction in (0, 1) or a positive integer sample index, got {text!r}"
-    )
 
 
 def register(subparsers: Any) -> None:
@@ -73,11 +68,12 @@ def register(subparsers: Any) -> None:
     add_record_arguments(p, input_aliases=("--u",), output_aliases=("--y",))
     p.add_argument(
         "--split",
-        type=_split,
+        type=split_value,
         default=None,
-        help="estimation fraction in (0, 1) or split sample index (default 0.5; public: 512)",
+        help="estimation fraction in (0, 1) or the sample index the estimation part ends "
+             "before, as in fit and diagnose (default 0.5; public: 512)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the methods and the rig")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the methods and the rig")
     p.add_argument(
         "--methods",
         type=_methods,
@@ -86,9 +82,9 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
     p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
-    p.add_argument("--na", type=int, default=3, help="ARX output order (default 3)")
-    p.add_argument("--nb", type=int, default=3, help="ARX input order (default 3)")
-    p.add_argument("--nk", type=int, default=1, help="ARX input delay (default 1)")
+    p.add_argument("--na", type=nonnegative_int, default=3, help="ARX output order (default 3)")
+    p.add_argument("--nb", type=positive_int, default=3, help="ARX input order (default 3)")
+    p.add_argument("--nk", type=nonnegative_int, default=1, help="ARX input delay (default 1)")
     p.add_argument(
         "--box",
         type=float,
@@ -111,14 +107,17 @@ def register(subparsers: Any) -> None:
         help="import MODULE first (it registers more methods); repeatable",
     )
     add_model_arguments(p)
-    p.add_argument("--json", metavar="OUT", help="write the JSON report")
+    p.add_argument("--json", type=output_path, metavar="OUT",
+                   help="write the JSON report ('-': to stdout, the table then goes to stderr)")
     p.add_argument(
         "--plot",
+        type=output_path,
         metavar="OUT.png",
         help="figure of measured vs simulated output (.png, .svg or .pdf); convergence goes "
              "to OUT_convergence with the same suffix",
     )
-    p.add_argument("--report", metavar="OUT.md", help="write the Markdown table")
+    p.add_argument("--report", type=output_path, metavar="OUT.md",
+                   help="write the Markdown table (.md)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=run)
@@ -155,9 +154,18 @@ def _load(args: argparse.Namespace) -> Any:
         # the usual split of that record (docs/data.md)
         return with_intersample(args, load_public_actuator()), 512
     if not args.data or word in RIG_WORDS:
-        if not args.duration > 0:
-            raise ParameterError(f"--duration must be positive, got {args.duration}")
-        return with_intersample(args, simulate_rig(seed=args.seed, duration=args.duration)), 0.5
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ParameterError(f"--duration must be a finite number > 0, got {args.duration}")
+        check_size(args.duration * 250.0, f"--duration {args.duration:g} s of the rig at 250 Hz")
+        try:
+            return with_intersample(args, simulate_rig(seed=args.seed,
+                                                       duration=args.duration)), 0.5
+        except ParameterError as exc:
+            if "cannot hold" not in str(exc):  # the excitation's words for too few samples
+                raise
+            raise ParameterError(f"--duration {args.duration:g} s of the rig at 250 Hz is too "
+                                 f"short for its excitation ({exc}); lengthen --duration"
+                                 ) from None
     data = read_record(args)
     for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
         print(f"warning: {line}", file=sys.stderr)
@@ -174,8 +182,11 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
         else None,
         "report": Path(args.report) if args.report else None,
     }
+    check_arguments(args, {"--json": args.json, "--plot": plot,
+                           "--plot's convergence figure": paths["convergence"],
+                           "--report": args.report})
     for key, p in paths.items():
-        if p is not None:
+        if p is not None and str(p) != STDOUT:
             suffixes = FIGURE_SUFFIXES if key in ("plot", "convergence") else None
             check_output_path(p, overwrite=args.overwrite, what=key, suffixes=suffixes)
     return paths
@@ -198,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     try:
         paths = _outputs(args)  # before any work, so a clash fails fast
-        registered = C.load_plugins(args.plugin)
+        registered = load_plugins(C, args.plugin)
         unknown = [m for m in args.methods or () if m not in registered]
         if unknown:  # checked before the data are loaded or simulated
             raise ParameterError(
@@ -209,6 +220,9 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError("--plot draws one record; with several DATA records use "
                                  "--json/--report (scores per record)")
         split = default_split if args.split is None else args.split
+        if split == 1.0 and not isinstance(split, int):
+            raise ParameterError("--split 1: the comparison scores every method on a "
+                                 "validation part; give a fraction below 1 or a sample index")
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
             say(f"compare: {what}, split {split}")
@@ -229,16 +243,51 @@ def run(args: argparse.Namespace) -> int:
         )
         report = comp.to_dict()
         table = C.markdown_table(report)
-        if paths["json"]:
-            C.write_json(report, paths["json"], overwrite=args.overwrite)
-        if paths["report"]:
-            text = f"# Identification comparison: {report['dataset']}\n\n{table}"
-            atomic_write_text(paths["report"], text)
-        if paths["plot"]:
-            C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
-            if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
-                C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
+        with all_or_nothing(paths.values()):  # Ctrl-C: none of them stays
+            if paths["json"] and str(paths["json"]) == STDOUT:
+                print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
+            elif paths["json"]:
+                C.write_json(report, paths["json"], overwrite=args.overwrite)
+            if paths["report"]:
+                text = f"# Identification comparison: {report['dataset']}\n\n{table}"
+                atomic_write_text(paths["report"], text)
+            if paths["plot"]:
+                C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
+                if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
+                    C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
     except (HHRAError, OSError) as exc:
         return report_error("compare", exc)
-    print(table)
+    print(table, file=sys.stderr if args.json == STDOUT else sys.stdout)
+    failed = [name for name, r in comp.results.items() if r.error]
+    if failed and len(failed) == len(comp.results):
+        print(f"hhra-phys compare: error: every method failed ({', '.join(failed)}); see the "
+              "table's notes", file=sys.stderr)
+        return 1
     return 0
+
+
+def load_plugins(C: Any, modules: list[str]) -> list[str]:
+    """Import each ``--plugin`` module; refuse one that registers no method.
+
+    A module counts as registering when a method appears, or one registered is defined
+    in it (imported earlier in the same process).
+    """
+    registered = C.load_plugins([])
+    for mod in modules:
+        before = dict(C.METHODS)
+        try:
+            registered = C.load_plugins([mod])
+        except HHRAError:
+            raise
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a user's module
+            what = (f"called sys.exit({exc.code!r})" if isinstance(exc, SystemExit)
+                    else f"raised {type(exc).__name__}: {exc}")
+            raise ParameterError(f"--plugin {mod}: importing it {what}") from None
+        new = [n for n in C.METHODS if before.get(n) is not C.METHODS[n]]
+        own = [n for n, fn in C.METHODS.items()
+               if getattr(fn, "__module__", "") in (mod,) or
+               getattr(fn, "__module__", "").startswith(mod + ".")]
+        if not new and not own:
+            raise ParameterError(f"--plugin {mod}: importing it registered no comparison "
+                                 "method (call hhra_phys.compare.register_method in it)")
+    return registered

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from hhra_phys.cli._common import report_error
-from hhra_phys.data import check_save_path, save_csv
+from hhra_phys.cli._guards import seed
+from hhra_phys.data import check_save_path, save_csv, sidecar_path
 from hhra_phys.errors import HHRAError
 from hhra_phys.outputs import FIGURE_SUFFIXES, check_output_path
 
@@ -31,7 +32,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output directory (default: a new hhra-demo-<time> directory)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the rig and the search")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the rig and the search")
     p.add_argument("--quick", action="store_true",
                    help="short record and small search (a smoke run, about a minute)")
     p.add_argument("--overwrite", action="store_true", help="replace files in an existing --out")
@@ -44,14 +45,11 @@ def _step(i: int, n: int, text: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
-    from hhra_phys.fit import fit
-    from hhra_phys.models.hhra.rig import simulate_rig
-    from hhra_phys.plots import plot_fit
-
     out = Path(args.out) if args.out else Path(f"hhra-demo-{time.strftime('%Y%m%d-%H%M%S')}")
     files = {"plot": out / "demo_fit.png", "json": out / "demo_fit.json",
              "data": out / "demo_rig.csv", "loop_plot": out / "demo_loop.png",
              "loop_json": out / "demo_loop.json", "loop_data": out / "demo_loop_rig.csv"}
+    created = not out.exists()
     try:  # every output checked before the first simulation
         out.mkdir(parents=True, exist_ok=True)
         check_save_path(files["data"], args.overwrite)
@@ -62,34 +60,67 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(files["loop_plot"], overwrite=args.overwrite,
                           suffixes=FIGURE_SUFFIXES)
     except (HHRAError, OSError) as exc:
+        _remove(out, [], created)
         code = report_error("demo", exc)
         print("hhra-phys demo: (or choose another --out)", file=sys.stderr)
         return code
+    # Every file the run may write, and whether it was there before (--overwrite).
+    paths = [p for f in files.values() for p in (f, sidecar_path(f)) if f.suffix == ".csv"]
+    paths += [f for f in files.values() if f.suffix != ".csv"]
+    new = [p for p in paths if not p.exists()]
+    try:
+        return _run(args, out, files, new)
+    except (HHRAError, OSError) as exc:  # nothing of this run stays
+        _remove(out, new, created)
+        return report_error("demo", exc)
+    except BaseException:  # Ctrl-C too
+        _remove(out, new, created)
+        raise
+
+
+def _remove(out: Path, new: list[Path], created: bool) -> None:
+    """Remove the files this run created (``new``: those not there before it), and ``out``
+    if this run created it (and it is then empty)."""
+    for p in new:
+        p.unlink(missing_ok=True)
+    if created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass  # not empty: someone else's files
+
+
+def _run(args: argparse.Namespace, out: Path, files: dict[str, Path],
+         new: list[Path]) -> int:
+    """The demo's work, then its files written together at the end (``new``: those that
+    were not there before, removed again if the writing fails)."""
+    from hhra_phys.fit import fit
+    from hhra_phys.models.hhra.rig import simulate_rig
+    from hhra_phys.plots import plot_fit
+
     duration, pop, iters = (8.0, 30, 40) if args.quick else (20.0, 100, 200)
     n_steps = 6
-    try:
-        _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
-        data = simulate_rig(seed=args.seed, duration=duration)
-        save_csv(data, files["data"], overwrite=args.overwrite)
-        _step(2, n_steps, f"fitting the physical model: H-GWO (pop {pop}, {iters} it.) + IPOPT")
-        res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)
-        _step(3, n_steps, "fitting black-box ARX models (LS, RLS, FFRLS) on the same split")
-        arx_rows = _arx_rows(data)
-        _step(4, n_steps, "linearising the fitted model for controller design (python-control)")
-        design = _linear_summary(res, data)
-        _step(5, n_steps, f"writing results to {out}/")
-        res.save(files["json"], overwrite=args.overwrite)
-        est, val = data.split(0.5)
-        plot_fit(files["plot"], [("estimation", est, res.predict(est)),
-                                 ("validation", val, res.predict(val))],
-                 res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
-                 stages=res.stages)
-        hidden, truth_e = hidden_effect(args.seed)
-        _step(6, n_steps, "closing the loop: a rig record with an effect the model does not "
-                          "declare (drawn from the seed), diagnosed with the effect library")
-        loop = _close_loop(args, duration, pop, iters, files, hidden, truth_e)
-    except (HHRAError, OSError) as exc:
-        return report_error("demo", exc)
+    _step(1, n_steps, f"simulating the rig: {duration:.0f} s at 250 Hz, seed {args.seed}")
+    data = simulate_rig(seed=args.seed, duration=duration)
+    _step(2, n_steps, f"fitting the physical model: H-GWO (pop {pop}, {iters} it.) + IPOPT")
+    res = fit(data, seed=args.seed, pop_size=pop, max_iter=iters, progress=True)
+    _step(3, n_steps, "fitting black-box ARX models (LS, RLS, FFRLS) on the same split")
+    arx_rows = _arx_rows(data)
+    _step(4, n_steps, "linearising the fitted model for controller design (python-control)")
+    design = _linear_summary(res, data)
+    hidden, truth_e = hidden_effect(args.seed)
+    _step(5, n_steps, "closing the loop: a rig record with an effect the model does not "
+                      "declare (drawn from the seed), diagnosed with the effect library")
+    loop, loop_data = _close_loop(args, duration, pop, iters, hidden, truth_e)
+    _step(6, n_steps, f"writing results to {out}/")
+    save_csv(data, files["data"], overwrite=args.overwrite)
+    res.save(files["json"], overwrite=args.overwrite)
+    est, val = data.split(0.5)
+    plot_fit(files["plot"], [("estimation", est, res.predict(est)),
+                             ("validation", val, res.predict(val))],
+             res.history, title="hhra-phys demo: simulated rig", overwrite=args.overwrite,
+             stages=res.stages)
+    _write_loop(args, files, loop, loop_data, hidden)
 
     truth = data.metadata["true_params"]
     print("\nParameter groups: truth, fit and 95 % confidence interval")
@@ -141,28 +172,34 @@ def hidden_effect(seed: int) -> tuple[str, dict[str, float]]:
     return name, dict(params)
 
 
-def _close_loop(args: argparse.Namespace, duration: float, pop: int, iters: int,
-                files: dict[str, Path], hidden: str, truth: dict[str, float]) -> Any:
-    """Simulate the record with the hidden effect, run the loop, write its JSON and figure."""
+def _write_loop(args: argparse.Namespace, files: dict[str, Path], res: Any, data: Any,
+                hidden: str) -> None:
+    """Write the loop's record, JSON and figure."""
     import json
 
+    from hhra_phys.outputs import atomic_write_text
+
+    save_csv(data, files["loop_data"], overwrite=args.overwrite)
+    atomic_write_text(files["loop_json"], json.dumps(res.to_json(), indent=2))
+    plot_loop(res, data, files["loop_plot"], hidden, args.overwrite)
+
+
+def _close_loop(args: argparse.Namespace, duration: float, pop: int, iters: int,
+                hidden: str, truth: dict[str, float]) -> tuple[Any, Any]:
+    """Simulate the record with the hidden effect and run the loop; (result, record)."""
     from hhra_phys.fit import default_model
     from hhra_phys.loop import augment
-    from hhra_phys.outputs import atomic_write_text
     from hhra_phys.reference import reference_record
 
     # The independent implementation: the data are not the model checked against itself.
     data = reference_record(seed=args.seed + 1, duration=duration, effects={hidden: truth})
-    save_csv(data, files["loop_data"], overwrite=args.overwrite)
     model, bounds = default_model(data)
     res = augment(data, model, bounds=bounds, pop_size=pop, max_iter=iters,
                   max_effects=2, seed=args.seed,
                   progress=lambda s: print("    " + s.splitlines()[0], file=sys.stderr,
                                            flush=True) if s.startswith(("  tried", "round"))
                   and "ranking" not in s else None)
-    atomic_write_text(files["loop_json"], json.dumps(res.to_json(), indent=2))
-    plot_loop(res, data, files["loop_plot"], hidden, args.overwrite)
-    return res
+    return res, data
 
 
 def _print_loop(res: Any, hidden: str, truth: dict[str, float]) -> None:

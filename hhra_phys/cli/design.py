@@ -12,7 +12,14 @@ from typing import Any
 
 import numpy as np
 
-from hhra_phys.cli._common import fraction, report_error
+from hhra_phys.cli._common import add_model_arguments, fraction, nonnegative_int, report_error
+from hhra_phys.cli._guards import (
+    all_or_nothing,
+    check_arguments,
+    check_size,
+    output_path,
+    seed,
+)
 from hhra_phys.design import CRITERIA, MIN_HOLD_S, OUTPUT_LIMIT_DEG, InformationModel
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
@@ -39,8 +46,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("fit", metavar="FIT.json", help="a fit result written by 'hhra-phys fit --json'")
     p.add_argument("--duration", type=float, required=True, metavar="S",
                    help="length of the designed record [s]")
-    p.add_argument("--out", default=None, metavar="FILE.csv",
-                   help="the designed input (t,u) (default: design.csv beside FIT.json)")
+    p.add_argument("--out", type=output_path, default=None, metavar="FILE.csv",
+                   help="the designed input (t,u); its side-car is FILE.json (default: "
+                        "design.csv beside FIT.json)")
     p.add_argument("--split", type=fraction, default=None, metavar="F",
                    help="estimation fraction of the fit that will be made of the designed "
                         "record, as 'hhra-phys fit --split' (default: the fit's own split, 0.5 "
@@ -56,12 +64,13 @@ def register(subparsers: Any) -> None:
                    help=f"shortest hold, the switching time [s] (default {MIN_HOLD_S:g})")
     p.add_argument("--criterion", choices=CRITERIA, default="d",
                    help="d: log det (default), a: trace, e: largest eigenvalue of the covariance")
-    p.add_argument("--seed", type=int, default=0, help="seed of the search and the draws")
-    p.add_argument("--draws", type=int, default=4,
+    p.add_argument("--seed", type=seed, default=0, help="seed of the search and the draws")
+    p.add_argument("--draws", type=nonnegative_int, default=4,
                    help="parameter draws from the fit's covariance averaged over (default 4)")
     p.add_argument("--data", default=None, metavar="FILE",
                    help="the fitted record (default: the fit's data source, or the simulated rig "
                         "it names)")
+    add_model_arguments(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 
@@ -104,6 +113,86 @@ def fit_command(split: float, validate: str | None) -> str:
     return cmd + " --json RECORD-fit.json"
 
 
+#: Memory a designed sample costs (the input, the simulated output and its sensitivities
+#: for every draw), measured: peak RSS grows by about 384 bytes per sample (docs/data.md).
+DESIGN_BYTES_PER_SAMPLE = 512
+
+#: Evaluations of the information a design makes (random candidates of every family,
+#: then local steps; :func:`hhra_phys.design.design_input`'s defaults).
+DESIGN_EVALUATIONS = 48 * 4 + 120
+
+
+def load_fit(path: str, model: str | None) -> Any:
+    """The fit result at ``path``; ``model`` (FILE.py:FACTORY) registers a user's parts first.
+
+    Raises
+    ------
+    DataError
+        The file is not a readable hhra-phys fit result (binary, not JSON, incomplete),
+        or its model has parts no module registered (then the message says to give
+        ``--model`` as the fit had it).
+    """
+    from hhra_phys.errors import DataError, ModelError
+    from hhra_phys.result import FitResult
+
+    if model:
+        from hhra_phys.extensions import load_factory
+
+        load_factory(model)  # importing the file registers its parts
+    p = Path(path)
+    if p.is_file():
+        head = p.read_bytes()[:65536]
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            if len(head) < 65536 or exc.start < len(head) - 4:  # not a cut multi-byte char
+                raise DataError(f"FIT.json {path}: not a text file (byte {exc.start} is "
+                                f"{head[exc.start:exc.start + 1]!r}); give the JSON written by "
+                                "'hhra-phys fit --json'") from None
+    try:
+        return FitResult.load(path)
+    except ModelError as exc:
+        if model or "unknown part type" not in str(exc):
+            raise
+        raise DataError(f"FIT.json {path}: {exc}. A fit made with --model FILE.py:FACTORY "
+                        "needs the same --model here") from None
+    except HHRAError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise DataError(f"FIT.json {path}: not a complete hhra-phys fit result "
+                        f"({type(exc).__name__}: {exc}); give the JSON written by "
+                        "'hhra-phys fit --json'") from None
+
+
+def say_time_estimate(res: Any, duration: float, draws: int) -> None:
+    """Time one information evaluation on a short input and print the design's estimate
+    when it is over a minute (the design itself prints nothing until it is done)."""
+    import time
+
+    fs = float(res.settings.get("fs") or 0)
+    if not fs:
+        return
+    n_short = max(50, min(int(duration * fs), 500))
+    u = np.sign(np.sin(np.linspace(0.0, 6 * np.pi, n_short))) * 1e-3
+    info = InformationModel(res, fs)
+    start = time.perf_counter()
+    try:
+        info.widths(u)
+    except HHRAError:
+        return  # the design reports its own errors
+    per_sample = (time.perf_counter() - start) / n_short
+    seconds = per_sample * duration * fs * DESIGN_EVALUATIONS * max(draws, 1)
+    if seconds > 60:
+        print(f"design: about {DESIGN_EVALUATIONS * max(draws, 1)} evaluations of "
+              f"{duration * fs:.3g} samples, estimated {_duration(seconds)} on this machine "
+              "now (--duration and --draws set it; Ctrl-C stops it, writing nothing)",
+              file=sys.stderr, flush=True)
+
+
+def _duration(seconds: float) -> str:
+    return (f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.3g} h")
+
+
 def _geomean(widths: dict[str, float]) -> float:
     vals = [w for w in widths.values() if w > 0 and math.isfinite(w)]
     return float(np.exp(np.mean(np.log(vals)))) if vals else float("nan")
@@ -112,13 +201,14 @@ def _geomean(widths: dict[str, float]) -> float:
 def run(args: argparse.Namespace) -> int:
     """Design the input; returns the exit code."""
     from hhra_phys.design import design_input
-    from hhra_phys.result import FitResult
 
     try:
         if args.out is None:
             args.out = str(Path(args.fit).with_name("design.csv"))
         if not str(args.out).lower().endswith(".csv"):
             raise ParameterError(f"--out {args.out}: the designed input is written as .csv")
+        check_arguments(args, {"--out": args.out,
+                               "--out's side-car": str(sidecar_path(args.out))})
         out = check_output_path(args.out, overwrite=args.overwrite, what="designed input")
         side = check_output_path(sidecar_path(args.out), overwrite=args.overwrite,
                                  what="design side-car")
@@ -126,9 +216,12 @@ def run(args: argparse.Namespace) -> int:
                             ("--output-limit", args.output_limit), ("--min-hold", args.min_hold)):
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ParameterError(f"{flag} must be a finite number > 0, got {value}")
-        if args.draws < 0:
-            raise ParameterError(f"--draws must be >= 0, got {args.draws}")
-        res = FitResult.load(args.fit)
+        res = load_fit(args.fit, args.model)
+        fs = float(res.settings.get("fs") or 0) or None
+        if fs:  # the sensitivities of every sample and parameter are held at once
+            check_size(args.duration * fs, f"--duration {args.duration:g} s at the fit's "
+                       f"{fs:g} Hz", bytes_per_sample=DESIGN_BYTES_PER_SAMPLE,
+                       what="the designed input")
         split = fit_split(res) if args.split is None else float(args.split)
         record = fitted_record(res, args.data)
         if record is None and args.max_input is None:
@@ -139,6 +232,7 @@ def run(args: argparse.Namespace) -> int:
               + ("the whole record for estimation" if split >= 1 else
                  f"the first {split:g} of it for estimation (--split {split:g})"),
               file=sys.stderr)
+        say_time_estimate(res, args.duration, args.draws)
         design = design_input(res, args.duration, max_input=args.max_input,
                               output_limit=args.output_limit, min_hold=args.min_hold,
                               criterion=args.criterion, seed=args.seed, draws=args.draws,
@@ -162,7 +256,6 @@ def run(args: argparse.Namespace) -> int:
     buf = io.StringIO()
     np.savetxt(buf, np.column_stack([design.t, design.u]), delimiter=",", header="t,u",
                comments="", fmt="%.10g")
-    atomic_write_text(out, buf.getvalue())
     report = {
         "format": "hhra-phys design",
         "fit": str(args.fit),
@@ -189,7 +282,9 @@ def run(args: argparse.Namespace) -> int:
                  "information at the fitted values for a fit of the estimation part (the first "
                  "n_est samples; the fitted record's with its fit's split)",
     }
-    atomic_write_text(side, json.dumps(jsonable(report), indent=1))
+    with all_or_nothing([out, side]):  # Ctrl-C between the two: neither stays
+        atomic_write_text(out, buf.getvalue())
+        atomic_write_text(side, json.dumps(jsonable(report), indent=1))
     print(f"{'parameter':<12} {'designed':>10} {'fitted rec.':>12}")
     for name, w in design.widths.items():
         other = f"{fitted['widths'][name]:12.4g}" if fitted else f"{'-':>12}"

@@ -13,13 +13,21 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
-    fraction,
     model_for,
     model_records,
     nonnegative_int,
     population,
     positive_int,
     report_error,
+)
+from hhra_phys.cli._guards import (
+    STDOUT,
+    all_or_nothing,
+    check_arguments,
+    output_path,
+    seed,
+    split_fraction,
+    split_value,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
@@ -48,8 +56,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="whole records as the test part (same column options); then every "
                         "DATA record splits into estimation and selection only")
-    p.add_argument("--json", metavar="OUT.json", help="write the JSON summary here")
-    p.add_argument("--report", metavar="OUT.md",
+    p.add_argument("--json", type=output_path, metavar="OUT.json",
+                   help="write the JSON summary here ('-': to stdout)")
+    p.add_argument("--report", type=output_path, metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
     p.add_argument("--max-effects", type=nonnegative_int, default=3,
                    help="most additions, library effects and discovered terms alike "
@@ -61,9 +70,10 @@ def register(subparsers: Any) -> None:
                    help="comma-separated effects to consider (default: all registered, the "
                         "library's and those of --effects-from); 'none': no library effect, "
                         "so that discovery alone proposes")
-    p.add_argument("--seed", type=int, default=0, help="seed of the global searches")
-    p.add_argument("--split", type=fraction, default=None,
-                   help="estimation fraction of the record (default 0.5)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the global searches")
+    p.add_argument("--split", type=split_value, default=None,
+                   help="estimation fraction of the record in (0, 1) (default 0.5), or the "
+                        "sample index the estimation part ends before, as in fit and compare")
     p.add_argument("--test", type=float, default=0.25,
                    help="fraction held out at the end as the test part, which chooses nothing "
                         "(default 0.25; 0: the old two-way split, selection = validation)")
@@ -94,7 +104,6 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the loop and write the outputs; 0 on success, 2 on a usage error, 1 otherwise."""
     from hhra_phys.cli._common import parse_names
-    from hhra_phys.extensions import import_effects
     from hhra_phys.loop import augment
 
     figs: list[str | None] = []
@@ -104,16 +113,22 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_discover:
             figs.append(f"{stem}_discovery.png")
     try:
-        check_outputs([args.json, args.report], args.overwrite, figures=figs)
-        if args.split is not None and args.split >= 1:
+        check_arguments(args, {"--json": args.json, "--report": args.report,
+                               **{f"--report's figure {Path(f).name}": f for f in figs}})
+        check_outputs([None if args.json == STDOUT else args.json, args.report],
+                      args.overwrite, figures=figs)
+        if isinstance(args.split, float) and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
-        added = import_effects(args.effects_from)
+        added = user_effects(args.effects_from)
         if added:
             print(f"registered effects: {', '.join(added)}", file=sys.stderr)
         records, validation, data_warnings = _records(args)
         data = records[0]
+        if args.split is not None:
+            args.split = split_fraction(args.split, [len(d) for d in records])
         model, bounds = model_for(args, data)
+        check_effects_build(model, data, added)
         for other in records[1:] + (validation or []):  # the widest automatic box of all
             for k, (lo, hi) in model_for(args, other)[1].items():
                 if k in bounds:
@@ -136,39 +151,101 @@ def run(args: argparse.Namespace) -> int:
                 backward=not args.no_backward,
             )
         res.warnings.extend(data_warnings)
+        for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
+            if "failed" in str(why) or "does not assemble" in str(why):
+                print(f"warning: candidate {name} was dropped: {why}", file=sys.stderr)
         out = res.to_json()
+        # With --json - the JSON alone goes to stdout; the summary to stderr.
+        say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
         for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
             print(f"warning: {w}", file=sys.stderr)
-        print(f"chosen: {', '.join(res.chosen) or 'none'}")
+        say(f"chosen: {', '.join(res.chosen) or 'none'}")
         for part in ("est", "val", "test"):
             b, f = out["base"].get(part, {}), out["final"].get(part, {})
             if not f:
                 continue
-            print(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
+            say(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
                   f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
         for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
                           strict=True):
-            print(f"record {rf['name']}: " + ", ".join(
+            say(f"record {rf['name']}: " + ", ".join(
                 f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
                 for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
-        if args.json:
-            atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
-            print(f"wrote {args.json}")
-        if args.report:
-            from hhra_phys.diagnose import plot_loop_residuals
+        with all_or_nothing([args.json, args.report, *figs]):  # Ctrl-C: none of them stays
+            if args.json == STDOUT:
+                print(json.dumps(jsonable(out), indent=2), flush=True)
+            elif args.json:
+                atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
+                print(f"wrote {args.json}")
+            if args.report:
+                from hhra_phys.diagnose import plot_loop_residuals
 
-            paths = list(plot_loop_residuals(res, records if several else data, figs[0],
-                                             figs[1], args.overwrite))
-            found = [s for s in res.steps if getattr(s, "residuals", None)]
-            if found:
-                from hhra_phys.discover import plot_discovery
+                paths = list(plot_loop_residuals(res, records if several else data, figs[0],
+                                                 figs[1], args.overwrite))
+                found = [s for s in res.steps if getattr(s, "residuals", None)]
+                if found:
+                    from hhra_phys.discover import plot_discovery
 
-                paths.append(plot_discovery(found, figs[2], args.overwrite))
-            atomic_write_text(args.report, markdown_report(res, paths, args.report))
-            print(f"wrote {args.report}")
+                    paths.append(plot_discovery(found, figs[2], args.overwrite))
+                atomic_write_text(args.report, markdown_report(res, paths, args.report))
+                say(f"wrote {args.report}")
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0
+
+
+def user_effects(sources: list[str] | None) -> list[str]:
+    """Import each ``--effects-from`` source; the names of the effects they registered.
+
+    Raises
+    ------
+    ParameterError
+        A source that registers no effect (a typo, or a file without
+        ``@register_effect``), or one that registers an effect under a name already taken
+        (the library's ``coulomb_friction`` would be silently replaced).
+    """
+    from hhra_phys.extensions import import_effects
+    from hhra_phys.parts import EFFECTS
+
+    added: list[str] = []
+    for source in sources or []:
+        before = dict(EFFECTS)
+        new = import_effects([source])
+        replaced = [n for n, cls in before.items() if EFFECTS.get(n) is not cls]
+        if replaced:
+            for n in replaced:  # put the library's back: the refusal changes nothing
+                EFFECTS[n] = before[n]
+            raise ParameterError(
+                f"--effects-from {source}: registers {', '.join(map(repr, replaced))}, a name "
+                "already registered (the library's effect would be replaced); give the "
+                "effect a name of its own")
+        if not new:
+            raise ParameterError(
+                f"--effects-from {source}: registered no effect (decorate Effect subclasses "
+                "with @register_effect; see docs/guide.md)")
+        added += new
+    return added
+
+
+def check_effects_build(model: Any, data: Any, names: list[str]) -> None:
+    """Build the model with each user effect once, so one whose ``apply`` raises is named
+    now rather than dropped from the candidates with its reason in the JSON only."""
+    from hhra_phys.cli._common import check_model_builds
+    from hhra_phys.effects import make_effect
+    from hhra_phys.errors import ModelError
+
+    for name in names:
+        try:
+            eff = make_effect(name, data=data)
+        except Exception as exc:  # noqa: BLE001 - a user's effect class
+            raise ModelError(f"--effects-from: effect {name!r} cannot be made: "
+                             f"{type(exc).__name__}: {exc}") from None
+        why = eff.applicable(model)
+        if why is None:
+            check_model_builds(model.with_parts(eff), data, f"--effects-from effect {name!r}")
+        elif "does not assemble" in why:  # Effect.applicable's words for a failing apply
+            raise ModelError(f"--effects-from effect {name!r}: {why}")
+        # other reasons: not a candidate for this model, and the loop says so
 
 
 def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, list[str]]:

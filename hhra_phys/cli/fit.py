@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from typing import Any
 
@@ -10,7 +11,6 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
-    fraction,
     model_for,
     model_records,
     parse_fixed,
@@ -19,9 +19,19 @@ from hhra_phys.cli._common import (
     positive_int,
     report_error,
 )
+from hhra_phys.cli._guards import (
+    STDOUT,
+    all_or_nothing,
+    check_arguments,
+    output_path,
+    seed,
+    split_fraction,
+    split_value,
+)
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
+from hhra_phys.outputs import jsonable
 
 
 def register(subparsers: Any) -> None:
@@ -54,12 +64,14 @@ def register(subparsers: Any) -> None:
                    help="accept --fix values outside the parameter's box (not its sign)")
     p.add_argument("--no-widen", action="store_true",
                    help="do not widen a default box whose edge a group ends at")
-    p.add_argument("--split", type=fraction, default=0.5,
-                   help="estimation fraction of every record (default 0.5)")
+    p.add_argument("--split", type=split_value, default=0.5,
+                   help="estimation fraction of every record in (0, 1] (default 0.5; 1: no "
+                        "validation part), or the sample index the estimation part ends "
+                        "before, as in compare and diagnose")
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="whole records for validation (same column options); then every DATA "
                         "record is used for estimation")
-    p.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the global search")
     p.add_argument("--starts", type=positive_int, default=1, metavar="K",
                    help="multi-start: K fits with seeds SEED..SEED+K-1, the lowest estimation "
                         "error kept (default 1)")
@@ -75,8 +87,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--intervals", choices=("linear", "profile"), default="linear",
                    help="95 %% intervals: linearised at the optimum (default) or profile "
                         "likelihood (a few seconds more)")
-    p.add_argument("--json", default=None, metavar="OUT.json", help="write the result as JSON")
-    p.add_argument("--plot", default=None, metavar="OUT.png",
+    p.add_argument("--json", type=output_path, default=None, metavar="OUT.json",
+                   help="write the result as JSON ('-': to stdout, the summary then goes to "
+                        "stderr)")
+    p.add_argument("--plot", type=output_path, default=None, metavar="OUT.png",
                    help="write a figure (.png, .svg or .pdf)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -88,11 +102,17 @@ def run(args: argparse.Namespace) -> int:
     from hhra_phys.fit import default_free
 
     try:
-        check_outputs([args.json], args.overwrite, figures=[args.plot])
+        check_arguments(args, {"--json": args.json, "--plot": args.plot})
+        check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
+                      figures=[args.plot])
         fixed = parse_fixed(args.fix)
         free = parse_names(args.free)
         records, validation, data_warnings = model_records(args)
+        from hhra_phys.multi import check_records
+
+        check_records(records + (validation or []))  # a pressure record against an angle fit
         data = records[0]
+        args.split = split_fraction(args.split, [len(d) for d in records])
         model, auto_bounds = model_for(args, data, args.valve)
         # Problem runs the same check in every fit; here it names --fix before any worker
         # starts. Notes about values accepted outside their box come with the result.
@@ -126,29 +146,34 @@ def run(args: argparse.Namespace) -> int:
                 allow_outside_box=args.allow_outside_box)
         res = best_of(results)
         res.warnings.extend(data_warnings)
-        print(res.summary())
+        # With --json - the JSON alone goes to stdout; the summary to stderr.
+        say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
+        say(res.summary())
         for rec in res.records:
             parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
                      for key, label in (("est", "estimation"), ("val", "validation"))
                      if rec[key]]
-            print(f"record {rec['name']}: {', '.join(parts)}")
+            say(f"record {rec['name']}: {', '.join(parts)}")
         for st in res.stages:
-            print(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
+            say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
                   f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
-        if args.json:
-            print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-        if res.status == "diverged":
-            print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
-                  "stay finite with the fitted values); "
-                  + ("the result marked diverged is in the JSON; " if args.json else "")
-                  + "check the units of the record and the --fix values", file=sys.stderr)
-            return 1
-        if args.plot:
-            plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                    args.overwrite)
-                       if several or validation else
-                       plot_result(res, data, args.plot, args.split, args.overwrite))
-            print(f"wrote {plotted}")
+        with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
+            if args.json == STDOUT:
+                print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
+            elif args.json:
+                print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+            if res.status == "diverged":
+                print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+                      "stay finite with the fitted values); "
+                      + ("the result marked diverged is in the JSON; " if args.json else "")
+                      + "check the units of the record and the --fix values", file=sys.stderr)
+                return 1
+            if args.plot:
+                plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                        args.overwrite)
+                           if several or validation else
+                           plot_result(res, data, args.plot, args.split, args.overwrite))
+                say(f"wrote {plotted}")
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
     return 0

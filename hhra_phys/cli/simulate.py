@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from typing import Any
 
 from hhra_phys.cli._common import report_error
+from hhra_phys.cli._guards import check_size, output_path, seed
 from hhra_phys.data import check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
@@ -23,9 +25,9 @@ def register(subparsers: Any) -> None:
             "side-car with the true parameters."
         ),
     )
-    p.add_argument("--out", required=True, metavar="FILE.csv",
+    p.add_argument("--out", type=output_path, required=True, metavar="FILE.csv",
                    help="output file (.csv with a .json side-car, or .npz)")
-    p.add_argument("--seed", type=int, default=0, help="seed of excitation and noise (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of excitation and noise (default 0)")
     p.add_argument("--noise", type=float, default=DEFAULT_NOISE_DEG, metavar="DEG",
                    help=f"angle noise standard deviation in deg (default {DEFAULT_NOISE_DEG})")
     p.add_argument("--duration", type=float, default=20.0, metavar="S",
@@ -76,14 +78,108 @@ def _parse_effects(items: list[str] | None) -> dict[str, dict[str, float]]:
                     f"--effect {item!r}: expected PARAM=VALUE, got {pair!r}") from None
             if not eq:
                 raise ParameterError(f"--effect {item!r}: expected PARAM=VALUE, got {pair!r}")
+        check_effect_values(item, name, values)
         out[name] = values
     return out
+
+
+def check_effect_values(item: str, name: str, values: dict[str, float]) -> None:
+    """Every parameter of ``--effect NAME:...`` is one the effect has, inside its box.
+
+    Raises
+    ------
+    ParameterError
+        Naming the ``--effect`` item, the parameter and its box (or the parameters
+        the effect has).
+    """
+    import math
+
+    from hhra_phys.effects import make_effect
+
+    params = {p.name: p for p in make_effect(name).parameters}
+    for key, value in values.items():
+        if key not in params:
+            raise ParameterError(f"--effect {item!r}: {name} has no parameter {key!r}; its "
+                                 f"parameters: {', '.join(params) or 'none'}")
+        par = params[key]
+        if not (math.isfinite(value) and par.lower <= value <= par.upper):
+            raise ParameterError(
+                f"--effect {item!r}: {key}={value:g} is outside its box "
+                f"[{par.lower:g}, {par.upper:g}] {par.unit} (the values the library fits)")
+    lacking = [k for k in params if k not in values]
+    if lacking:
+        raise ParameterError(f"--effect {item!r}: give every parameter of {name}; missing: "
+                             f"{', '.join(f'{k}=VALUE' for k in lacking)}")
+
+
+#: Records longer than this [samples] get a time estimate before the reference run.
+ESTIMATE_ABOVE = 100_000
+
+
+def say_time_estimate(args: argparse.Namespace, effects: dict[str, dict[str, float]]) -> None:
+    """Time the reference implementation on 2000 samples and print the estimate for the
+    whole record when it is over a minute (it integrates in Python, about 0.1 ms a sample,
+    and prints nothing while it runs)."""
+    import time
+
+    from hhra_phys.reference import reference_record
+
+    n = args.duration * args.fs
+    if n <= ESTIMATE_ABOVE:
+        return
+    short = 2000 / args.fs
+    start = time.perf_counter()
+    reference_record(seed=args.seed, noise_deg=args.noise, duration=short, fs=args.fs,
+                     amplitude=args.amplitude, effects=effects or None)
+    seconds = (time.perf_counter() - start) * n / 2000
+    if seconds > 60:
+        print(f"simulate: {n:.3g} samples with the reference implementation, estimated "
+              f"{seconds / 60:.0f} min on this machine now (--duration and --fs set it; "
+              "Ctrl-C stops it, writing nothing)", file=sys.stderr, flush=True)
+
+
+def check_settings(args: argparse.Namespace) -> None:
+    """The numbers of a simulated record, before anything is simulated.
+
+    Raises
+    ------
+    ParameterError
+        A value outside what the rig can mean (naming the flag and the range), or a
+        record whose memory would exceed the budget (:func:`check_size`).
+    """
+    import math
+
+    from hhra_phys.models.hhra.defaults import PLAUSIBLE, PLAUSIBLE_FS
+
+    for flag, value in (("--duration", args.duration), ("--fs", args.fs),
+                        ("--amplitude", args.amplitude)):
+        if not (math.isfinite(value) and value > 0):
+            raise ParameterError(f"{flag} must be a finite number > 0, got {value:g}")
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise ParameterError(f"--noise must be a standard deviation >= 0 in deg, got "
+                             f"{args.noise:g}")
+    if args.quantization is not None and not (math.isfinite(args.quantization)
+                                              and args.quantization > 0):
+        raise ParameterError(f"--quantization must be a resolution > 0 in deg, got "
+                             f"{args.quantization:g}")
+    lo, hi = PLAUSIBLE_FS
+    if not lo <= args.fs <= hi:
+        raise ParameterError(f"--fs {args.fs:g} Hz: the rig is sampled between {lo:g} and "
+                             f"{hi:g} Hz (the paper's 250 Hz)")
+    top = PLAUSIBLE["input"].high
+    if args.amplitude > top:
+        raise ParameterError(f"--amplitude {args.amplitude:g} mA: above the {top:g} mA of the "
+                             "largest servo-valve rated currents")
+    check_size(args.duration * args.fs, f"--duration {args.duration:g} s at --fs {args.fs:g} Hz")
 
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the record; returns the exit code."""
     try:
         check_save_path(args.out, args.overwrite)  # before simulating
+        check_settings(args)
+        if args.effect and args.generator != "reference":
+            raise ParameterError("--effect needs --generator reference")
         effects = _parse_effects(args.effect)
         if not (math.isfinite(args.noise_ar) and abs(args.noise_ar) < 1):
             raise ParameterError(f"--noise-ar must lie in (-1, 1), got {args.noise_ar}")
@@ -92,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
         if args.generator == "reference":
             from hhra_phys.reference import reference_record
 
+            say_time_estimate(args, effects)
             ds = reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
                                   fs=args.fs, amplitude=args.amplitude,
                                   quantization=args.quantization, effects=effects or None,
@@ -108,8 +205,21 @@ def run(args: argparse.Namespace) -> int:
                               fs=args.fs, amplitude=args.amplitude,
                               quantization=args.quantization)
         path = save(ds, args.out, overwrite=args.overwrite)
+    except ParameterError as exc:
+        if "cannot hold" not in str(exc):  # the excitation's words for too few samples
+            return report_error("simulate", exc)
+        return report_error("simulate", ParameterError(
+            f"--duration {args.duration:g} s at --fs {args.fs:g} Hz gives "
+            f"{round(args.duration * args.fs)} samples, too few for the excitation ({exc}); "
+            "lengthen --duration or raise --fs"))
     except (HHRAError, OSError) as exc:
         return report_error("simulate", exc)
+    except ValueError as exc:  # the reference implementation's own checks
+        return report_error("simulate", ParameterError(f"--generator reference: {exc}"))
+    peak = float(abs(ds.u).max())
+    if peak < 0.999 * args.amplitude:
+        print(f"note: --amplitude {args.amplitude:g} mA would turn the shaft past its stroke; "
+              f"the current was scaled to {peak:.4g} mA", file=sys.stderr)
     print(f"wrote {path} ({len(ds)} samples, {ds.duration:.2f} s, angle "
           f"{ds.y.min():.1f}..{ds.y.max():.1f} deg)")
     return 0

@@ -153,6 +153,10 @@ def delimiter_hint(header: str, used: str) -> str:
     Given when the header, split with ``used``, lacks a column the caller asked for, and
     another delimiter would split it into several fields.
     """
+    if len(_safe_split(header, used)) > 1:
+        # The header did split: the names differ, not the separator ('Zeit [s];Strom [mA]'
+        # has blanks inside its names, so a blank would split it more, wrongly).
+        return ""
     # Detection only tries the common separators; a hint may also name rarer ones.
     for cand in (*CANDIDATES, *HINT_ONLY, WHITESPACE):
         if cand == used:

@@ -32,6 +32,11 @@ __all__ = ["DataChecks"]
 
 _MAX_ROWS_SHOWN = 5
 
+#: Largest magnitude a record's value may have. Squares of 1e154 overflow a double, and a
+#: least-squares cost sums squares of differences of such values over every sample; no
+#: instrument reads within 50 decades of this in any unit.
+MAX_MAGNITUDE = 1e100
+
 
 @dataclass(frozen=True)
 class DataChecks:
@@ -169,6 +174,16 @@ def _validate(
             raise NonFiniteError(
                 f"{pre}column {lab(key)} has {bad.size} non-finite value{'s' * (bad.size > 1)} "
                 f"({kinds}) at {_rows_text(bad, lines)}"
+            )
+
+    for key, arr in columns.items():  # finite, but beyond any measurement
+        bad = np.flatnonzero(np.abs(arr) > MAX_MAGNITUDE)
+        if bad.size:
+            raise DataError(
+                f"{pre}column {lab(key)} has {bad.size} value{'s' * (bad.size > 1)} beyond "
+                f"+-{MAX_MAGNITUDE:g} at {_rows_text(bad, lines)} (first: "
+                f"{arr[bad[0]]:.3g}): not a measurement in any unit, and the fit's squares "
+                "and products of such values overflow; fix or remove those rows"
             )
 
     n = tt.size

@@ -322,6 +322,10 @@ def _role(role: str) -> str:
     )
 
 
+#: The CLI flag that names the column of each role.
+_ROLE_FLAG = {"t": "--time-col", "u": "--input-col", "y": "--output-col"}
+
+
 def _parse_column(cells: list[str], label: str, lines: np.ndarray, path: Path) -> np.ndarray:
     try:
         return np.array(cells, dtype=np.float64)
@@ -339,9 +343,15 @@ def _parse_column(cells: list[str], label: str, lines: np.ndarray, path: Path) -
         return values
     first = cells[bad[0]]
     what = "an empty cell" if first == "" else repr(first)
+    # A decimal comma (German/French exports, often ';'-separated and Latin-1): say so.
+    comma = sum(bool(re.fullmatch(r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?", cells[i].strip()))
+                for i in bad)
+    hint = ("; the cells use a decimal comma: export with a decimal point (or replace ',' "
+            "by '.' in the numbers) and keep ';' as the separator"
+            if comma > len(bad) // 2 else "")
     raise NonNumericError(
         f"{path}: column {label!r} has {len(bad)} non-numeric cell{'s' * (len(bad) > 1)} "
-        f"at {_rows_text(np.array(bad), lines)}; first: {what}"
+        f"at {_rows_text(np.array(bad), lines)}; first: {what}{hint}"
     )
 
 
@@ -372,7 +382,8 @@ def _column_index(
         raise MissingColumnError(
             f"{path}: no column {spec!r} (for {_role(role)}); available columns: "
             + ", ".join(header)
-            + hint
+            + (hint or f"; name it with {_ROLE_FLAG.get(role, '--time-col/--input-col/...')} "
+                       "(Python: t=, u=, y=)")
         )
     if len(hits) > 1:
         raise DataFormatError(f"{path}: the header names column {spec!r} {len(hits)} times")
@@ -645,9 +656,12 @@ def _pick(variables: Mapping[str, Any], spec: str, source: str, role: str) -> np
     arr = np.asarray(variables[var])
     if arr.dtype.kind not in "biuf":
         raise NonNumericError(
-            f"{who}: variable {var!r} is not a numeric array (dtype {arr.dtype}); MATLAB "
-            "structs, cells and strings cannot be used"
+            f"{who}: variable {var!r} is not a numeric array (dtype {arr.dtype}); structs, "
+            "cells, strings and Python objects cannot be used: store numbers"
         )
+    if arr.ndim == 0:
+        raise DimensionError(f"{who}: variable {var!r} is a single number ({arr.item()!r}), "
+                             "not a signal: store one value per sample")
     shape = "x".join(map(str, arr.shape))
     if kind is None:
         if arr.ndim == 1 or (arr.ndim == 2 and 1 in arr.shape):
@@ -833,10 +847,33 @@ def load_npz(
     """
     p = _existing_file(path)
     try:
-        with np.load(p, allow_pickle=False) as archive:
-            variables = {k: archive[k] for k in archive.files}
-    except Exception as exc:  # zipfile, pickle and format errors
-        raise DataFormatError(f"{p}: not a readable .npz archive ({exc})") from None
+        loaded = np.load(p, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy saved under .npz
+            raise DataFormatError(
+                f"{p}: a single NumPy array (.npy format, shape "
+                f"{'x'.join(map(str, np.shape(loaded)))}), not an .npz archive of named "
+                "signals: save it with np.savez(path, t=..., u=..., y=...)")
+        with loaded as archive:
+            variables = {}
+            for k in archive.files:
+                try:
+                    variables[k] = archive[k]
+                except ValueError as exc:
+                    if "allow_pickle" not in str(exc):
+                        raise
+                    # Objects are stored pickled; unpickling a file runs code, so never.
+                    raise DataFormatError(
+                        f"{p}: member {k!r} holds Python objects, which are not read (loading "
+                        "them would run code from the file): store numeric arrays") from None
+    except DataFormatError:
+        raise
+    except Exception as exc:  # zipfile and format errors
+        # NumPy reads any file that is neither zip nor .npy as a pickle, and says so.
+        why = ("neither a zip archive nor a .npy array: damaged, or another format"
+               if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}")
+        raise DataFormatError(
+            f"{p}: not a readable .npz archive ({why}); write it with "
+            "np.savez(path, t=..., u=..., y=...)") from None
     info: dict[str, Any] = {}
     if _NPZ_META_KEY in variables:
         info = _from_json(str(variables.pop(_NPZ_META_KEY)), f"{p} ({_NPZ_META_KEY})")

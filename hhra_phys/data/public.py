@@ -30,17 +30,29 @@ def _public_candidates(path: PathLike | None) -> Iterable[Path]:
     if env:
         p = Path(env).expanduser()
         yield p if p.suffix == ".mat" else p / PUBLIC_ACTUATOR_FILE
-    repo_root = Path(__file__).resolve().parents[2]  # hhra_phys/data/ -> repo
-    for base in (Path.cwd(), repo_root):
-        yield (base / ".." / "shared" / "data" / PUBLIC_ACTUATOR_FILE).resolve()
+    seen = set()
+    repo_root = Path(__file__).resolve().parents[2]  # hhra_phys/data/ -> repo (or site-packages)
+    # The current directory and each folder above it (an installed copy, not editable,
+    # lives in site-packages and cannot find the repository's neighbour), then the source
+    # checkout this module is in, if it is one.
+    bases = [Path.cwd(), *Path.cwd().parents]
+    if (repo_root / "pyproject.toml").is_file():
+        bases += [repo_root, *repo_root.parents]
+    for base in bases:
+        for cand in (base / ".." / "shared" / "data", base / "shared" / "data"):
+            c = (cand / PUBLIC_ACTUATOR_FILE).resolve()
+            if c not in seen:
+                seen.add(c)
+                yield c
 
 
 def find_public_data(path: PathLike | None = None) -> Path:
     """Locate ``hydraulic_actuator.mat``.
 
     Search order: ``path`` (a file or its directory) when given, and nothing else; else the
-    directory in the environment variable ``HHRA_SHARED_DATA``; else ``../shared/data``
-    relative to the current directory and then to the repository root.
+    directory in the environment variable ``HHRA_SHARED_DATA``; else ``../shared/data`` and
+    ``shared/data`` relative to the current directory and each folder above it, and then
+    to the source checkout (an editable install) and each folder above it.
 
     Raises
     ------
@@ -52,9 +64,12 @@ def find_public_data(path: PathLike | None = None) -> Path:
         if candidate.is_file():
             return candidate
         tried.append(str(candidate))
+    shown = tried if len(tried) <= 4 else [*tried[:3], f"... ({len(tried)} places)"]
     raise DataFileNotFoundError(
-        f"public data file {PUBLIC_ACTUATOR_FILE} not found; tried: {'; '.join(tried)}. Pass its "
-        "path or set HHRA_SHARED_DATA to the directory that holds it"
+        f"public data file {PUBLIC_ACTUATOR_FILE} not found; tried: {'; '.join(shown)}. Set "
+        "HHRA_SHARED_DATA to the folder that holds it (export HHRA_SHARED_DATA=/path/to/data), "
+        "run from a folder below the one holding shared/data, or pass its path (Python: "
+        "load_public_actuator(path))"
     )
 
 

@@ -1,7 +1,10 @@
 """Bad input through the CLI: a clear message, the right exit code, nothing lost or half-written.
 
 Every case checks the exit code (2 usage, 1 data or runtime error, 130 interrupt), that no
-traceback is printed and that the message names the file, the column or the flag.
+traceback is printed and that the message names the file, the column or the flag. The
+second round (issue 24: tracebacks, sizes, replaced or partial files, silent acceptance,
+weak messages, newcomer items), case by case with its class, is in
+``test_bad_inputs_classes.py``.
 """
 
 from __future__ import annotations

@@ -60,8 +60,27 @@ def workdir(tmp_path_factory):
     return tmp_path_factory.mktemp("guide")
 
 
-def _env() -> dict[str, str]:
+@pytest.fixture(scope="module")
+def shims(tmp_path_factory) -> Path:
+    """A folder whose ``hhra-phys`` and ``python`` are the interpreter under test.
+
+    The guide's shell blocks call ``hhra-phys`` and ``python``; run as
+    ``venv/bin/python -m pytest`` without activating the venv, PATH would find another
+    installation's (or none). Put first on PATH, these run ``sys.executable -m hhra_phys``.
+    """
+    d = tmp_path_factory.mktemp("bin")
+    for name, target in (("hhra-phys", f'"{sys.executable}" -m hhra_phys'),
+                         ("python", f'"{sys.executable}"'), ("python3", f'"{sys.executable}"')):
+        f = d / name
+        f.write_text(f'#!/bin/sh\nexec {target} "$@"\n')
+        f.chmod(0o755)
+    return d
+
+
+def _env(shims: Path | None = None) -> dict[str, str]:
     env = dict(os.environ)
+    if shims is not None:
+        env["PATH"] = f"{shims}{os.pathsep}{env.get('PATH', '')}"
     env["MPLBACKEND"] = "Agg"
     # The examples' fits show no progress bars; keep the child's output small anyway.
     env.setdefault("PYTHONUNBUFFERED", "1")
@@ -71,7 +90,7 @@ def _env() -> dict[str, str]:
 @pytest.mark.slow
 @pytest.mark.parametrize(("line", "lang", "mode", "code"), BLOCKS,
                          ids=[f"line{b[0]}-{b[1]}" for b in BLOCKS])
-def test_guide_block(line, lang, mode, code, workdir):
+def test_guide_block(line, lang, mode, code, workdir, shims):
     if mode == "install":
         _check_install(code)
         return
@@ -82,7 +101,7 @@ def test_guide_block(line, lang, mode, code, workdir):
         script = workdir / f"guide_line{line}.py"
         script.write_text(code)
         cmd = [sys.executable, str(script)]
-    proc = subprocess.run(cmd, cwd=cwd, env=_env(), capture_output=True, text=True,
+    proc = subprocess.run(cmd, cwd=cwd, env=_env(shims), capture_output=True, text=True,
                           timeout=TIMEOUT)
     assert proc.returncode == 0, (
         f"docs/guide.md block at line {line} ({lang}) failed with exit {proc.returncode}\n"
@@ -98,5 +117,15 @@ def _check_install(code: str) -> None:
     assert Path(hhra_phys.__file__).resolve().is_relative_to(REPO)
     pyproject = (REPO / "pyproject.toml").read_text()
     assert re.search(r"^test\s*=", pyproject, re.M), "pyproject.toml has no 'test' extra"
-    proc = subprocess.run(["hhra-phys", "--help"], capture_output=True, text=True, timeout=60)
+    # Through the interpreter under test, not whatever 'hhra-phys' PATH finds first.
+    proc = subprocess.run([sys.executable, "-m", "hhra_phys", "--help"], capture_output=True,
+                          text=True, timeout=60)
     assert proc.returncode == 0 and "fit" in proc.stdout
+
+
+def test_the_cli_runs_through_this_interpreter(shims):
+    """``python -m hhra_phys`` is the command, and the guide's PATH finds it first."""
+    proc = subprocess.run(["sh", "-c", "command -v hhra-phys && hhra-phys --help"],
+                          env=_env(shims), capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith(str(shims)) and "design" in proc.stdout

@@ -37,7 +37,11 @@ TEXT = st.one_of(
 CONSTRAINTS = {
     "--pop": ("fit", lambda v: isinstance(v, int) and v >= 4),
     "--iters": ("fit", lambda v: isinstance(v, int) and v >= 1),
-    "--split": ("fit", lambda v: 0 < v <= 1),
+    # A fraction in (0, 1], or an integer sample index above 1 (as compare, diagnose).
+    "--split": ("fit", lambda v: 0 < v <= 1 or (isinstance(v, int) and v > 1)),
+    "--seed": ("fit", lambda v: isinstance(v, int) and v >= 0),
+    "--rig-seed": ("diagnose", lambda v: isinstance(v, int) and v >= 0),
+    "--starts": ("fit", lambda v: isinstance(v, int) and v >= 1),
     "--fs": ("fit", lambda v: math.isfinite(v) and v > 0),
     "--time-unit": ("fit", lambda v: v in ("s", "ms", "us")),
     "--top": ("diagnose", lambda v: isinstance(v, int) and v >= 1),
