@@ -578,6 +578,7 @@ def test_a_run_stopped_between_its_writes_leaves_none(cmd, stop, d, tmp_path, ca
             fs, criterion, value, family, peak_output, evaluations = 250.0, "d", 1.0, "x", 1, 1
             limits = {"duration": 0.2}
             widths = {"g_valve": 0.1}
+            split, n_est, widths_whole = 0.5, 25, {"g_valve": 0.08}
 
             def check(self):
                 return []
@@ -948,8 +949,9 @@ def test_the_guide_shows_design() -> None:
 
 
 def test_max_effects_help_says_what_zero_still_adds() -> None:
+    """0 adds nothing at all: every addition, discovered terms too, counts (the one loop)."""
     action = next(a for a in subparsers()["diagnose"]._actions if a.dest == "max_effects")
-    assert "0 adds none" in action.help and "discovery" in action.help
+    assert "0 adds nothing" in action.help and "discovered" in action.help
 
 
 def test_the_noise_level_stop_does_not_contradict_itself() -> None:
