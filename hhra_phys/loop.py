@@ -583,20 +583,27 @@ def refit_candidate(job: _Job) -> _Outcome:
         fixed = {n: job.values[n] for n in job.free if n not in searched}
         all_free = list(job.free) + new
         pop, iters = _search_size(len(searched), job.cand_pop, job.cand_iter)
-        p2, r2 = _search_candidate(cfg, model_c, searched, fixed, all_free, job, pop, iters)
-        # A new parameter that ends at the edge of its (guessed) box: the box, not the data,
-        # stopped it (a gravity load found at a third of its size, which a stand-in then
-        # made up for). Its side is widened and the candidate searched again, as often as a
-        # fit widens (MAX_WIDEN_DECADES); kept when it fits estimation better.
-        boxes: dict[str, tuple[float, float]] = {}
-        widened_notes: list[str] = []
+        # The first-order estimate of the residual analysis seeds the search (as discovery's
+        # terms start at theirs), and a guessed box too small for it is opened to hold it.
+        first, boxes = _first_order_start(job, model_c, new)
+        if boxes:
+            cfg = replace(cfg, default_bounds={**cfg.default_bounds, **boxes})
+        p2, r2 = _search_candidate(cfg, model_c, searched, fixed, all_free, job, pop, iters,
+                                   first)
+        # A parameter (the effect's or the base's) that ends at the edge of its guessed box:
+        # the box, not the data, stopped it (a gravity load found at a third of its size on
+        # an actuator damped beyond the base box, which a stand-in then made up for). Its
+        # side is widened and the candidate searched again, as often as a fit widens
+        # (MAX_WIDEN_DECADES); kept when it fits estimation better.
+        widened_notes = [f"{n}'s first-order estimate {first[n]:.4g} lies beyond its box; "
+                         f"box opened to [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in boxes.items()]
         for _ in range(MAX_WIDEN_DECADES):
-            wide = _edge_boxes(p2, r2, new)
+            wide = _edge_boxes(p2, r2, all_free)
             if not wide:
                 break
             cfg_w = replace(cfg, default_bounds={**cfg.default_bounds, **boxes, **wide})
             p2w, r2w = _search_candidate(cfg_w, model_c, searched, fixed, all_free, job, pop,
-                                         iters)
+                                         iters, first)
             gain = float(r2.metrics["est"]["mse"]) - float(r2w.metrics["est"]["mse"])
             widened_notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
                               f"and the candidate searched again"
@@ -634,12 +641,42 @@ def refit_candidate(job: _Job) -> _Outcome:
     return _Outcome(step, _values(r2), dict(r2.x0), all_free, boxes=boxes)
 
 
+def _first_order_start(job: _Job, model: Model, new: Sequence[str]
+                       ) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """The effect's first-order estimate (finite values inside the parameter's sign) as
+    start values, and boxes opened to hold those beyond their box (at most a decade, or
+    ten times as far from zero)."""
+    est = job.evidence.get("estimate") or {}
+    start: dict[str, float] = {}
+    boxes: dict[str, tuple[float, float]] = {}
+    for n in new:
+        v = est.get(n)
+        if v is None or not math.isfinite(float(v)):
+            continue
+        v = float(v)
+        par = model.params[n]
+        if n in job.cfg.bounds or (par.lower >= 0 and v <= 0):
+            continue  # the user's box, or a positive parameter estimated at or below zero
+        lo, hi = par.lower, par.upper
+        if par.scale == "log":
+            lo, hi = max(min(lo, v), lo / 10), min(max(hi, v), hi * 10)
+        else:
+            lo = max(min(lo, 1.2 * v), 10 * lo) if lo < 0 else lo
+            hi = min(max(hi, 1.2 * v), 10 * hi) if hi > 0 else hi
+        start[n] = min(max(v, lo), hi)
+        if (lo, hi) != (par.lower, par.upper):
+            boxes[n] = (lo, hi)
+    return start, boxes
+
+
 def _search_candidate(cfg: _Settings, model: Model, searched: list[str],
                       fixed: dict[str, float], all_free: list[str], job: _Job, pop: int,
-                      iters: int) -> tuple[Problem, FitResult]:
+                      iters: int, first: Mapping[str, float] | None = None
+                      ) -> tuple[Problem, FitResult]:
     """A candidate's two stages: global search over ``searched`` (the rest held at the
-    previous fit), then IPOPT over ``all_free``; the second stage's problem and fit."""
-    p1 = _problem(cfg, model, searched, fixed, job.values, job.x0)
+    previous fit, the new parameters seeded at ``first``), then IPOPT over ``all_free``;
+    the second stage's problem and fit."""
+    p1 = _problem(cfg, model, searched, fixed, {**job.values, **(first or {})}, job.x0)
     r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
     p2 = _problem(cfg, model, all_free, {}, _values(r1), r1.x0,
                   simulator=getattr(p1, "simulators", p1.sim))
