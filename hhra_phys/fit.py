@@ -613,8 +613,12 @@ def _search_and_refine(
 
 def _integration(problem: Problem, z: np.ndarray) -> dict[str, Any]:
     """The simulator's accuracy choice and its error estimate at the fitted values ``z``."""
-    info = dict(problem.sim.accuracy or {"method": problem.sim.method,
-                                         "substeps": problem.sim.substeps})
+    if not problem.sim.accuracy:
+        # Substeps given (or inherited, as the loop's candidates keep the base fit's):
+        # no estimate here, which would cost a few seconds for a stiff candidate.
+        return {"method": problem.sim.method, "substeps": problem.sim.substeps,
+                "error_estimate": None, "note": "substeps given, not chosen for accuracy"}
+    info = dict(problem.sim.accuracy)
     v = problem.from_z(z)
     try:
         info["error_at_fit"] = problem.sim.integration_error(
