@@ -52,7 +52,6 @@ def test_split_record_makes_three_parts_in_time_order():
         split_record(ds, 0.5, 0.5)
 
 
-@pytest.mark.slow
 def test_test_part_chooses_nothing():
     """Replace the test part's output by garbage: the choices must not move."""
     ds = _record()
