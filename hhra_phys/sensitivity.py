@@ -58,15 +58,25 @@ class TrajectorySensitivity:
         f, h = sim._fns["f"], sim._fns["h"]
         hh = sim.h
         # The simulator's own method and substeps: the exact Jacobian of the same
-        # discretisation (for ROS2 CasADi differentiates through the step's
-        # Jacobian and its LU as well).
-        xk = advance(sim.method, f, sim._fns["jac"], x, u, p, hh, sim.substeps)
-        y = h(x, u, p)
+        # discretisation (for the Rosenbrock methods CasADi differentiates through the
+        # step's Jacobian and its LU as well). One substep and its sensitivity are one
+        # SX function, called ``substeps`` times per sample: the generated code holds
+        # the substep once instead of unrolled (a sharp backlash's ROS4 x 8 sample
+        # differentiated as a whole compiled for minutes), with the same chain rule.
+        x1 = advance(sim.method, f, sim._fns["jac"], x, u, p, hh, 1)
         dp = ca.horzcat(ca.SX.zeros(self.np_, self.nx), ca.SX.eye(self.np_))
-        S_next = ca.mtimes(ca.jacobian(xk, x), S) + ca.mtimes(ca.jacobian(xk, p), dp)
+        S1 = ca.mtimes(ca.jacobian(x1, x), S) + ca.mtimes(ca.jacobian(x1, p), dp)
+        sub = ca.Function("sens_sub", [x, S, p, u], [x1, ca.densify(S1)], {"cse": True})
+        y = h(x, u, p)
         dy = ca.mtimes(ca.jacobian(y, x), S) + ca.mtimes(ca.jacobian(y, p), dp)
-        step = ca.Function("sens_step", [x, S, p, u], [xk, ca.densify(S_next), y,
-                                                       ca.densify(dy)], {"cse": True})
+        out = ca.Function("sens_out", [x, S, p, u], [y, ca.densify(dy)], {"cse": True})
+        xm, Sm = ca.MX.sym("x", self.nx), ca.MX.sym("S", self.nx, nv)
+        pm1, um = ca.MX.sym("p", self.np_), ca.MX.sym("u", nu)
+        xi, Si = xm, Sm
+        for _ in range(int(sim.substeps)):
+            xi, Si = sub(xi, Si, pm1, um)
+        ym, dym = out(xm, Sm, pm1, um)
+        step = ca.Function("sens_step", [xm, Sm, pm1, um], [xi, Si, ym, dym])
         acc = step.mapaccum("sens_acc", CHUNK, [0, 1], [0, 1], {})
         x0 = ca.MX.sym("x0", self.nx)
         S0 = ca.MX.sym("S0", self.nx, nv)
