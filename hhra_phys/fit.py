@@ -613,11 +613,13 @@ def _search_and_refine(
 
 def _integration(problem: Problem, z: np.ndarray) -> dict[str, Any]:
     """The simulator's accuracy choice and its error estimate at the fitted values ``z``."""
-    if not problem.sim.accuracy:
+    if not problem.sim.accuracy or problem.sim.accuracy.get("error_estimate") is None:
         # Substeps given (or inherited, as the loop's candidates keep the base fit's):
         # no estimate here, which would cost a few seconds for a stiff candidate.
         return {"method": problem.sim.method, "substeps": problem.sim.substeps,
-                "error_estimate": None, "note": "substeps given, not chosen for accuracy"}
+                "error_estimate": None,
+                "note": str(problem.sim.accuracy.get("reason", "substeps given, not chosen "
+                                                               "for accuracy"))}
     info = dict(problem.sim.accuracy)
     v = problem.from_z(z)
     try:
@@ -640,7 +642,8 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
     """
     acc = problem.sim.accuracy
     tol = float(acc.get("tolerance", np.inf)) if acc else np.inf
-    if not np.isfinite(tol) or "ipopt" not in _refiner_names(refine):
+    if (not np.isfinite(tol) or acc.get("error_estimate") is None
+            or "ipopt" not in _refiner_names(refine)):
         return problem, z
     v = problem.from_z(z)
     x0 = problem.initial_states(v)[0]

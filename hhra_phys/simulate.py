@@ -597,6 +597,16 @@ class Simulator:
         umax = float(np.max(np.abs(u)))
         _, n_rule, _ = self.plan(pv, umax, method=self.method)
         n = max(int(n_rule), self.substeps) if self.substeps_auto else self.substeps
+        if n > MAX_AUTO_SUBSTEPS:
+            # Parameters the stability rule cannot serve (a held value far off the
+            # model's range): the population's stability check flags them; estimating
+            # the error would simulate thousands of substeps per sample.
+            self.accuracy = {"method": self.method, "substeps": self.substeps,
+                             "error_estimate": None, "tolerance": float(tolerance),
+                             "rule_substeps": int(n_rule), "within": False,
+                             "reason": f"the stability rule needs {n_rule} substeps, more than "
+                                       f"{MAX_AUTO_SUBSTEPS}: not estimated"}
+            return self
         outs: dict[int, np.ndarray] = {}
 
         def out(k: int) -> np.ndarray:
@@ -607,7 +617,8 @@ class Simulator:
         err = step_doubling_error(out(n), out(2 * n), out(4 * n))
         # A simulation that does not stay finite is the stability check's business
         # (its rows are flagged), not a reason for more substeps.
-        while math.isfinite(err) and err > tolerance and 2 * n <= MAX_AUTO_SUBSTEPS:
+        # At most MAX_AUTO_SUBSTEPS steps per sample in the estimate's finest run.
+        while math.isfinite(err) and err > tolerance and 8 * n <= MAX_AUTO_SUBSTEPS:
             n *= 2
             err = step_doubling_error(out(n), out(2 * n), out(4 * n))
         sim = self
