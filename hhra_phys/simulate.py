@@ -570,15 +570,19 @@ class Simulator:
                  x0: np.ndarray | None = None) -> Simulator:
         """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
 
-        Starts from the substeps of the stability rule (:meth:`plan` at ``p`` with the
-        record's largest input, never fewer than this simulator's) and doubles them
-        while the step-doubling estimate (:meth:`integration_error`) exceeds
-        ``tolerance``, up to :data:`MAX_AUTO_SUBSTEPS`. The method stays this
-        simulator's (chosen by stiffness). The returned simulator (``self`` when its
-        substeps suffice, else one with fixed substeps, built once and kept) carries
-        :attr:`accuracy`: ``method``, ``substeps``, ``error_estimate``, ``tolerance``,
-        ``rule_substeps`` (the stability rule's) and ``within`` (whether the estimate
-        is at most the tolerance).
+        Starts from this simulator's substeps when they are stable for ``p`` (the
+        population's check, :meth:`stability_index` at most ``rho_max``), else from the
+        stability rule's (:meth:`plan` at ``p`` with the record's largest input), and
+        doubles them while the step-doubling estimate (:meth:`integration_error`)
+        exceeds ``tolerance``, up to a quarter of :data:`MAX_AUTO_SUBSTEPS` (the
+        estimate's finest run then has that many); parameters whose stability rule
+        alone needs more than :data:`MAX_AUTO_SUBSTEPS` are not estimated
+        (``error_estimate`` ``None``). The method stays this simulator's (chosen by
+        stiffness). The returned simulator (``self`` when its substeps suffice, else one
+        with fixed substeps, built once and kept) carries :attr:`accuracy`: ``method``,
+        ``substeps``, ``error_estimate``, ``tolerance``, ``rule_substeps`` (the stability
+        rule's), ``start_substeps`` and ``within`` (whether the estimate is at most the
+        tolerance).
 
         Parameters
         ----------
@@ -596,7 +600,14 @@ class Simulator:
         pv, xv = P[0], X0[:, 0]
         umax = float(np.max(np.abs(u)))
         _, n_rule, _ = self.plan(pv, umax, method=self.method)
-        n = max(int(n_rule), self.substeps) if self.substeps_auto else self.substeps
+        # Start at this simulator's substeps where they are stable for p (the
+        # population's flagging rule), else at the stability rule's: the error
+        # estimate, not the rule's margin, decides whether more are needed.
+        stable = (self.method != "rk4"
+                  or float(self.stability_index(P, umax)[0]) <= self.rho_max)
+        n = (self.substeps if stable or not self.substeps_auto
+             else max(int(n_rule), self.substeps))
+        n_start = n
         if n > MAX_AUTO_SUBSTEPS:
             # Parameters the stability rule cannot serve (a held value far off the
             # model's range): the population's stability check flags them; estimating
@@ -633,7 +644,8 @@ class Simulator:
             sim = self._derived[key]
         sim.accuracy = {"method": self.method, "substeps": int(n),
                         "error_estimate": float(err), "tolerance": float(tolerance),
-                        "rule_substeps": int(n_rule), "within": bool(err <= tolerance),
+                        "rule_substeps": int(n_rule), "start_substeps": int(n_start),
+                        "within": bool(err <= tolerance),
                         "reason": self.method_reason}
         return sim
 
