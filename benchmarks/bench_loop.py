@@ -24,7 +24,8 @@ from hhra_phys.data import save_csv
 from hhra_phys.reference import reference_record
 
 SIZES = {"valve_deadzone": {"i_dead": 0.1}, "input_delay": {"delay": 2.0},
-         "gravity_load": {"g_grav_cos": 5.0, "g_grav_sin": -8.0}}
+         "gravity_load": {"g_grav_cos": 5.0, "g_grav_sin": -8.0},
+         "clean": {}}  # no hidden effect (target: diagnose at most 2x the fit)
 
 
 def _time(cmd: list[str], env: dict[str, str]) -> float:
@@ -44,7 +45,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp, "rec.csv")
         save_csv(reference_record(seed=args.seed, duration=20.0,
-                                  effects={args.effect: SIZES[args.effect]}), rec)
+                                  effects={args.effect: SIZES[args.effect]}
+                                  if SIZES[args.effect] else {}), rec)
         env = dict(os.environ)
         hhra = [sys.executable, "-m", "hhra_phys.cli"]
         fit_cmd = hhra + ["fit", str(rec), "--quiet"]

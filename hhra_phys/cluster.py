@@ -14,6 +14,7 @@ which order, the jobs ran.
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
@@ -24,6 +25,7 @@ from hhra_phys.interrupt import ignore_sigint, stop_on_interrupt
 
 __all__ = [
     "executor",
+    "auto_workers",
     "add_cluster_arguments",
     "check_scheduler_answers",
     "dask_client",
@@ -120,8 +122,32 @@ def check_scheduler_answers(address: str, timeout: float | None = None) -> None:
             f"{head!r}); give the scheduler's address (usually port 8786)")
 
 
+def auto_workers() -> int | None:
+    """``--workers auto``: one worker process per usable core, none on a single core."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        cores = os.cpu_count() or 1
+    return cores if cores > 1 else None
+
+
+def _workers_arg(text: str) -> int | str:
+    """``--workers`` value: ``auto`` or a non-negative integer."""
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto' or a non-negative integer, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a non-negative integer, got {n}")
+    return n
+
+
 @contextmanager
-def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Executor | None]:
+def executor(workers: int | str | None = None,
+             dask: str | None = None) -> Iterator[Executor | None]:
     """The executor asked for, shut down (or disconnected) on exit.
 
     On Ctrl-C inside the block its jobs are cancelled and the local worker processes
@@ -130,8 +156,10 @@ def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Ex
 
     Parameters
     ----------
-    workers : int, optional
-        Local worker processes (``>= 1``); ``None`` or ``0``: no executor (run here).
+    workers : int or "auto", optional
+        Local worker processes (``>= 1``); ``None`` or ``0``: no executor (run here);
+        ``"auto"``: one per usable core (:func:`auto_workers`), none on a single core
+        or when ``dask`` is given.
     dask : str, optional
         Address of a running Dask scheduler; excludes ``workers``.
 
@@ -139,6 +167,8 @@ def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Ex
     ------
     concurrent.futures.Executor or None
     """
+    if workers == "auto":
+        workers = None if dask else auto_workers()
     if workers is not None and (not isinstance(workers, int) or workers < 0):
         raise ParameterError(f"--workers must be a non-negative integer, got {workers!r}")
     if dask and workers:
@@ -159,10 +189,17 @@ def executor(workers: int | None = None, dask: str | None = None) -> Iterator[Ex
         yield None
 
 
-def add_cluster_arguments(p: argparse.ArgumentParser, what: str) -> None:
-    """``--workers N`` and ``--dask ADDRESS`` for a sub-command; ``what`` names the jobs."""
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help=f"run {what} in N local worker processes (results as without)")
+def add_cluster_arguments(p: argparse.ArgumentParser, what: str,
+                          default: int | str | None = None) -> None:
+    """``--workers N`` and ``--dask ADDRESS`` for a sub-command; ``what`` names the jobs.
+
+    ``default`` of ``--workers``: ``None`` (run here) or ``"auto"`` (one process per
+    core where there is more than one).
+    """
+    auto = (" (default: auto, one per core where there is more than one; 0 runs them here)"
+            if default == "auto" else "; auto: one per core")
+    p.add_argument("--workers", type=_workers_arg, default=default, metavar="N",
+                   help=f"run {what} in N local worker processes (results as without){auto}")
     p.add_argument("--dask", default=None, metavar="ADDRESS",
                    help=f"run {what} on a running Dask scheduler, e.g. tcp://host:8786 "
                         "(needs pip install \"hhra-phys[dask]\")")

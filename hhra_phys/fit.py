@@ -365,6 +365,7 @@ def fit(
                           start=start, allow_outside_box=allow_outside_box)
     with interruptible():
         problem, z, stages, history, widened = fit_and_widen(problem, search, widen_bounds)
+        problem, z = _accurate_at_fit(problem, z, stages, refine, refine_options)
     result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
                      max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
                      intervals)
@@ -707,6 +708,55 @@ def _search_and_refine(
     return z, stages, history
 
 
+def _integration(problem: Problem, z: np.ndarray) -> dict[str, Any]:
+    """The simulator's accuracy choice and its error estimate at the fitted values ``z``."""
+    if not problem.sim.accuracy or problem.sim.accuracy.get("error_estimate") is None:
+        # Substeps given (or inherited, as the loop's candidates keep the base fit's):
+        # no estimate here, which would cost a few seconds for a stiff candidate.
+        return {"method": problem.sim.method, "substeps": problem.sim.substeps,
+                "error_estimate": None,
+                "note": str(problem.sim.accuracy.get("reason", "substeps given, not chosen "
+                                                               "for accuracy"))}
+    info = dict(problem.sim.accuracy)
+    v = problem.from_z(z)
+    try:
+        info["error_at_fit"] = problem.sim.integration_error(
+            problem.u, problem.full(v), x0=problem.initial_states(v)[0])
+    except Exception as exc:  # noqa: BLE001 - a diverged fit has no estimate
+        info["error_at_fit"] = float("nan")
+        info["error_note"] = str(exc)
+    return info
+
+
+def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refine: Any,
+                     refine_options: Mapping[str, Any] | None) -> tuple[Problem, np.ndarray]:
+    """Refine again with finer substeps if the fitted values need them for accuracy.
+
+    The substeps were chosen at the start values (:meth:`Problem.__init__`); when the
+    error estimate at the fitted values exceeds the tolerance, the problem gets the
+    simulator :meth:`~hhra_phys.simulate.Simulator.accurate` gives there and IPOPT
+    (when it is among the refiners) refines once more from ``z``.
+    """
+    acc = problem.sim.accuracy
+    tol = float(acc.get("tolerance", np.inf)) if acc else np.inf
+    if (not np.isfinite(tol) or acc.get("error_estimate") is None
+            or "ipopt" not in _refiner_names(refine)):
+        return problem, z
+    v = problem.from_z(z)
+    x0 = problem.initial_states(v)[0]
+    sim = problem.sim.accurate(problem.u, problem.full(v), tol, x0=x0)
+    if sim is problem.sim or sim.substeps <= problem.sim.substeps:
+        return problem, z
+    new = problem.with_boxes({})
+    new.sim = sim
+    ropts = dict(refine_options or {})
+    keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+    st = refine_ipopt(new, z, **{k: val for k, val in ropts.items() if k in keys})
+    st.name += f" (accuracy: {sim.method} x {sim.substeps})"
+    stages.append(st)
+    return new, st.z
+
+
 def _int_or_none(x: Any) -> int | None:
     try:
         return None if x is None else int(x)
@@ -855,6 +905,14 @@ def _result(
                     "position-dependent terms are extrapolated there"
                 )
     settings = _settings(problem, optimizer, refine, pop_size, max_iter, lam, split, seconds)
+    settings["integration"] = _integration(problem, z)
+    err, tol = settings["integration"].get("error_at_fit"), settings["integration"].get(
+        "tolerance")
+    if err is not None and tol is not None and err > tol:
+        warnings.append(
+            f"the integration error estimated at the fitted values ({err:.3g}) exceeds 10 % "
+            f"of the record's noise level ({tol:.3g}) with {problem.sim.method.upper()} x "
+            f"{problem.sim.substeps} substeps: the fit is biased by the discretisation")
     settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
                         "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
     return assemble_result(problem, values, x0, metrics,

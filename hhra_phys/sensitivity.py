@@ -19,12 +19,14 @@ follow by the chain rule.
 
 from __future__ import annotations
 
+import math
 import weakref
 
 import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
+from hhra_phys.integrate import advance
 from hhra_phys.simulate import Simulator
 
 __all__ = [
@@ -54,17 +56,49 @@ class TrajectorySensitivity:
         S = ca.SX.sym("S", self.nx, nv)
         p = ca.SX.sym("p", self.np_)
         u = ca.SX.sym("u", nu)
-        h = sim._fns["h"]
+        f, h = sim._fns["f"], sim._fns["h"]
+        hh = sim.h
         # The simulator's own method, substeps and inter-sample behaviour: the exact
-        # Jacobian of the same discretisation (for ROS2 CasADi differentiates through
-        # the step's Jacobian and its LU as well).
-        xk = sim.advance_sample(x, u, p)
-        y = h(x, sim.sample_input(u), p)
+        # Jacobian of the same discretisation (for the Rosenbrock methods CasADi
+        # differentiates through the step's Jacobian and its LU as well). One substep and
+        # its sensitivity are one SX function, called ``substeps`` times per sample: the
+        # generated code holds the substep once instead of unrolled (a sharp backlash's
+        # ROS4 x 8 sample differentiated as a whole compiled for minutes), with the same
+        # chain rule. Under a moving input the substep advances the state augmented by the
+        # input's interpolation chain (Simulator.advance_sample), whose sensitivity to the
+        # initial state and the parameters is zero.
+        order = 0 if sim.intersample == "zoh" else len(sim._input_polynomial(u)) - 1
+        if order:
+            fa, ja = sim._ramp_functions(order)
+            n_aug = self.nx + order * (m.n_lags + 1)
+            n_r = m.n_lags + 1
+        else:
+            fa, ja, n_aug, n_r = f, sim._fns["jac"], self.nx, nu
+        xa = ca.SX.sym("xa", n_aug)
+        Sa = ca.SX.sym("Sa", n_aug, nv)
+        r = ca.SX.sym("r", n_r)
+        x1 = advance(sim.method, fa, ja, xa, r, p, hh, 1)
         dp = ca.horzcat(ca.SX.zeros(self.np_, self.nx), ca.SX.eye(self.np_))
-        S_next = ca.mtimes(ca.jacobian(xk, x), S) + ca.mtimes(ca.jacobian(xk, p), dp)
+        S1 = ca.mtimes(ca.jacobian(x1, xa), Sa) + ca.mtimes(ca.jacobian(x1, p), dp)
+        sub = ca.Function("sens_sub", [xa, Sa, p, r], [x1, ca.densify(S1)], {"cse": True})
+        y = h(x, sim.sample_input(u), p)
         dy = ca.mtimes(ca.jacobian(y, x), S) + ca.mtimes(ca.jacobian(y, p), dp)
-        step = ca.Function("sens_step", [x, S, p, u], [xk, ca.densify(S_next), y,
-                                                       ca.densify(dy)], {"cse": True})
+        out = ca.Function("sens_out", [x, S, p, u], [y, ca.densify(dy)], {"cse": True})
+        xm, Sm = ca.MX.sym("x", self.nx), ca.MX.sym("S", self.nx, nv)
+        pm1, um = ca.MX.sym("p", self.np_), ca.MX.sym("u", nu)
+        if order:
+            c = sim._input_polynomial(um)
+            derivs = [math.factorial(i) * c[i] / sim.dt ** i for i in range(order + 1)]
+            xi = ca.vertcat(xm, *derivs[:-1])
+            Si = ca.vertcat(Sm, ca.MX.zeros(n_aug - self.nx, nv))
+            ri = derivs[-1]
+        else:
+            xi, Si, ri = xm, Sm, um
+        for _ in range(int(sim.substeps)):
+            xi, Si = sub(xi, Si, pm1, ri)
+        xi, Si = xi[:self.nx], Si[:self.nx, :]
+        ym, dym = out(xm, Sm, pm1, um)
+        step = ca.Function("sens_step", [xm, Sm, pm1, um], [xi, Si, ym, dym])
         acc = step.mapaccum("sens_acc", CHUNK, [0, 1], [0, 1], {})
         x0 = ca.MX.sym("x0", self.nx)
         S0 = ca.MX.sym("S0", self.nx, nv)

@@ -101,6 +101,8 @@ from hhra_phys.vectorize import SimdTarget, simd_target, supports
 
 __all__ = [
     "Simulator",
+    "step_doubling_error",
+    "accuracy_tolerance",
 ]
 
 #: Largest number of RK4 steps unrolled in one compiled step function
@@ -127,6 +129,77 @@ STIFF_REAL = 2.0
 #: Most substeps per sample ``substeps="auto"`` may choose; more is refused
 #: (:class:`SimulationError`) as a sign of a time axis in the wrong unit.
 MAX_AUTO_SUBSTEPS = 64
+
+#: Accuracy rule (:meth:`Simulator.accurate`): the estimated integration error of the
+#: output at most this share of the record's noise level.
+ACCURACY_SHARE = 0.1
+
+#: Samples per call of the error estimate's CasADi-VM map.
+ACCURACY_CHUNK = 500
+
+
+def step_doubling_error(y1: np.ndarray, y2: np.ndarray, y4: np.ndarray) -> float:
+    """Largest error of ``y1`` estimated from the same simulation with 2x and 4x the steps.
+
+    With ``d1 = max|y1 - y2|`` and ``d2 = max|y2 - y4|`` the observed ratio
+    ``r = d1/d2`` (clipped to ``[2, 16]``, orders 1 to 4) gives the error of ``y1``
+    as the geometric series ``d1 * r / (r - 1)``. The clip keeps the estimate
+    honest where the order is not the method's: a switching friction or valve
+    sign converges at first order (``r = 2``: twice ``d1``), a smooth model at
+    fourth (``r = 16``: ``d1`` and a fifteenth).
+
+    Parameters
+    ----------
+    y1, y2, y4 : array, shape (N,)
+        Outputs with ``n``, ``2n`` and ``4n`` steps per sample.
+
+    Returns
+    -------
+    float
+        The estimate (output units); ``inf`` if any output is not finite.
+    """
+    y1, y2, y4 = (np.asarray(y, dtype=float) for y in (y1, y2, y4))
+    if not (np.isfinite(y1).all() and np.isfinite(y2).all() and np.isfinite(y4).all()):
+        return math.inf
+    d1 = float(np.max(np.abs(y1 - y2), initial=0.0))
+    d2 = float(np.max(np.abs(y2 - y4), initial=0.0))
+    if d1 == 0.0:
+        return 0.0
+    r = min(max(d1 / d2 if d2 > 0 else 16.0, 2.0), 16.0)
+    return d1 * r / (r - 1.0)
+
+
+def accuracy_tolerance(y: np.ndarray, share: float = ACCURACY_SHARE) -> float:
+    """``share`` of a record's noise level: the integration error a fit can ignore.
+
+    The noise level is the robust standard deviation of the third differences of
+    the measured output divided by ``sqrt(20)`` (white noise of standard deviation
+    ``s`` has third differences of standard deviation ``sqrt(20) s``; a smooth
+    output's contribution falls with the cube of the sample period). A record
+    without noise (a simulated one) gets ``share`` of 1e-4 of its range instead.
+
+    Parameters
+    ----------
+    y : array, shape (N,)
+        Measured output (output units).
+    share : float
+        Share of the noise level.
+
+    Returns
+    -------
+    float
+        Tolerance in output units (positive).
+    """
+    y = np.asarray(y, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size < 8:
+        return math.inf
+    d = np.diff(y, 3)
+    noise = float(np.median(np.abs(d - np.median(d)))) * 1.4826 / math.sqrt(20.0)
+    floor = 1e-4 * float(np.ptp(y))
+    level = max(noise, floor)
+    return share * level if level > 0 else math.inf
+
 
 #: Status codes of :attr:`Simulator.last_status`.
 STATUS_OK = 0
@@ -333,6 +406,9 @@ class Simulator:
         self.last_method: str = self.method
         self.last_substeps: int = self.substeps
         self._derived: dict[tuple[str, int | str], Simulator] = {}
+        #: What :meth:`accurate` chose (empty until it was asked).
+        self.accuracy: dict[str, object] = {}
+        self._vm_maps: dict[tuple[str, int], ca.Function] = {}
 
     # -- construction -------------------------------------------------------------
     def _simd_target(self, simd: int | str | None) -> SimdTarget | None:
@@ -449,6 +525,162 @@ class Simulator:
         else:
             why = figures
         return method, (n_rk4 if method == "rk4" else n_ros), why
+
+    # -- accuracy ------------------------------------------------------------------------
+    def _sample_map(self, method: str, substeps: int) -> ca.Function:
+        """CasADi-VM map of one sample of ``substeps`` steps over :data:`ACCURACY_CHUNK` samples.
+
+        ``(x0[nx], lags[nu, chunk], p[n_params]) -> (x_end[nx], y[1, chunk])``: the error
+        estimate runs outside the compiled code, so it needs no compilation of its own.
+        """
+        key = (method, int(substeps))
+        cache = self._vm_maps
+        if key not in cache:
+            m = self.model
+            x = ca.SX.sym("x", m.nx)
+            u = ca.SX.sym("u", m.n_lags + 1)
+            p = ca.SX.sym("p", m.n_params)
+            f, h, jac = self._fns["f"], self._fns["h"], self._fns["jac"]
+            x_next = advance(method, f, jac, x, u, p, self.dt / substeps, int(substeps))
+            one = ca.Function("sample", [x, u, p], [x_next, h(x, u, p)], {"cse": True})
+            cache[key] = one.mapaccum("samples", ACCURACY_CHUNK, [0], [0], {})
+        return cache[key]
+
+    def _vm_output(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray, method: str,
+                   substeps: int) -> np.ndarray:
+        """Output of one parameter vector with ``method`` x ``substeps`` (CasADi VM)."""
+        n, nu = u.size, self.model.n_lags + 1
+        padded = np.concatenate([np.full(nu - 1, u[0]), u])
+        lags = np.stack([padded[nu - 1 - j: nu - 1 - j + n] for j in range(nu)])
+        fn = self._sample_map(method, substeps)
+        n_chunks = -(-n // ACCURACY_CHUNK)
+        lags = np.hstack([lags, np.repeat(lags[:, -1:], n_chunks * ACCURACY_CHUNK - n, axis=1)])
+        y = np.empty(n_chunks * ACCURACY_CHUNK)
+        x = np.asarray(x0, dtype=float)
+        with np.errstate(all="ignore"):
+            for c in range(n_chunks):
+                cols = slice(c * ACCURACY_CHUNK, (c + 1) * ACCURACY_CHUNK)
+                xe, yc = fn(x, lags[:, cols], p)
+                x = np.asarray(xe, dtype=float)[:, -1]
+                y[cols] = np.asarray(yc, dtype=float).ravel()
+                if not np.isfinite(x).all():
+                    y[cols.stop:] = np.nan
+                    break
+        return y[:n]
+
+    def integration_error(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray | None = None,
+                          substeps: int | None = None, method: str | None = None) -> float:
+        """Estimated largest output error of simulating ``u`` with ``p`` (step doubling).
+
+        The record is simulated with ``n``, ``2n`` and ``4n`` steps per sample
+        (:func:`step_doubling_error`); the estimate is that of the ``n``-step output.
+
+        Parameters
+        ----------
+        u : array, shape (N,)
+            Input record (input units).
+        p : array, shape (n_params,)
+            One parameter vector.
+        x0 : array, shape (nx,), optional
+            Initial state (default: the model's).
+        substeps : int, optional
+            ``n`` (default: this simulator's).
+        method : str, optional
+            Integrator (default: this simulator's).
+
+        Returns
+        -------
+        float
+            Error estimate in output units (``inf`` if a simulation does not stay finite).
+        """
+        u, P, X0, _ = self._prepare(u, p, x0)
+        n = int(substeps or self.substeps)
+        meth = method or self.method
+        ys = [self._vm_output(u, P[0], X0[:, 0], meth, k * n) for k in (1, 2, 4)]
+        return step_doubling_error(*ys)
+
+    def accurate(self, u: np.ndarray, p: np.ndarray, tolerance: float,
+                 x0: np.ndarray | None = None) -> Simulator:
+        """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
+
+        Starts from this simulator's substeps when they are stable for ``p`` (the
+        population's check, :meth:`stability_index` at most ``rho_max``), else from the
+        stability rule's (:meth:`plan` at ``p`` with the record's largest input), and
+        doubles them while the step-doubling estimate (:meth:`integration_error`)
+        exceeds ``tolerance``, up to a quarter of :data:`MAX_AUTO_SUBSTEPS` (the
+        estimate's finest run then has that many); parameters whose stability rule
+        alone needs more than :data:`MAX_AUTO_SUBSTEPS` are not estimated
+        (``error_estimate`` ``None``). The method stays this simulator's (chosen by
+        stiffness). The returned simulator (``self`` when its substeps suffice, else one
+        with fixed substeps, built once and kept) carries :attr:`accuracy`: ``method``,
+        ``substeps``, ``error_estimate``, ``tolerance``, ``rule_substeps`` (the stability
+        rule's), ``start_substeps`` and ``within`` (whether the estimate is at most the
+        tolerance).
+
+        Parameters
+        ----------
+        u : array, shape (N,)
+            Input record (input units).
+        p : array, shape (n_params,)
+            The parameters being simulated (a fit's start or result).
+        tolerance : float
+            Largest acceptable output error (output units), e.g. 10 % of the record's
+            noise level (:func:`accuracy_tolerance`).
+        x0 : array, shape (nx,), optional
+            Initial state.
+        """
+        u, P, X0, _ = self._prepare(u, p, x0)
+        pv, xv = P[0], X0[:, 0]
+        umax = float(np.max(np.abs(u)))
+        _, n_rule, _ = self.plan(pv, umax, method=self.method)
+        # Start at this simulator's substeps where they are stable for p (the
+        # population's flagging rule), else at the stability rule's: the error
+        # estimate, not the rule's margin, decides whether more are needed.
+        stable = (self.method != "rk4"
+                  or float(self.stability_index(P, umax)[0]) <= self.rho_max)
+        n = (self.substeps if stable or not self.substeps_auto
+             else max(int(n_rule), self.substeps))
+        n_start = n
+        if n > MAX_AUTO_SUBSTEPS:
+            # Parameters the stability rule cannot serve (a held value far off the
+            # model's range): the population's stability check flags them; estimating
+            # the error would simulate thousands of substeps per sample.
+            self.accuracy = {"method": self.method, "substeps": self.substeps,
+                             "error_estimate": None, "tolerance": float(tolerance),
+                             "rule_substeps": int(n_rule), "within": False,
+                             "reason": f"the stability rule needs {n_rule} substeps, more than "
+                                       f"{MAX_AUTO_SUBSTEPS}: not estimated"}
+            return self
+        outs: dict[int, np.ndarray] = {}
+
+        def out(k: int) -> np.ndarray:
+            if k not in outs:
+                outs[k] = self._vm_output(u, pv, xv, self.method, k)
+            return outs[k]
+
+        err = step_doubling_error(out(n), out(2 * n), out(4 * n))
+        # A simulation that does not stay finite is the stability check's business
+        # (its rows are flagged), not a reason for more substeps.
+        # At most MAX_AUTO_SUBSTEPS steps per sample in the estimate's finest run.
+        while math.isfinite(err) and err > tolerance and 8 * n <= MAX_AUTO_SUBSTEPS:
+            n *= 2
+            err = step_doubling_error(out(n), out(2 * n), out(4 * n))
+        sim = self
+        if n != self.substeps:
+            key = (self.method, n)
+            if key not in self._derived:
+                self._derived[key] = Simulator(
+                    self.model, self.fs, substeps=n, method=self.method,
+                    threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
+                    chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
+                    diverge_limit=self.diverge_limit, simd=self._simd_arg)
+            sim = self._derived[key]
+        sim.accuracy = {"method": self.method, "substeps": int(n),
+                        "error_estimate": float(err), "tolerance": float(tolerance),
+                        "rule_substeps": int(n_rule), "start_substeps": int(n_start),
+                        "within": bool(err <= tolerance),
+                        "reason": self.method_reason}
+        return sim
 
     def for_parameters(self, p: np.ndarray, umax: float = 1.0) -> Simulator:
         """The simulator a single parameter vector ``p`` is simulated with.

@@ -4,8 +4,10 @@ Layout: ``unit/`` checks one module against a reference it does not share code w
 (closed forms, hand-computed steps, SciPy, python-control, CVODES); ``integration/``
 runs whole paths (fit, diagnosis loop, CLI, guide, experiment scripts) and the
 package's models against independent implementations (``hhra_phys.reference``).
-Tests that take more than a few seconds are marked ``slow`` (still part of CI;
-``pytest -m "not slow"`` for a quick run).
+The long studies (rates over several seeds, the experiment scripts) are marked ``slow``
+and deselected by default (``addopts`` in ``pyproject.toml``); ``pytest -m slow`` runs
+them (``docs/testing.md``). Each such behaviour keeps a fast version (one seed, a shorter
+record) in the default run.
 """
 
 from __future__ import annotations

@@ -193,12 +193,17 @@ def _close_loop(args: argparse.Namespace, duration: float, pop: int, iters: int,
 
     # The independent implementation: the data are not the model checked against itself.
     data = reference_record(seed=args.seed + 1, duration=duration, effects={hidden: truth})
+    from hhra_phys.cluster import executor
+
     model, bounds = default_model(data)
-    res = augment(data, model, bounds=bounds, pop_size=pop, max_iter=iters,
-                  max_effects=2, seed=args.seed,
-                  progress=lambda s: print("    " + s.splitlines()[0], file=sys.stderr,
-                                           flush=True) if s.startswith(("  tried", "round"))
-                  and "ranking" not in s else None)
+    # Candidate refits in one process per core, as `hhra-phys diagnose` does by default
+    # (results identical to a serial run).
+    with executor("auto") as ex:
+        res = augment(data, model, bounds=bounds, pop_size=pop, max_iter=iters,
+                      max_effects=2, seed=args.seed, executor=ex,
+                      progress=lambda s: print("    " + s.splitlines()[0], file=sys.stderr,
+                                               flush=True) if s.startswith(("  tried", "round"))
+                      and "ranking" not in s else None)
     return res, data
 
 

@@ -96,7 +96,7 @@ def register(subparsers: Any) -> None:
                         "rule would no longer accept it)")
     p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
                    help="sparsity rule of the discovery (default threshold)")
-    add_cluster_arguments(p, "the candidate refits")
+    add_cluster_arguments(p, "the candidate refits", default="auto")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 

@@ -166,18 +166,22 @@ def test_saved_model_reloads_with_the_same_equations():
                                   np.array(model.functions(0.004)["f"](x, [1.5], model.nominal())))
 
 
-@pytest.mark.slow
-def test_fit_recovers_output_and_groups_over_seeds():
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((0,), 1, id="seed0"),
+    pytest.param(tuple(range(5)), 4, id="seeds0-4", marks=pytest.mark.slow),
+])
+def test_fit_recovers_output_and_groups_over_seeds(seeds, need):
     """Five short records, truths away from nominal; each split in estimation and validation.
 
     Measured (pop 30, 40 iterations, 8 s records): validation RMSE/noise 0.98-1.01 and
     every free group inside its 95 % interval on 8 of 8 records (seeds 0-7); with the
     valve's pressure sign flipped, RMSE/noise 1.8-14 and 1 of 5 covered. The test asks
     for every record within 1.1 of the noise and all groups covered on at least 4 of 5.
+    The default run fits seed 0 (within 1.1, all covered); the rate over 5 seeds is slow.
     """
     noise = 0.05
     ratios, covered = [], 0
-    for seed in range(5):
+    for seed in seeds:
         phys = perturbed_physical(100 + seed)
         record = simulate_cylinder(seed=seed, duration=16.0, truth=phys, noise=noise)
         # The model's defaults: c_spring and c_load held, the initial position fitted;
@@ -189,4 +193,4 @@ def test_fit_recovers_output_and_groups_over_seeds():
         ratios.append(res.metrics["val"]["rmse"] / noise)
         covered += all(res.ci95[n][0] <= truth[n] <= res.ci95[n][1] for n in DEFAULT_FREE)
     assert max(ratios) <= 1.1, ratios
-    assert covered >= 4, (covered, ratios)
+    assert covered >= need, (covered, ratios)

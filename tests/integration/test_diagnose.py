@@ -92,7 +92,6 @@ def test_output_delay_finds_a_fractional_lag():
     assert output_delay(y, yhat) == pytest.approx(3.5, abs=0.3)
 
 
-@pytest.mark.slow
 def test_clean_record_adds_nothing():
     res = _run(_record({}), max_effects=2)
     assert res.chosen == []
@@ -156,7 +155,6 @@ def test_two_hidden_effects_are_both_found(loop_workers):
     assert {"ratio", "white", "estimation"} <= set(level) and "ratio" in level["estimation"]
 
 
-@pytest.mark.slow
 def test_cli_diagnose_writes_json_and_report_and_refuses_overwrite(tmp_path, capsys):
     from hhra_phys.cli import main
     from hhra_phys.data import save

@@ -148,7 +148,6 @@ def _cli(tmp_path, term, size, seed):
     return json.loads(out.read_text()), rep
 
 
-@pytest.mark.slow
 def test_outside_library_term_is_discovered_by_the_cli(tmp_path):
     """The CLI's contract on the drag record, seed 3 (the claim held on 5 of 5 seeds)."""
     js, rep = _cli(tmp_path, "quadratic_drag", 400.0, 3)

@@ -160,15 +160,19 @@ def _mode_steps(res):
 PERIOD, DAMPING = 0.25, 0.1
 
 
-@pytest.mark.slow
-def test_hidden_resonance_is_found_with_its_frequency_in_the_ci():
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((1,), 1, id="seed1"),
+    pytest.param((1, 2, 3), 2, id="seeds1-3", marks=pytest.mark.slow),
+])
+def test_hidden_resonance_is_found_with_its_frequency_in_the_ci(seeds, need):
     """Reference records read through a resonant sensor, modes only (library rounds off).
 
     Measured on seeds 1-3 (``experiments/discover.py``, docs/diagnosis.md): the output
-    mode accepted with the true frequency inside its 95 % CI on 3 of 3; asserted 2 of 3.
+    mode accepted with the true frequency inside its 95 % CI on 3 of 3; asserted 2 of 3
+    (slow), seed 1 in the default run.
     """
     hits = []
-    for seed in (1, 2, 3):
+    for seed in seeds:
         ds = resonant_record(PERIOD, DAMPING, seed=seed, noise_deg=NOISE)
         res = _run(ds, seed, MODE_ENTRIES)
         acc = [s for s in _mode_steps(res) if s["accepted"]]
@@ -178,7 +182,7 @@ def test_hidden_resonance_is_found_with_its_frequency_in_the_ci():
             hits.append(w_lo <= ds.metadata["truth"]["w"] <= w_hi and p_lo <= PERIOD <= p_hi)
             assert acc[0]["expression"].startswith("y += ") and "period" in acc[0]["expression"]
             assert res.chosen == [acc[0]["effect"]]
-    assert sum(hits) >= 2, hits
+    assert sum(hits) >= need, hits
 
 
 #: Hidden load of the tests: period 0.25 s on its coupling, ratio 0.5, damping 0.1.

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow  # each runs a script in a subprocess
+# Each runs a script in a subprocess: the fits' scripts are slow (deselected by default),
+# the optimiser table and the controller design run by default.
 
 REPO = Path(__file__).resolve().parents[2]
 PUBLIC = REPO.parent / "shared" / "data"
@@ -35,6 +36,7 @@ def _run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]
     return proc
 
 
+@pytest.mark.slow
 def test_fit_rig_every_part(tmp_path):
     out = tmp_path / "fit_rig"
     _run("fit_rig.py", "--out", str(out), "--parts", "clean,noisy,speed,lam", "--seeds", "2",
@@ -54,6 +56,7 @@ def test_fit_rig_every_part(tmp_path):
     assert res["speed"]["best_total"] > 0 and res["speed"]["runs"][0]["nfev"] > 0
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not PUBLIC.exists(), reason="public data not present next to the repository")
 def test_table3_on_the_perturbed_rig_and_public_record(tmp_path):
     out = tmp_path / "t3"
@@ -71,6 +74,7 @@ def test_table3_on_the_perturbed_rig_and_public_record(tmp_path):
     assert not (tmp_path / "t3b").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not PUBLIC.exists(), reason="public data not present next to the repository")
 def test_fit_public(tmp_path):
     out = tmp_path / "fp"

@@ -87,7 +87,8 @@ def _env(shims: Path | None = None) -> dict[str, str]:
     return env
 
 
-@pytest.mark.slow
+# In the default run: the guide is what a user follows first (about a minute on an idle
+# machine, its loop example the longest block).
 @pytest.mark.parametrize(("line", "lang", "mode", "code"), BLOCKS,
                          ids=[f"line{b[0]}-{b[1]}" for b in BLOCKS])
 def test_guide_block(line, lang, mode, code, workdir, shims):

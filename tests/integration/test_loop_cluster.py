@@ -53,7 +53,6 @@ def test_split_record_makes_three_parts_in_time_order():
         split_record(ds, 0.5, 0.5)
 
 
-@pytest.mark.slow
 def test_test_part_chooses_nothing():
     """Replace the test part's output by garbage: the choices must not move."""
     ds = _record()
@@ -115,3 +114,43 @@ def test_cli_refuses_workers_and_dask_together(tmp_path, capsys):
 
     assert main(["diagnose", "--workers", "2", "--dask", "tcp://127.0.0.1:1"]) == 2  # usage error
     assert "either --workers or --dask" in capsys.readouterr().err
+
+
+def _without_times(obj):
+    """A loop JSON without its wall times and the executor's name (the only fields
+    where the jobs ran may change)."""
+    if isinstance(obj, dict):
+        return {k: _without_times(v) for k, v in obj.items()
+                if k != "executor" and not any(w in k for w in ("seconds", "time", "elapsed"))}
+    if isinstance(obj, list):
+        return [_without_times(v) for v in obj]
+    return obj
+
+
+def test_cli_default_workers_give_the_serial_json(tmp_path, monkeypatch):
+    """``diagnose`` refits candidates in one process per core by default (``--workers
+    auto``); its JSON is the serial run's (``--workers 0``) but for wall times."""
+    from hhra_phys import cluster
+    from hhra_phys.cli import main
+    from hhra_phys.data import save
+
+    monkeypatch.setattr(cluster, "auto_workers", lambda: 2)  # two workers on any machine
+    data = tmp_path / "rec.csv"
+    save(reference_record(seed=4, duration=6.0, effects={"valve_deadzone": {"i_dead": 0.1}}),
+         data)
+    common = [str(data), "--max-effects", "1", "--pop", "12", "--iters", "8",
+              "--effects", "valve_deadzone,input_delay", "--no-discover"]
+    out_s, out_a = tmp_path / "s.json", tmp_path / "a.json"
+    assert main(["diagnose", *common, "--workers", "0", "--json", str(out_s)]) == 0
+    assert main(["diagnose", *common, "--json", str(out_a)]) == 0
+    s, a = json.loads(out_s.read_text()), json.loads(out_a.read_text())
+    assert len(s["steps"]) >= 2  # both candidates were refitted
+    assert a["settings"]["executor"] == "ProcessPoolExecutor"
+    assert _without_times(a) == _without_times(s)
+
+
+def test_auto_workers_is_one_per_core_and_none_on_one():
+    from hhra_phys.cluster import auto_workers
+
+    n = auto_workers()
+    assert n is None or n >= 2

@@ -19,7 +19,8 @@ import pytest
 from hhra_phys.loop import augment
 from hhra_phys.reference import reference_record
 
-pytestmark = pytest.mark.slow  # loops of about 10 s each (a pair: about 40 s)
+# The rates over seeds are slow (loops of about 10 s each, a pair about 40 s); one seed of
+# the sharp friction runs by default.
 
 SEEDS = (1, 2, 3)
 #: The study's loop settings (experiments/closed_loop.py).
@@ -37,30 +38,36 @@ def _loop(seed: int, effects: dict[str, dict[str, float]], smooth: bool, workers
         return augment(ds, seed=seed, executor=workers, **LOOP_KW)
 
 
-def test_sharp_friction_found_first_with_truth_in_ci(loop_workers):
+@pytest.mark.parametrize(("seeds", "min_in_ci"), [
+    pytest.param((1,), 1, id="seed1"),
+    pytest.param(SEEDS, 2, id="seeds1-3", marks=pytest.mark.slow),
+])
+def test_sharp_friction_found_first_with_truth_in_ci(loop_workers, seeds, min_in_ci):
     """Exact stick-slip Coulomb friction (smooth=False) of 30 rad/s^2 hidden in the plant.
 
     Measured on seeds 1-3: found first on 3 of 3, truth in the 95 % CI on 2 of 3 (seed 2:
     31.6 fitted, just outside), no other effect accepted, test RMSE 0.048-0.050 deg
-    (within 15 % of the 0.05 deg noise) on all three.
+    (within 15 % of the 0.05 deg noise) on all three. The default run: seed 1 (found
+    first, truth in the CI); the rate over seeds 1-3 is slow.
     """
     truth = 30.0
     runs = [_loop(s, {"coulomb_friction": {"g_coulomb": truth}}, smooth=False,
-                  workers=loop_workers) for s in SEEDS]
+                  workers=loop_workers) for s in seeds]
     first = sum(bool(r.chosen) and r.chosen[0] == "coulomb_friction" for r in runs)
     in_ci = 0
     for r in runs:
         lo, hi = r.final.ci95.get("g_coulomb", (float("nan"),) * 2)
         in_ci += bool(lo <= truth <= hi)
     wrong = [n for r in runs for n in r.chosen if n != "coulomb_friction"]
-    assert first == 3, [r.chosen for r in runs]
-    assert in_ci >= 2, [(r.final.values.get("g_coulomb"), r.final.ci95.get("g_coulomb"))
+    assert first == len(seeds), [r.chosen for r in runs]
+    assert in_ci >= min_in_ci, [(r.final.values.get("g_coulomb"), r.final.ci95.get("g_coulomb"))
                              for r in runs]
     assert not wrong, wrong
     for r in runs:
         assert r.test["rmse"] < 1.15 * NOISE, r.test
 
 
+@pytest.mark.slow
 def test_clean_records_add_nothing(loop_workers):
     """No hidden effect: the loop must stop at the noise level without adding any.
 
@@ -72,6 +79,7 @@ def test_clean_records_add_nothing(loop_workers):
     assert all(r.test["rmse"] < 1.15 * NOISE for r in runs), [r.test for r in runs]
 
 
+@pytest.mark.slow
 def test_dead_zone_and_sharp_friction_both_found(loop_workers):
     """A dead zone and exact stick-slip friction hidden together (issue 16).
 

@@ -39,10 +39,15 @@ def _width(res, name: str) -> float:
     return 2 * 1.96 * res.std[name]
 
 
-@pytest.mark.slow
-def test_two_records_jointly_recover_the_truth_with_narrower_intervals():
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((0,), 5, id="seed0"),
+    pytest.param((0, 1, 2), 13, id="seeds0-2", marks=pytest.mark.slow),
+])
+def test_two_records_jointly_recover_the_truth_with_narrower_intervals(seeds, need):
+    """Joint fits of two records: narrower intervals than either alone, truth covered
+    (seed 0 by default, every group; seeds 0-2 slow, at least 13 of 15)."""
     covered = 0
-    for seed in (0, 1, 2):
+    for seed in seeds:
         truth, a, b = _two_records(seed)
         joint = fit([a, b], **SMALL)
         alone = [fit(a, **SMALL), fit(b, **SMALL)]
@@ -57,7 +62,7 @@ def test_two_records_jointly_recover_the_truth_with_narrower_intervals():
     # 95 % intervals: measured 15 of 15 contain the truth (the same with population 100 x 200).
     # (With 6 s and 5 s records, truth 0 left g_damping so weakly determined that the
     # linearised interval of the joint optimum was wider than that of one record's.)
-    assert covered >= 13
+    assert covered >= need
 
 
 def test_records_of_different_lengths_and_rates_have_metrics_per_record_and_pooled():

@@ -465,8 +465,11 @@ RECOVERY_TRUTH = dict({k: v for k, v in REFERENCE_GROUPS.items() if k != "g_kp"}
 RECOVERY_NOISE = 0.05
 
 
-@pytest.mark.slow
-def test_fit_recovers_reference_records() -> None:
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((0,), (1, 1, 1), id="seed0"),
+    pytest.param(tuple(range(5)), (4, 4, 3), id="seeds0-4", marks=pytest.mark.slow),
+])
+def test_fit_recovers_reference_records(seeds, need) -> None:
     """Fits of reference records (5 seeds, 8 s, pop 30 x 40 + IPOPT) recover the truth.
 
     Measured on this branch: validation RMSE 0.049-0.052 deg for noise 0.05 (<= 1.04x)
@@ -478,13 +481,14 @@ def test_fit_recovers_reference_records() -> None:
     (correlation 0.9995+), and a refit started at the truth ends at the same
     optimum, so it is the intervals, not the search (reported, left alone). The
     thresholds keep a margin above noise: 4 of 5 at 1.2x noise, 4 of 5 within 3 %,
-    3 of 5 inside the intervals.
+    3 of 5 inside the intervals. The default run fits seed 0 (all three hold there); the
+    rate over seeds 0-4 is slow.
     """
     from hhra_phys.fit import fit
 
     t = RECOVERY_TRUTH
     rmse_ok, combos_ok, inside = [], [], []
-    for seed in range(5):
+    for seed in seeds:
         ds = reference_record(seed=seed, duration=8.0, noise_deg=RECOVERY_NOISE, params=t)
         res = fit(ds, pop_size=30, max_iter=40, seed=seed)
         v = res.values
@@ -494,6 +498,6 @@ def test_fit_recovers_reference_records() -> None:
             and abs(v["g_torque"] * v["g_valve"] / (t["g_torque"] * t["g_valve"]) - 1) < 0.03)
         inside.append(all(lo <= t[n] <= hi for n, (lo, hi) in res.ci95.items()
                           if n.startswith("g_")))
-    assert sum(rmse_ok) >= 4, rmse_ok
-    assert sum(combos_ok) >= 4, combos_ok
-    assert sum(inside) >= 3, inside
+    assert sum(rmse_ok) >= need[0], rmse_ok
+    assert sum(combos_ok) >= need[1], combos_ok
+    assert sum(inside) >= need[2], inside

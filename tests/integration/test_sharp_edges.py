@@ -132,18 +132,22 @@ def test_deadzone_and_saturation_match_exact_clipping(name: str, size: dict) -> 
     assert float(np.max(np.abs(y0 - ds.y))) > 0.1
 
 
-@pytest.mark.slow
-def test_fit_recovers_play_of_an_exact_backlash_record() -> None:
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((1,), 1, id="seed1"),
+    pytest.param(tuple(range(5)), 4, id="seeds0-4", marks=pytest.mark.slow),
+])
+def test_fit_recovers_play_of_an_exact_backlash_record(seeds, need) -> None:
     """Fits of reference records with the exact play operator recover ``play``.
 
     Measured first on this branch (play 1.0 deg, 8 s, noise 0.05 deg, pop 30 x 40 +
     IPOPT, seeds 0-4): the truth inside the 95 % interval on 5 of 5, errors -1.5 % to
-    +0.6 %, intervals +-0.9 to +-2.5 %. Required: 4 of 5 inside, all within 5 %.
+    +0.6 %, intervals +-0.9 to +-2.5 %. Required: 4 of 5 inside, all within 5 %. The
+    default run fits seed 1 (inside, within 5 %); the rate over seeds 0-4 is slow.
     """
     from hhra_phys.fit import fit
 
     inside, close = [], []
-    for seed in range(5):
+    for seed in seeds:
         ds = reference_record(seed=seed, duration=8.0, noise_deg=0.05,
                               effects={"backlash": {"play": 1.0}}, smooth=False)
         model = HHRAModel(effects=[make_effect("backlash", data=ds)])
@@ -151,5 +155,5 @@ def test_fit_recovers_play_of_an_exact_backlash_record() -> None:
         lo, hi = res.ci95["play"]
         inside.append(lo <= 1.0 <= hi)
         close.append(abs(res.values["play"] - 1.0) < 0.05)
-    assert sum(inside) >= 4, inside
+    assert sum(inside) >= need, inside
     assert all(close), close

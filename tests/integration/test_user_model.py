@@ -102,7 +102,6 @@ def test_loop_finds_the_users_effect_and_nothing_on_clean_records():
     assert res.chosen == [], [s.reason for s in res.steps]
 
 
-@pytest.mark.slow
 def test_cli_fits_and_diagnoses_the_users_model(tmp_path):
     data = two_tank.simulate_record(seed=1)
     csv = tmp_path / "tanks.csv"

@@ -30,10 +30,15 @@ def _bc_error(res, truth) -> float:
     return abs((res.tf["b"] / res.tf["c"]) / (tf["b"] / tf["c"]) - 1)
 
 
-@pytest.mark.slow
-def test_a_group_beyond_its_default_box_is_recovered_by_widening() -> None:
+@pytest.mark.parametrize(("seeds", "need"), [
+    pytest.param((0,), 1, id="seed0"),
+    pytest.param((0, 1, 2), 2, id="seeds0-2", marks=pytest.mark.slow),
+])
+def test_a_group_beyond_its_default_box_is_recovered_by_widening(seeds, need) -> None:
+    """Seed 0 in the default run; the rate over seeds 0-2 (and the loop's and the
+    several-record paths' rates below) are slow."""
     good = 0
-    for seed in range(3):
+    for seed in seeds:
         data = simulate_rig(seed=seed, duration=8.0, physical=widen_box.heavy_damping())
         res = fit(data, pop_size=30, max_iter=40, seed=seed)
         sides = {(w["name"], w["side"]) for w in res.settings["widened"]}
@@ -43,7 +48,7 @@ def test_a_group_beyond_its_default_box_is_recovered_by_widening() -> None:
         truth = data.metadata["true_params"]["g_damping"]
         assert res.settings["bounds"]["g_damping"][1] > truth  # the box now holds the truth
         good += _bc_error(res, data.metadata["true_params"]) < 0.05
-    assert good >= 2
+    assert good >= need
 
 
 @pytest.mark.parametrize("seed", [2, 3])
