@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from hhra_phys.model import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, default_input
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 

@@ -70,7 +70,7 @@ def main() -> None:
     os.environ["HHRA_PHYS_CACHE"] = tempfile.mkdtemp(prefix="hhra-sens-bench-")
     from hhra_phys.effects import make_effect
     from hhra_phys.loop import CANDIDATE_BLOCK
-    from hhra_phys.model import HHRAModel
+    from hhra_phys.models.hhra import HHRAModel
     from hhra_phys.reference import reference_record
     from hhra_phys.sensitivity import TrajectorySensitivity
     from hhra_phys.simulate import Simulator

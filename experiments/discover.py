@@ -8,7 +8,7 @@ truth of the discovered mode), or with a load on a compliant coupling of the sha
 load mode at ``rate:omega``), or with one library effect at its large size of
 ``experiments/closed_loop.py`` (``<effect>:large``: a mode or term accepted there is
 a stand-in), and clean records (false discoveries). Every record runs the loop
-with ``max_effects=0`` (library rounds off, so the discovery step alone is
+with no library effects (``candidates=[]``, one addition: discovery alone is
 scored) for each sparsity rule.
 Reported per run: base and final validation RMSE, whether a term was accepted,
 whether it uses the true term's variable, its expression against the truth, the
@@ -76,7 +76,7 @@ def run(family: str, size: float, seed: int, method: str, duration: float,
         kw["entries"] = entries
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment(ds, max_effects=0, pop_size=20, max_iter=30, seed=seed,
+        res = augment(ds, candidates=[], max_effects=1, pop_size=20, max_iter=30, seed=seed,
                       discover_kw=kw)
     found = [s.to_json() for s in res.steps if s.to_json().get("discovered")]
     acc = [s for s in found if s["accepted"]]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hhra_phys.model import NOMINAL_GROUPS, HHRAModel
+from hhra_phys.models.hhra import NOMINAL_GROUPS, HHRAModel
 from hhra_phys.simulate import Simulator, accuracy_tolerance, step_doubling_error
 
 FS = 250.0
