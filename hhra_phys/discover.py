@@ -639,7 +639,10 @@ def screen_mode(problem: Problem, values: np.ndarray, target: str = "output",
 
 
 class DiscoveredStep(Step):
-    """A :class:`~hhra_phys.loop.Step` of a discovered term: also ``expression`` and ``uses``."""
+    """A :class:`~hhra_phys.selection.Step` of a discovered term: also ``expression`` and
+    ``uses``."""
+
+    discovered = True
 
     def __init__(self, *args: Any, expression: str = "", uses: Sequence[str] = (),
                  entry: str = "", method: str = "", screening: Mapping[str, Any] | None = None,

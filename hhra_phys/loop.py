@@ -623,6 +623,7 @@ def refit_candidate(job: _Job) -> _Outcome:
                 {n: list(r2.ci95[n]) for n in new if n in r2.ci95},
                 dict(r2.metrics["est"]), dict(r2.metrics["val"]), crit, job.crit_cur,
                 job.rmse_cur)
+    step.entry = str(getattr(eff, "entry", "") or "")
     bad = _unidentified(r2, new, model_c)
     if bad:
         step.identifiable = False

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
@@ -164,6 +164,12 @@ class Step:
     action: str = "add"
     #: The backward check took the effect out of the model.
     removed: bool = False
+    #: Where the candidate enters the model (``"input"``, ``"output"``, ``"rate:<state>"``,
+    #: ``"mode:..."``; empty when it changes no equation).
+    entry: str = ""
+    #: A term or mode discovery built (its shape was chosen from the data), not a library
+    #: or user effect whose shape was given in advance.
+    discovered: ClassVar[bool] = False
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able dictionary (layout of the CLI's report)."""
@@ -176,6 +182,7 @@ class Step:
             "val_rmse_before": self.val_rmse_before, "accepted": self.accepted,
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
             "seconds": self.seconds, "action": self.action, "removed": self.removed,
+            "entry": self.entry,
         }
 
 
@@ -212,9 +219,13 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     The lowest selection RMSE wins, unless other candidates are within the noise
     allowance of it (``rmse^2 - best^2 <= noise_allowance(noise, noise_tol)``): the
     selection part cannot tell those apart, so the information criterion on estimation
-    (``Step.criterion``) decides among them, the lowest wins. Measured on reference
-    records (docs/diagnosis.md): among resonant modes the criterion chose the true one
-    6 of 6 times where the lowest selection error chose an input-mode stand-in once in 3.
+    (``Step.criterion``) decides among them, the lowest wins; except that a discovered
+    term tied with a given (library or user) effect at the same entry is not chosen over
+    it (on a dead-zone record a discovered ``u += ... relu(u - c)`` tied with the library
+    dead zone and won by BIC: the same physics, with a shape searched among many).
+    Measured on reference records (docs/diagnosis.md): among resonant modes the criterion
+    chose the true one 6 of 6 times where the lowest selection error chose an input-mode
+    stand-in once in 3.
 
     The winner's reason is prefixed ``"accepted: "`` and it is marked accepted; every other
     candidate's reason says why it was not chosen.
@@ -246,6 +257,12 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     best = min(sel(s) for s, _ in candidates)
     allowance = noise_allowance(noise, noise_tol)
     tied = [c for c in candidates if sel(c[0]) ** 2 - best ** 2 <= allowance]
+    # At one entry, a given effect and a discovered term that the selection part cannot
+    # tell apart are two descriptions of one missing piece: the effect whose shape was
+    # known in advance is kept. The criterion charges the term's coefficients, not the
+    # search over shapes that chose it from the data.
+    given = {c[0].entry for c in tied if not c[0].discovered and c[0].entry}
+    tied = [c for c in tied if not (c[0].discovered and c[0].entry in given)] or tied
     step, payload = min(tied, key=lambda c: (c[0].criterion, sel(c[0])))
     step.accepted = True
     step.reason = "accepted: " + step.reason

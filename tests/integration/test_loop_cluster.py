@@ -93,7 +93,7 @@ def test_cli_dask_and_workers(tmp_path):
     data = tmp_path / "rec.csv"
     save(_record(seed=3), data)
     common = [str(data), "--max-effects", "1", "--pop", "20", "--iters", "20",
-              "--effects", "valve_deadzone,input_delay", "--no-discover"]
+              "--effects", "input_delay,valve_saturation", "--no-discover"]
     out_w, out_d = tmp_path / "w.json", tmp_path / "d.json"
     assert main(["diagnose", *common, "--workers", "2", "--json", str(out_w)]) == 0
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -139,12 +139,14 @@ def test_cli_default_workers_give_the_serial_json(tmp_path, monkeypatch):
     save(reference_record(seed=4, duration=6.0, effects={"valve_deadzone": {"i_dead": 0.1}}),
          data)
     common = [str(data), "--max-effects", "1", "--pop", "12", "--iters", "8",
-              "--effects", "valve_deadzone,input_delay", "--no-discover"]
+              "--effects", "input_delay,valve_saturation", "--no-discover"]
     out_s, out_a = tmp_path / "s.json", tmp_path / "a.json"
     assert main(["diagnose", *common, "--workers", "0", "--json", str(out_s)]) == 0
     assert main(["diagnose", *common, "--json", str(out_a)]) == 0
     s, a = json.loads(out_s.read_text()), json.loads(out_a.read_text())
-    assert len(s["steps"]) >= 2  # both candidates were refitted
+    # both candidates were refitted (neither explains the dead zone, so neither settles
+    # the round and the second is not skipped)
+    assert len(s["steps"]) >= 2
     assert a["settings"]["executor"] == "ProcessPoolExecutor"
     assert _without_times(a) == _without_times(s)
 

@@ -84,3 +84,26 @@ def test_settling_cannot_hide_a_clear_winner():
     best_possible = NOISE  # no model gets a part below its noise level
     settled = (1 + TOL) * NOISE
     assert settled ** 2 - best_possible ** 2 <= noise_allowance(NOISE, TOL) + 1e-15
+
+
+def test_a_given_effect_keeps_a_tie_with_a_discovered_term_at_its_entry():
+    from hhra_phys.discover import DiscoveredStep
+
+    lib = _step("valve_deadzone", 0.0512, -100.0)
+    lib.entry = "input"
+    term = DiscoveredStep(1, "discovered_input_1", {}, {}, {}, {"rmse": 0.0505},
+                          {"rmse": 0.0505}, -120.0, 0.0, 1.0, reason="r", entry="input")
+    # tied (0.0512^2 - 0.0505^2 << allowance) and the term has the lower BIC: the effect
+    assert choose([(term, 1), (lib, 2)], NOISE, TOL)[0] is lib
+    # at another entry the criterion decides as before
+    other = DiscoveredStep(1, "discovered_rate_omega_1", {}, {}, {}, {"rmse": 0.0505},
+                           {"rmse": 0.0505}, -120.0, 0.0, 1.0, reason="r", entry="rate:omega")
+    lib2 = _step("valve_deadzone", 0.0512, -100.0)
+    lib2.entry = "input"
+    assert choose([(other, 1), (lib2, 2)], NOISE, TOL)[0] is other
+    # beyond the allowance the clearly better term wins whatever its entry
+    term3 = DiscoveredStep(1, "discovered_input_1", {}, {}, {}, {"rmse": 0.05},
+                           {"rmse": 0.05}, -120.0, 0.0, 1.0, reason="r", entry="input")
+    lib3 = _step("valve_deadzone", 0.09, -100.0)
+    lib3.entry = "input"
+    assert choose([(term3, 1), (lib3, 2)], NOISE, TOL)[0] is term3
