@@ -63,17 +63,11 @@ __all__ = [
     "plot_loop_residuals",
     "plot_residuals",
     "DETECTABLE",
-    "ENTRY_ALIASES",
 ]
 
 #: Detectability (probe-size output change over noise) below which an effect is
 #: reported as not identifiable from the record.
 DETECTABLE = 1.0
-
-#: Old names of entry points, kept for effects written against earlier versions
-#: (the library itself declares ``"input"`` and ``"rate:omega"``): the HHRA's valve
-#: command is its input; its acceleration is the rate of its velocity state.
-ENTRY_ALIASES: dict[str, str] = {"command": "input", "accel": "rate:omega"}
 
 
 @dataclass
@@ -309,7 +303,6 @@ def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarr
         return cols
     names = model.state_names
     A, B, C, _ = model.linearize(p=P, u=0.5 * umax, dt=dt)
-    entry = ENTRY_ALIASES.get(entry, entry)
     if entry == "input":
         # Average the two directions: orifice laws and dead zones are odd in u.
         A2, B2, _, _ = model.linearize(p=P, u=-0.5 * umax, dt=dt)
@@ -358,8 +351,7 @@ def linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarra
     P : ndarray, shape (n_params,)
         Full parameter vector at which to linearise.
     entry : str
-        ``"input"``, ``"output"`` or ``"rate:<state>"`` (``"command"`` and
-        ``"accel"`` are old names, :data:`ENTRY_ALIASES`).
+        ``"input"``, ``"output"`` or ``"rate:<state>"``.
     cols : ndarray, shape (N, k)
         Changes at the entry (entry units), one column per candidate.
     umax : float

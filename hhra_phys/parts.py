@@ -314,9 +314,8 @@ class Effect(Part):
         States whose rate the effect changes and signals it sets.
     entry : str
         Where the effect enters, for its first-order signature: ``"input"``
-        (the model's input; ``"command"`` is an old name of it), ``"output"``,
-        or ``"rate:<state>"`` (the time derivative of a state; ``"accel"`` is
-        ``"rate:omega"``).
+        (the model's input), ``"output"``, or ``"rate:<state>"`` (the time derivative
+        of a state).
     signature : str
         What the effect leaves in the residual of a model without it.
     regressors : tuple of str
