@@ -29,7 +29,7 @@ from hhra_phys.cli._guards import (
     split_value,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
-from hhra_phys.errors import HHRAError
+from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
 from hhra_phys.outputs import jsonable
 
@@ -107,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
                       figures=[args.plot])
         fixed = parse_fixed(args.fix)
         free = parse_names(args.free)
+        if args.model and args.valve is not None:  # before the model file is looked at
+            raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
+                                 "combined with --model")
         records, validation, data_warnings = model_records(args)
         from hhra_phys.multi import check_records
 
