@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from functools import partial
 from typing import Any
 
@@ -44,6 +44,7 @@ from hhra_phys.model import Model
 from hhra_phys.multi import MultiProblem, pooled_score
 from hhra_phys.noise import interval_factor
 from hhra_phys.optim import minimize
+from hhra_phys.options import with_overrides
 from hhra_phys.parameters import split_record_name
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
     MAX_WIDEN_DECADES,
@@ -227,18 +228,8 @@ class FitOptions:
         ParameterError
             An override that is not a setting (with the settings' names), or a bad value.
         """
-        base = options if options is not None else cls()
-        names = {f.name for f in fields(cls)}
-        bad = sorted(set(overrides) - names)
-        if bad:
-            raise ParameterError(f"unknown fit setting(s) {', '.join(bad)}; settings: "
-                                 f"{', '.join(sorted(names))}")
-        for key in ("free", "per_record"):
-            if overrides.get(key) is not None:
-                overrides[key] = tuple(overrides[key])
-        if isinstance(overrides.get("refine"), list):
-            overrides["refine"] = tuple(overrides["refine"])
-        return replace(base, **overrides).validate()
+        return with_overrides(options if options is not None else cls(), overrides, "fit",
+                              ("free", "per_record", "refine")).validate()
 
 
 def fit(

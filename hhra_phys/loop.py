@@ -46,7 +46,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -70,6 +70,7 @@ from hhra_phys.multi import (
     split_record_name,
     split_records,
 )
+from hhra_phys.options import with_overrides
 from hhra_phys.outputs import jsonable
 from hhra_phys.problem import Problem, default_free
 from hhra_phys.result import FitResult
@@ -1024,16 +1025,8 @@ class LoopOptions:
         ParameterError
             An override that is not a setting (with the settings' names), or a bad value.
         """
-        base = options if options is not None else cls()
-        names = {f.name for f in fields(cls)}
-        bad = sorted(set(overrides) - names)
-        if bad:
-            raise ParameterError(f"unknown loop setting(s) {', '.join(bad)}; settings: "
-                                 f"{', '.join(sorted(names))}")
-        for key in ("candidates", "free"):  # sequences are kept as tuples (hashable, frozen)
-            if overrides.get(key) is not None:
-                overrides[key] = tuple(overrides[key])
-        opts = replace(base, **overrides)
+        opts = with_overrides(options if options is not None else cls(), overrides, "loop",
+                              ("candidates", "free"))
         if opts.candidates is not None:  # generic aliases (input_deadzone, ...) name the
             # same library parts: each is tried once
             opts = replace(opts, candidates=tuple(dict.fromkeys(
