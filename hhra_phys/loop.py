@@ -1011,6 +1011,9 @@ class LoopOptions:
              f"backend must be 'auto', 'native' or 'casadi', got {self.backend!r}")
         need(self.initial_state in ("fit", "data", "zero"),
              f"initial_state must be 'fit', 'data' or 'zero', got {self.initial_state!r}")
+        bad_kw = sorted(set(self.discover_kw or {}) - {"method", "max_terms", "entries"})
+        need(not bad_kw, f"discover_kw: unknown option(s) {', '.join(bad_kw)}; options: "
+             "method, max_terms, entries")
         unknown = [n for n in (self.candidates or ()) if n not in EFFECTS]
         need(not unknown, f"unknown effect {unknown[0]!r}; library: {', '.join(EFFECTS)}"
              if unknown else "")
