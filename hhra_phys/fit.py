@@ -63,6 +63,7 @@ __all__ = [
     "FitOptions",
     "MAX_WIDEN_DECADES",
     "at_edges",
+    "widened_box",
     "fit_and_widen",
     "widen_boxes",
     "OPTIMIZERS",
@@ -482,6 +483,23 @@ def at_edges(problem: Any, z: np.ndarray, tol: float = EDGE_TOL) -> list[tuple[i
     return out
 
 
+def widened_box(par: Any, side: str) -> tuple[float, float] | None:
+    """``par``'s box with one side widened once, or None when that side cannot move.
+
+    A log-scaled (positive) parameter's side moves a decade; a signed (linear) one's
+    moves ten times as far from zero; a side at zero, or on the other side of it, is a
+    sign (physics), not a guessed size, and stays (None).
+    """
+    lo, hi = float(par.lower), float(par.upper)
+    if par.scale == "log":
+        return (lo / 10, hi) if side == "lower" else (lo, hi * 10)
+    if side == "lower" and lo < 0:
+        return 10 * lo, hi
+    if side == "upper" and hi > 0:
+        return lo, 10 * hi
+    return None
+
+
 def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
     """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
 
@@ -610,11 +628,10 @@ def widen_boxes(
                             else WIDEN_CLEAR_GAIN):
                 continue
             before = [par.lower, par.upper]
-            box[name] = list(before)
-            if par.scale == "log":
-                box[name][k] = before[0] / 10 if k == 0 else before[1] * 10
-            else:  # a signed size: that side ten times as far from zero
-                box[name][k] = 10 * before[k]
+            new = widened_box(par, side)
+            if new is None:
+                continue
+            box[name] = list(new)
             changes.append({"name": name, "side": side, "round": round_,
                             "from": before, "to": list(box[name])})
         if not changes:

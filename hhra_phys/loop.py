@@ -57,7 +57,7 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import MAX_WIDEN_DECADES, at_edges, fit, fit_stacked
+from hhra_phys.fit import MAX_WIDEN_DECADES, at_edges, fit, fit_stacked, widened_box
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
@@ -696,16 +696,9 @@ def _edge_boxes(problem: Problem, res: FitResult, names: Sequence[str]
         par = problem.free_params[i]
         if par.name not in names or par.name in getattr(problem, "explicit_bounds", ()):
             continue
-        lo, hi = par.lower, par.upper
-        if par.scale == "log":
-            lo, hi = (lo / 10, hi) if side == "lower" else (lo, hi * 10)
-        elif side == "lower" and lo < 0:
-            lo = 10 * lo
-        elif side == "upper" and hi > 0:
-            hi = 10 * hi
-        else:
-            continue
-        out[par.name] = (lo, hi)
+        new = widened_box(par, side)  # the fit's widening step (hhra_phys.fit)
+        if new is not None:
+            out[par.name] = new
     return out
 
 
