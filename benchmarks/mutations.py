@@ -574,8 +574,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "reliab-widen-wrong-side",
         "a box is widened on the side opposite to the edge the group ended at",
-        "k = 0 if side == \"lower\" else 1",
-        "k = 1 if side == \"lower\" else 0",
+        "return (lo / 10, hi) if side == \"lower\" else (lo, hi * 10)",
+        "return (lo, hi * 10) if side == \"lower\" else (lo / 10, hi)",
         ("tests/integration/test_widen.py",),
     ),
     _m(
