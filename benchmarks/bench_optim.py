@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from hhra_phys.study import StudySettings, run_study
+from hhra_phys.paper.table2 import StudySettings, run_study
 
 
 def main() -> None:

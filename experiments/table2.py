@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hhra_phys.errors import HHRAError
-from hhra_phys.study import StudySettings, run_and_write
+from hhra_phys.paper.table2 import StudySettings, run_and_write
 
 
 def main(argv: Sequence[str] | None = None) -> int:

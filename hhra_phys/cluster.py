@@ -2,7 +2,7 @@
 
 Candidate refits of the diagnosis loop (:func:`hhra_phys.loop.augment`),
 multi-start fits (:func:`hhra_phys.fit.fit_many`) and the optimiser study
-(:func:`hhra_phys.study.run_study`) take any :class:`concurrent.futures.Executor`.
+(:func:`hhra_phys.paper.table2.run_study`) take any :class:`concurrent.futures.Executor`.
 The CLI builds one from ``--workers N`` (a local ``ProcessPoolExecutor``) or
 ``--dask ADDRESS`` (the executor of a Dask ``distributed.Client`` connected to a
 running scheduler, e.g. ``tcp://10.0.0.5:8786``; install ``hhra-phys[dask]``).

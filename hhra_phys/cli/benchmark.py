@@ -7,13 +7,13 @@ import json
 import sys
 from typing import Any
 
-from hhra_phys.benchmarks import BENCHMARK_KEYS
 from hhra_phys.cli._common import population, positive_int, report_error
 from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
 from hhra_phys.outputs import jsonable
-from hhra_phys.study import PAPER_METHODS, TABLES, StudySettings, run_and_write
+from hhra_phys.paper.benchmarks import BENCHMARK_KEYS
+from hhra_phys.paper.table2 import PAPER_METHODS, TABLES, StudySettings, run_and_write
 
 
 def _names(text: str) -> tuple[str, ...]:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hhra_phys.benchmarks import (
+from hhra_phys.errors import ParameterError
+from hhra_phys.paper.benchmarks import (
     BENCHMARK_KEYS,
     ackley,
     get_benchmark,
@@ -17,7 +18,6 @@ from hhra_phys.benchmarks import (
     six_hump_camel,
     sphere,
 )
-from hhra_phys.errors import ParameterError
 
 TABLE1 = {  # key: (dim, lower, upper, f_min) as in the paper (with the stated corrections)
     "f1": (30, -100, 100, 0.0),
@@ -82,7 +82,7 @@ def test_values_away_from_the_optimum():
     assert six_hump_camel(np.array([[0.0, 0.0]]))[0] == 0.0
     assert goldstein_price(np.array([[0.0, 0.0]]))[0] == 600.0
     # Kowalik with squared residuals: at x = 0 the model is 0, so f = sum a_i^2
-    from hhra_phys.benchmarks import KOWALIK_A
+    from hhra_phys.paper.benchmarks import KOWALIK_A
 
     assert kowalik(np.zeros((1, 4)))[0] == pytest.approx(np.sum(KOWALIK_A**2))
 

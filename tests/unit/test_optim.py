@@ -8,12 +8,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from hhra_phys.benchmarks import get_benchmark
 from hhra_phys.errors import ParameterError
 from hhra_phys.optim import DE, GWO, HGWO, METHODS, PSO, Box, make_optimiser, minimize, noi
 from hhra_phys.optim.core import distinct_indices
 from hhra_phys.optim.gwo import best_distinct, gwo_a
 from hhra_phys.optim.hgwo import tent_map_unit
+from hhra_phys.paper.benchmarks import get_benchmark
 
 ALL = ("hgwo", "gwo", "pso", "de")
 CENTRE = np.array([1.0, -2.0, 0.5, 3.0, -1.5])  # away from the origin and the box centre
@@ -548,7 +548,7 @@ def test_cli_rejects_unknown_function(capsys):
 
 
 def test_study_in_two_processes_matches_one():
-    from hhra_phys.study import StudySettings, run_study
+    from hhra_phys.paper.table2 import StudySettings, run_study
 
     s = StudySettings(runs=2, max_iter=3, functions=("f7", "f9"), tables=("results", "shifted"))
     one, two = run_study(s, jobs=1), run_study(s, jobs=2)

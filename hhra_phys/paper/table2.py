@@ -1,8 +1,8 @@
 """The benchmark study: the reference paper's Table 2, reproduced and extended.
 
 An experiment run with the optimisers of :mod:`hhra_phys.optim` (``hhra-phys benchmark``,
-``experiments/table2.py``), kept outside that package, which holds only the algorithms and
-their driver.
+``experiments/table2.py``), kept in the paper's package, apart from the optimisers, which
+hold only the algorithms and their driver.
 
 Tables (each a ``{function: {method: cell}}`` mapping):
 
@@ -14,7 +14,7 @@ Tables (each a ``{function: {method: cell}}`` mapping):
     (the budget of GWO, PSO and DE above); H-GWO then runs fewer iterations.
 ``shifted``
     The paper's protocol on the shifted functions (optimum moved away from the origin,
-    :meth:`hhra_phys.benchmarks.Benchmark.shifted`), which exposes H-GWO's pull toward the
+    :meth:`hhra_phys.paper.benchmarks.Benchmark.shifted`), which exposes H-GWO's pull toward the
     origin.
 ``shifted_equal_budget``
     Both changes at once.
@@ -49,7 +49,6 @@ import numpy as np
 from scipy.optimize import differential_evolution
 from scipy.stats import qmc
 
-from hhra_phys.benchmarks import BENCHMARK_KEYS, Benchmark, get_benchmark
 from hhra_phys.errors import ParameterError
 from hhra_phys.optim.core import check_int
 from hhra_phys.optim.driver import METHODS, make_optimiser, minimize
@@ -61,6 +60,7 @@ from hhra_phys.outputs import (
     check_output_path,
     jsonable,
 )
+from hhra_phys.paper.benchmarks import BENCHMARK_KEYS, Benchmark, get_benchmark
 
 __all__ = [
     "StudySettings",
