@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable
 from typing import Any
 
 from hhra_phys.cli._common import (
@@ -98,54 +97,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
-    try:
-        check_arguments(args, {"--json": args.json, "--plot": args.plot})
-        check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
-                      figures=[args.plot])
-        fixed = parse_fixed(args.fix)
-        free = parse_names(args.free)
-        if args.model and args.valve is not None:  # before the model file is looked at
-            raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
-                                 "combined with --model")
-        records, validation, data_warnings = model_records(args)
-        from hhra_phys.multi import check_records
-
-        check_records(records + (validation or []))  # a pressure record against an angle fit
-        data = records[0]
-        args.split = split_fraction(args.split, [len(d) for d in records])
-        model, auto_bounds = model_for(args, data, args.valve)
-        # Problem runs the same check in every fit; here it names --fix before any worker
-        # starts. Notes about values accepted outside their box come with the result.
-        model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
-        bounds = _automatic_box(args, model, auto_bounds, free, fixed, records[1:] +
-                                (validation or []))
-        refine = [r for r in args.refine.split("+")] if args.refine else None
-        _say_fitting(args, records)
-        if len(records) == 1 and (validation is None or len(validation) == 1):
-            target, val_arg = data, (validation[0] if validation else None)
-        else:  # several records, or one record with several validation records
-            target, val_arg = records, validation
-        with executor(args.workers, args.dask) as ex:
-            results = fit_many(
-                [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
-                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
-                default_bounds=bounds, split=args.split, validation=val_arg,
-                pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
-                progress=not args.quiet and args.starts == 1 and ex is None,
-                intervals=args.intervals, widen_bounds=not args.no_widen,
-                allow_outside_box=args.allow_outside_box)
-        res = best_of(results)
-        res.warnings.extend(data_warnings)
-        # With --json - the JSON alone goes to stdout; the summary to stderr.
-        say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
-        _say_result(res, say)
-        return _write_outputs(args, res, records, validation, isinstance(target, list), say)
-    except (HHRAError, OSError) as exc:
-        return report_error("fit", exc)
-
-
 def _automatic_box(args: argparse.Namespace, model: Any, auto_bounds: dict[str, Any],
                    free: list[str] | None, fixed: dict[str, float],
                    others: list[Any]) -> dict[str, tuple[float, float]]:
@@ -172,40 +123,77 @@ def _say_fitting(args: argparse.Namespace, records: list[Any]) -> None:
           file=sys.stderr)
 
 
-def _say_result(res: Any, say: Callable[..., None]) -> None:
-    """The summary, each record's errors and each stage's cost."""
-    say(res.summary())
-    for rec in res.records:
-        parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
-                 for key, label in (("est", "estimation"), ("val", "validation"))
-                 if rec[key]]
-        say(f"record {rec['name']}: {', '.join(parts)}")
-    for st in res.stages:
-        say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
-              f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
+def run(args: argparse.Namespace) -> int:
+    """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
+    try:
+        check_arguments(args, {"--json": args.json, "--plot": args.plot})
+        check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
+                      figures=[args.plot])
+        fixed = parse_fixed(args.fix)
+        free = parse_names(args.free)
+        if args.model and args.valve is not None:  # before the model file is looked at
+            raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
+                                 "combined with --model")
+        records, validation, data_warnings = model_records(args)
+        from hhra_phys.multi import check_records
 
-
-def _write_outputs(args: argparse.Namespace, res: Any, records: list[Any],
-                   validation: list[Any] | None, several: bool,
-                   say: Callable[..., None]) -> int:
-    """Write the JSON and figure asked for; the exit code (1 when the fit diverged)."""
-    with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
-        if args.json == STDOUT:
-            print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
-        elif args.json:
-            print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-        if res.status == "diverged":
-            print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
-                  "stay finite with the fitted values); "
-                  + ("the result marked diverged is in the JSON; " if args.json else "")
-                  + "check the units of the record and the --fix values", file=sys.stderr)
-            return 1
-        if args.plot:
-            plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                    args.overwrite)
-                       if several or validation else
-                       plot_result(res, records[0], args.plot, args.split, args.overwrite))
-            say(f"wrote {plotted}")
+        check_records(records + (validation or []))  # a pressure record against an angle fit
+        data = records[0]
+        args.split = split_fraction(args.split, [len(d) for d in records])
+        model, auto_bounds = model_for(args, data, args.valve)
+        # Problem runs the same check in every fit; here it names --fix before any worker
+        # starts. Notes about values accepted outside their box come with the result.
+        model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
+        bounds = _automatic_box(args, model, auto_bounds, free, fixed,
+                                records[1:] + (validation or []))
+        refine = [r for r in args.refine.split("+")] if args.refine else None
+        _say_fitting(args, records)
+        if len(records) == 1 and (validation is None or len(validation) == 1):
+            target, val_arg = data, (validation[0] if validation else None)
+        else:  # several records, or one record with several validation records
+            target, val_arg = records, validation
+        several = isinstance(target, list)
+        with executor(args.workers, args.dask) as ex:
+            results = fit_many(
+                [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
+                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
+                default_bounds=bounds, split=args.split, validation=val_arg,
+                pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
+                progress=not args.quiet and args.starts == 1 and ex is None,
+                intervals=args.intervals, widen_bounds=not args.no_widen,
+                allow_outside_box=args.allow_outside_box)
+        res = best_of(results)
+        res.warnings.extend(data_warnings)
+        # With --json - the JSON alone goes to stdout; the summary to stderr.
+        say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
+        say(res.summary())
+        for rec in res.records:
+            parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
+                     for key, label in (("est", "estimation"), ("val", "validation"))
+                     if rec[key]]
+            say(f"record {rec['name']}: {', '.join(parts)}")
+        for st in res.stages:
+            say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
+                  f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
+        with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
+            if args.json == STDOUT:
+                print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
+            elif args.json:
+                print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+            if res.status == "diverged":
+                print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+                      "stay finite with the fitted values); "
+                      + ("the result marked diverged is in the JSON; " if args.json else "")
+                      + "check the units of the record and the --fix values", file=sys.stderr)
+                return 1
+            if args.plot:
+                plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                        args.overwrite)
+                           if several or validation else
+                           plot_result(res, data, args.plot, args.split, args.overwrite))
+                say(f"wrote {plotted}")
+    except (HHRAError, OSError) as exc:
+        return report_error("fit", exc)
     return 0
 
 
