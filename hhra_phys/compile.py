@@ -178,6 +178,63 @@ class CompiledFunction:
         return outs
 
 
+def _check_dense(fn: ca.Function) -> None:
+    """Refuse sparse inputs or outputs: the compiled call passes dense arrays."""
+    for i in range(fn.n_in()):
+        if not fn.sparsity_in(i).is_dense():
+            raise ValueError(
+                f"compile_function needs dense inputs; input {i} of {fn.name()} is sparse"
+            )
+    for i in range(fn.n_out()):
+        if not fn.sparsity_out(i).is_dense():
+            raise ValueError(
+                f"compile_function needs dense outputs; output {i} of {fn.name()} is sparse "
+                "(wrap it in casadi.densify)"
+            )
+
+
+def _c_source(fn: ca.Function) -> bytes:
+    """The C source CasADi generates for ``fn``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = ca.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
+        cg.add(fn)
+        # Write into the temporary directory by prefix: changing the working
+        # directory would break other threads (and a deleted cwd breaks the process).
+        path = Path(cg.generate(tmp + os.sep))
+        return path.read_bytes()
+
+
+def _build(source: bytes, compiler: str, flags: tuple[str, ...], name: str, target: Path,
+           digest: str, quiet: bool, simd: SimdTarget | None) -> bool:
+    """Compile ``source`` with ``compiler`` and ``flags`` into ``target``.
+
+    Returns False (after a warning, or raises when not ``quiet``) if the compiler fails;
+    the failure is remembered by ``digest`` so this process does not retry it.
+    """
+    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+        src = Path(tmp, f"{name}.c")
+        src.write_bytes(source)
+        out = Path(tmp, target.name)
+        proc = subprocess.run(
+            [compiler, *flags, str(src), "-o", str(out), "-lm"],
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            _failed.add(digest)  # do not retry in this process
+            msg = f"compiling {name} with {compiler} failed:\n{proc.stderr[-2000:]}"
+            if not quiet:
+                raise RuntimeError(msg)
+            fallback = ("scalar code" if simd is not None
+                        else "CasADi's virtual machine")
+            # stacklevel 4: the frame compile_function's own warnings name (3 there)
+            warnings.warn(msg + f"\nusing {fallback} instead",
+                          RuntimeWarning, stacklevel=4)
+            return False
+        os.replace(out, target)  # atomic: concurrent processes never see half a file
+    return True
+
+
 def compile_function(
     fn: ca.Function, quiet: bool = True, simd: SimdTarget | None = None
 ) -> CompiledFunction | None:
@@ -203,25 +260,9 @@ def compile_function(
             stacklevel=3,
         )
         return None
-    for i in range(fn.n_in()):
-        if not fn.sparsity_in(i).is_dense():
-            raise ValueError(
-                f"compile_function needs dense inputs; input {i} of {fn.name()} is sparse"
-            )
-    for i in range(fn.n_out()):
-        if not fn.sparsity_out(i).is_dense():
-            raise ValueError(
-                f"compile_function needs dense outputs; output {i} of {fn.name()} is sparse "
-                "(wrap it in casadi.densify)"
-            )
+    _check_dense(fn)
     name = fn.name()
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
-        cg.add(fn)
-        # Write into the temporary directory by prefix: changing the working
-        # directory would break other threads (and a deleted cwd breaks the process).
-        path = Path(cg.generate(tmp + os.sep))
-        source = path.read_bytes()
+    source = _c_source(fn)
     flags = CFLAGS
     if simd is not None:
         source = transform_source(source.decode()).encode()
@@ -233,27 +274,9 @@ def compile_function(
     with _lock:
         entry_lock = _locks.setdefault(digest, threading.Lock())
     with entry_lock:
-        if not target.exists():
-            with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
-                src = Path(tmp, f"{name}.c")
-                src.write_bytes(source)
-                out = Path(tmp, target.name)
-                proc = subprocess.run(
-                    [compiler, *flags, str(src), "-o", str(out), "-lm"],
-                    capture_output=True,
-                    text=True,
-                )
-                if proc.returncode != 0:
-                    _failed.add(digest)  # do not retry in this process
-                    msg = f"compiling {name} with {compiler} failed:\n{proc.stderr[-2000:]}"
-                    if not quiet:
-                        raise RuntimeError(msg)
-                    fallback = ("scalar code" if simd is not None
-                                else "CasADi's virtual machine")
-                    warnings.warn(msg + f"\nusing {fallback} instead",
-                                  RuntimeWarning, stacklevel=3)
-                    return None
-                os.replace(out, target)  # atomic: concurrent processes never see half a file
+        if not target.exists() and not _build(source, compiler, flags, name, target,
+                                              digest, quiet, simd):
+            return None
     shapes_in = [(fn.size1_in(i), fn.size2_in(i)) for i in range(fn.n_in())]
     shapes_out = [(fn.size1_out(i), fn.size2_out(i)) for i in range(fn.n_out())]
     return CompiledFunction(target, name, shapes_in, shapes_out,

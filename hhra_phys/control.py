@@ -804,30 +804,9 @@ class ClosedLoop:
         -------
         ClosedLoopResponse
         """
-        if callable(reference):
-            if duration is None or not duration > 0:
-                raise ParameterError("duration [s] is required with a callable reference")
-            n = int(round(duration / self.dt)) + 1
-            t = np.arange(n) * self.dt
-            r = np.asarray(reference(t), dtype=float) * np.ones(n)
-        else:
-            r = np.asarray(reference, dtype=float).ravel()
-            n = r.size
-            t = np.arange(n) * self.dt
-        if n < 2 or not np.isfinite(r).all():
-            raise ParameterError("reference must have at least 2 finite samples")
-        x = self._x0.copy()
-        if isinstance(x0, Mapping):
-            for name, value in x0.items():
-                if name not in self.state_names:
-                    raise ParameterError(
-                        f"x0 names unknown state {name!r}; states: {', '.join(self.state_names)}"
-                    )
-                x[self.state_names.index(name)] = float(value)
-        elif x0 is not None:
-            x = np.asarray(x0, dtype=float).ravel().copy()
-            if x.shape != (self.nx,):
-                raise ParameterError(f"x0 must have shape ({self.nx},), got {x.shape}")
+        t, r = self._reference(reference, duration)
+        n = t.size
+        x = self._initial_state(x0)
 
         rng = np.random.default_rng(self.seed)
         noise = self.noise * rng.standard_normal(n) if self.noise else np.zeros(n)
@@ -856,6 +835,40 @@ class ClosedLoop:
             Y[k], U[k], Ud[k] = yk, uk, ud
             u_prev = uk
         return ClosedLoopResponse(t, r, Y, U, Ud, X, list(self.state_names))
+
+    def _reference(
+        self, reference: np.ndarray | Callable[[np.ndarray], np.ndarray], duration: float | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sample instants [s] and reference [deg] of :meth:`run` (at least 2 finite samples)."""
+        if callable(reference):
+            if duration is None or not duration > 0:
+                raise ParameterError("duration [s] is required with a callable reference")
+            n = int(round(duration / self.dt)) + 1
+            t = np.arange(n) * self.dt
+            r = np.asarray(reference(t), dtype=float) * np.ones(n)
+        else:
+            r = np.asarray(reference, dtype=float).ravel()
+            n = r.size
+            t = np.arange(n) * self.dt
+        if n < 2 or not np.isfinite(r).all():
+            raise ParameterError("reference must have at least 2 finite samples")
+        return t, r
+
+    def _initial_state(self, x0: np.ndarray | Mapping[str, float] | None) -> np.ndarray:
+        """The plant's initial state of :meth:`run`: rest, set by name, or a whole vector."""
+        x = self._x0.copy()
+        if isinstance(x0, Mapping):
+            for name, value in x0.items():
+                if name not in self.state_names:
+                    raise ParameterError(
+                        f"x0 names unknown state {name!r}; states: {', '.join(self.state_names)}"
+                    )
+                x[self.state_names.index(name)] = float(value)
+        elif x0 is not None:
+            x = np.asarray(x0, dtype=float).ravel().copy()
+            if x.shape != (self.nx,):
+                raise ParameterError(f"x0 must have shape ({self.nx},), got {x.shape}")
+        return x
 
     def step(
         self, amplitude: float, duration: float, x0: np.ndarray | Mapping[str, float] | None = None

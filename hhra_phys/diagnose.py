@@ -437,93 +437,27 @@ def analyse(
     noise = noise_level(r, (data.u, yhat))
     white = whiteness(r)
     max_lag = int(min(50, data.n // 10))
-    lags, xc = cross_correlation(r, data.u, max_lag)
-    ip = int(np.argmax(np.abs(xc)))
-    xcorr = {"lags": lags.tolist(), "values": xc, "peak_lag": int(lags[ip]),
-             "peak": float(xc[ip]), "band": 1.96 / math.sqrt(data.n)}
+    xcorr = _input_xcorr(r, data, max_lag)
     delay = output_delay(data.y, yhat, max_lag=min(20, max_lag))
     regs = generic_regressors(data.u, data.t, theta, omega, fs)
     table = regressor_table(r, regs, fs)
-    f, pxx = sps.welch(r - r.mean(), fs=fs, nperseg=min(256, max(16, data.n // 4)))
-    low = f <= 0.1 * fs / 2
-    spectrum = {"f": f, "pxx": pxx, "peak_frequency": float(f[int(np.argmax(pxx[1:])) + 1]),
-                "low_fraction": float(pxx[low].sum() / pxx.sum()) if pxx.sum() > 0 else 0.0,
-                "unit": "Hz" if data.time_unit != "samples" else "1/sample"}
+    spectrum = _residual_spectrum(r, data)
 
     # Nuisance: what the model's own free parameters (the fitted initial state
     # among them) can absorb. No constant of its own: a constant residual is
     # absorbed only where the model can make one (an integrating output's initial
     # value), otherwise it is evidence of an offset.
     Q = nuisance_basis(problem, values, yhat)
-
-    def perp(M: np.ndarray) -> np.ndarray:
-        return M - Q @ (Q.T @ M)
-
-    r_p = perp(r[:, None])[:, 0]
-    r_norm2 = float(r_p @ r_p) or 1e-300
-    sig = Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat)
-    fitted = problem.model.params.as_dict(P)
+    r_p = _project_out(Q, r[:, None])[:, 0]
+    fit = _FittedResidual(
+        problem=problem, P=P, data=data, fitted=problem.model.params.as_dict(P),
+        sig=Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat),
+        table=table, Q=Q, r_p=r_p, r_norm2=float(r_p @ r_p) or 1e-300, noise=noise,
+        umax=float(np.max(np.abs(data.u))) or 1.0)
     names_c = (list(dict.fromkeys(effect_name(n) for n in candidates))
                if candidates is not None else list(EFFECTS))
-    umax = float(np.max(np.abs(data.u))) or 1.0
-    evidence = []
-    for name in names_c:
-        kw = dict((effect_kw or {}).get(name, {}))
-        try:
-            eff: Effect = make_effect(name, data=data, values=fitted, **kw)
-        except Exception as exc:  # noqa: BLE001 - a user's effect may fail to build
-            evidence.append(EffectEvidence(name, 0.0, 0.0, {}, False, "",
-                                           note=f"skipped: cannot be built ({exc})"))
-            continue
-        why = eff.applicable(problem.model)
-        if why:
-            evidence.append(EffectEvidence(name, 0.0, 0.0, {}, False, eff.signature,
-                                           note=f"skipped: {why}"))
-            continue
-        rel = {k: table[k]["r_rate" if eff.entry != "output" else "r_residual"]
-               for k in eff.regressors if k in table}
-        try:
-            cols = eff.first_order(sig)
-            if cols is None:
-                evidence.append(EffectEvidence(
-                    name, 0.0, float("nan"), {}, True, eff.signature, rel,
-                    note="no first-order signature declared: ranked last, decided by its refit"))
-                continue
-            cols = np.asarray(cols, dtype=float).reshape(data.n, -1)
-            S = _linear_response(problem, P, eff.entry, cols, umax)
-        except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
-            evidence.append(EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,
-                                           rel, note=f"no first-order signature: {exc}"))
-            continue
-        S_p = perp(S)
-        rms_raw = float(np.sqrt(np.mean(S ** 2)))
-        rms_p = float(np.max(np.sqrt(np.mean(S_p ** 2, axis=0))))
-        shown = 0.0
-        if rms_p <= 1e-6 * max(rms_raw, 1e-300):
-            score, est = 0.0, {}
-            note = "its output signature is absorbed by the model's own parameters"
-        else:
-            beta, *_ = np.linalg.lstsq(S_p, r_p, rcond=None)
-            fit_p = S_p @ beta
-            score = float(np.clip(fit_p @ fit_p / r_norm2, 0.0, 1.0))
-            shown = float(np.sqrt(np.mean(fit_p ** 2)))
-            probe = eff.probe()
-            pnames = [p.name for p in eff.parameters]
-            est = {}
-            if len(pnames) >= cols.shape[1]:
-                for j in range(cols.shape[1]):
-                    est[pnames[j]] = float(beta[j] * probe[pnames[j]])
-            note = ""
-        # Detectable if either a plausible (probe) size or the size the residual
-        # itself suggests changes the output by more than the noise.
-        detect = max(rms_p, shown) / noise if noise > 0 else float("inf")
-        ident = detect >= DETECTABLE
-        if not ident:
-            note = (note + "; " if note else "") + (
-                f"a probe-size effect changes the output by {rms_p:.2g} RMS and the residual "
-                f"shows {shown:.2g} of it after the base parameters absorb what they can, "
-                f"below the noise {noise:.2g}: not identifiable from these data")
-        evidence.append(EffectEvidence(name, score, detect, est, ident, eff.signature, rel, note))
+    evidence = [_candidate_evidence(name, dict((effect_kw or {}).get(name, {})), fit)
+                for name in names_c]
     series = {"yhat": yhat, "y": data.y, "u": data.u}
     if theta is not None:
         series["angle"] = np.degrees(theta)
@@ -534,6 +468,118 @@ def analyse(
         xcorr_input=xcorr, delay_samples=delay, regressors=table, spectrum=spectrum,
         evidence=evidence, residual=r, t=data.t, series=series,
     )
+
+
+def _input_xcorr(r: np.ndarray, data: Dataset, max_lag: int) -> dict[str, Any]:
+    """The residual's cross-correlation with the input, its peak and the white 95 % band."""
+    lags, xc = cross_correlation(r, data.u, max_lag)
+    ip = int(np.argmax(np.abs(xc)))
+    return {"lags": lags.tolist(), "values": xc, "peak_lag": int(lags[ip]),
+            "peak": float(xc[ip]), "band": 1.96 / math.sqrt(data.n)}
+
+
+def _residual_spectrum(r: np.ndarray, data: Dataset) -> dict[str, Any]:
+    """Welch spectrum of the residual, its peak and the fraction below a tenth of Nyquist."""
+    fs = data.fs
+    f, pxx = sps.welch(r - r.mean(), fs=fs, nperseg=min(256, max(16, data.n // 4)))
+    low = f <= 0.1 * fs / 2
+    return {"f": f, "pxx": pxx, "peak_frequency": float(f[int(np.argmax(pxx[1:])) + 1]),
+            "low_fraction": float(pxx[low].sum() / pxx.sum()) if pxx.sum() > 0 else 0.0,
+            "unit": "Hz" if data.time_unit != "samples" else "1/sample"}
+
+
+def _project_out(Q: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """The columns of ``M`` with their part in the span of ``Q`` (orthonormal) removed."""
+    return M - Q @ (Q.T @ M)
+
+
+@dataclass(frozen=True)
+class _FittedResidual:
+    """What every candidate of :func:`analyse` is ranked against (one record's fit).
+
+    ``Q`` spans what the model's own free parameters absorb; ``r_p`` is the residual
+    with that projected out and ``r_norm2`` its squared norm (kept above zero).
+    """
+
+    problem: Problem
+    P: np.ndarray
+    data: Dataset
+    fitted: dict[str, float]
+    sig: Signals
+    table: dict[str, dict[str, float]]
+    Q: np.ndarray
+    r_p: np.ndarray
+    r_norm2: float
+    noise: float
+    umax: float
+
+    def perp(self, M: np.ndarray) -> np.ndarray:
+        """``M`` with what the model's own parameters absorb projected out."""
+        return _project_out(self.Q, M)
+
+
+def _candidate_evidence(name: str, kw: dict[str, Any], fit: _FittedResidual) -> EffectEvidence:
+    """Evidence for one candidate: skipped (cannot be built, not applicable, no first-order
+    signature) or its projected first-order fit of the residual."""
+    try:
+        eff: Effect = make_effect(name, data=fit.data, values=fit.fitted, **kw)
+    except Exception as exc:  # noqa: BLE001 - a user's effect may fail to build
+        return EffectEvidence(name, 0.0, 0.0, {}, False, "",
+                              note=f"skipped: cannot be built ({exc})")
+    why = eff.applicable(fit.problem.model)
+    if why:
+        return EffectEvidence(name, 0.0, 0.0, {}, False, eff.signature,
+                              note=f"skipped: {why}")
+    rel = {k: fit.table[k]["r_rate" if eff.entry != "output" else "r_residual"]
+           for k in eff.regressors if k in fit.table}
+    try:
+        cols = eff.first_order(fit.sig)
+        if cols is None:
+            return EffectEvidence(
+                name, 0.0, float("nan"), {}, True, eff.signature, rel,
+                note="no first-order signature declared: ranked last, decided by its refit")
+        cols = np.asarray(cols, dtype=float).reshape(fit.data.n, -1)
+        S = _linear_response(fit.problem, fit.P, eff.entry, cols, fit.umax)
+    except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
+        return EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,
+                              rel, note=f"no first-order signature: {exc}")
+    return _projected_evidence(name, eff, S, cols.shape[1], rel, fit)
+
+
+def _projected_evidence(name: str, eff: Effect, S: np.ndarray, n_cols: int,
+                        rel: dict[str, float], fit: _FittedResidual) -> EffectEvidence:
+    """Score, detectability and first-order estimate of an effect whose output response
+    to its ``n_cols`` first-order columns is ``S``."""
+    noise = fit.noise
+    S_p = fit.perp(S)
+    rms_raw = float(np.sqrt(np.mean(S ** 2)))
+    rms_p = float(np.max(np.sqrt(np.mean(S_p ** 2, axis=0))))
+    shown = 0.0
+    if rms_p <= 1e-6 * max(rms_raw, 1e-300):
+        score, est = 0.0, {}
+        note = "its output signature is absorbed by the model's own parameters"
+    else:
+        beta, *_ = np.linalg.lstsq(S_p, fit.r_p, rcond=None)
+        fit_p = S_p @ beta
+        score = float(np.clip(fit_p @ fit_p / fit.r_norm2, 0.0, 1.0))
+        shown = float(np.sqrt(np.mean(fit_p ** 2)))
+        probe = eff.probe()
+        pnames = [p.name for p in eff.parameters]
+        est = {}
+        if len(pnames) >= n_cols:
+            for j in range(n_cols):
+                est[pnames[j]] = float(beta[j] * probe[pnames[j]])
+        note = ""
+    # Detectable if either a plausible (probe) size or the size the residual
+    # itself suggests changes the output by more than the noise.
+    detect = max(rms_p, shown) / noise if noise > 0 else float("inf")
+    ident = detect >= DETECTABLE
+    if not ident:
+        note = (note + "; " if note else "") + (
+            f"a probe-size effect changes the output by {rms_p:.2g} RMS and the residual "
+            f"shows {shown:.2g} of it after the base parameters absorb what they can, "
+            f"below the noise {noise:.2g}: not identifiable from these data")
+    return EffectEvidence(name, score, detect, est, ident, eff.signature, rel, note)
 
 
 def combine_diagnoses(diags: Sequence[Diagnosis]) -> Diagnosis:
@@ -714,8 +760,6 @@ def plot_residuals(
     same = before is not None and accepted is not None and not accepted
     if same:
         before = None  # nothing accepted: "after" is the base model, drawn once
-    u = f" [{unit}]" if unit else ""
-    t_unit = "samples" if diag.spectrum.get("unit") == "1/sample" else "s"
     grey = {"color": "0.6", "lw": 0.7}
     fig = plt.figure(figsize=(11, 8.5))
     grid = fig.add_gridspec(3, 2, height_ratios=[1.2, 1, 1])
@@ -724,39 +768,7 @@ def plot_residuals(
     ax_s = fig.add_subplot(grid[2, :])
     now = "after" if before is not None else ("base model = after" if same else "residual")
 
-    # Residual over time: estimation, then validation right of the split.
-    if before is not None:
-        ax_t.plot(before.t, before.residual, label=f"before, estimation (RMSE {before.rmse:.3g})",
-                  **grey)
-    ax_t.plot(diag.t, diag.residual, color="C0", lw=0.7,
-              label=f"{now}, estimation (RMSE {diag.rmse:.3g})")
-    if validation:
-        split_t = float(diag.t[-1])
-        ax_t.axvspan(split_t, float(max(v[0][-1] for v in validation.values())),
-                     color="C2", alpha=0.07)
-        ax_t.axvline(split_t, color="k", lw=0.8, ls=":")
-        # With a test part after it (marks), the part right of the split is the selection.
-        first = "selection" if marks else "validation"
-        ax_t.text(split_t, 1.0, f" {first} >", transform=ax_t.get_xaxis_transform(),
-                  va="top", fontsize=8)
-        ax_t.text(split_t, 1.0, "< estimation ", transform=ax_t.get_xaxis_transform(),
-                  va="top", ha="right", fontsize=8)
-        for t_mark, name in marks:
-            ax_t.axvline(t_mark, color="k", lw=0.8, ls=":")
-            ax_t.text(t_mark, 1.0, f" {name} >", transform=ax_t.get_xaxis_transform(),
-                      va="top", fontsize=8)
-        for key, (tv, rv) in validation.items():
-            if key == "before" and before is None:
-                continue
-            rms = float(np.sqrt(np.mean(np.square(rv))))
-            style = grey if key == "before" else {"color": "C3", "lw": 0.7}
-            rest = first + "".join(f" + {name}" for _, name in marks)
-            label = ("before" if key == "before" else now) + f", {rest} (RMSE {rms:.3g})"
-            ax_t.plot(tv, rv, label=label, **style)
-    ax_t.axhspan(-diag.noise, diag.noise, color="C1", alpha=0.15,
-                 label=f"+-noise estimate ({diag.noise:.2g}{' ' + unit if unit else ''})")
-    ax_t.set(xlabel=f"time [{t_unit}]", ylabel=f"residual y - y_model{u}")
-    ax_t.legend(fontsize=7, ncol=3, loc="lower left")
+    _plot_residual_time(ax_t, diag, before, validation, marks, now, unit)
 
     band_label = "95 % band of a white residual (+-1.96/sqrt(N))"
     for ax, get, xlabel, ylabel, what in (
@@ -802,6 +814,54 @@ def plot_residuals(
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
+
+
+def _plot_residual_time(
+    ax_t: Any,
+    diag: Diagnosis,
+    before: Diagnosis | None,
+    validation: Mapping[str, tuple[np.ndarray, np.ndarray]] | None,
+    marks: Sequence[tuple[float, str]],
+    now: str,
+    unit: str,
+) -> None:
+    """The residual-over-time panel of :func:`plot_residuals` (``now`` labels ``diag``)."""
+    u = f" [{unit}]" if unit else ""
+    t_unit = "samples" if diag.spectrum.get("unit") == "1/sample" else "s"
+    grey = {"color": "0.6", "lw": 0.7}
+    # Residual over time: estimation, then validation right of the split.
+    if before is not None:
+        ax_t.plot(before.t, before.residual, label=f"before, estimation (RMSE {before.rmse:.3g})",
+                  **grey)
+    ax_t.plot(diag.t, diag.residual, color="C0", lw=0.7,
+              label=f"{now}, estimation (RMSE {diag.rmse:.3g})")
+    if validation:
+        split_t = float(diag.t[-1])
+        ax_t.axvspan(split_t, float(max(v[0][-1] for v in validation.values())),
+                     color="C2", alpha=0.07)
+        ax_t.axvline(split_t, color="k", lw=0.8, ls=":")
+        # With a test part after it (marks), the part right of the split is the selection.
+        first = "selection" if marks else "validation"
+        ax_t.text(split_t, 1.0, f" {first} >", transform=ax_t.get_xaxis_transform(),
+                  va="top", fontsize=8)
+        ax_t.text(split_t, 1.0, "< estimation ", transform=ax_t.get_xaxis_transform(),
+                  va="top", ha="right", fontsize=8)
+        for t_mark, name in marks:
+            ax_t.axvline(t_mark, color="k", lw=0.8, ls=":")
+            ax_t.text(t_mark, 1.0, f" {name} >", transform=ax_t.get_xaxis_transform(),
+                      va="top", fontsize=8)
+        for key, (tv, rv) in validation.items():
+            if key == "before" and before is None:
+                continue
+            rms = float(np.sqrt(np.mean(np.square(rv))))
+            style = grey if key == "before" else {"color": "C3", "lw": 0.7}
+            rest = first + "".join(f" + {name}" for _, name in marks)
+            label = ("before" if key == "before" else now) + f", {rest} (RMSE {rms:.3g})"
+            ax_t.plot(tv, rv, label=label, **style)
+    ax_t.axhspan(-diag.noise, diag.noise, color="C1", alpha=0.15,
+                 label=f"+-noise estimate ({diag.noise:.2g}{' ' + unit if unit else ''})")
+    ax_t.set(xlabel=f"time [{t_unit}]", ylabel=f"residual y - y_model{u}")
+    ax_t.legend(fontsize=7, ncol=3, loc="lower left")
 
 
 def plot_loop_residuals(

@@ -250,6 +250,26 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
     """
     units = dict(units or {})
     names = [n for n in series if entry != "input" or n == "u" or n in units]
+    kept, scales = _term_variables(series, names)
+    cands: list[Candidate] = []
+    N = len(next(iter(series.values())))
+    cands.append(Candidate("one()", np.ones(N)))
+    for n in kept:
+        cands.extend(_variable_terms(n, series[n], scales[n], units.get(n) == "rad"))
+    for i, a in enumerate(kept):
+        for b in kept[i + 1:]:
+            cands.append(Candidate(f"prod({a},{b})",
+                                   series[a] / scales[a] * series[b] / scales[b]))
+    return cands, scales
+
+
+def _term_variables(series: Mapping[str, np.ndarray],
+                    names: list[str]) -> tuple[list[str], dict[str, float]]:
+    """The variables of ``names`` worth terms, and their scales ``max|v|``.
+
+    A constant (or zero) variable, or one equal to an earlier one up to sign and scale,
+    is left out: its terms would only repeat others.
+    """
     scales: dict[str, float] = {}
     kept: list[str] = []
     for n in names:
@@ -263,30 +283,28 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
             continue
         kept.append(n)
         scales[n] = s
+    return kept, scales
+
+
+def _variable_terms(n: str, v: np.ndarray, scale: float, rad: bool) -> list[Candidate]:
+    """The terms of one variable ``n`` (values ``v``, scale ``scale``): every family of
+    :data:`FAMILIES` of ``v / scale``, and ``sin``/``cos`` of an angle in rad."""
+    q = v / scale
     cands: list[Candidate] = []
-    N = len(next(iter(series.values())))
-    cands.append(Candidate("one()", np.ones(N)))
-    for n in kept:
-        q = series[n] / scales[n]
-        for fam in FAMILIES:
-            knot = 0.0
-            if fam.startswith("hinge"):
-                side = q if fam == "hinge+" else -q
-                pos = side[side > 0]
-                if pos.size < 10:
-                    continue
-                knot = float(np.quantile(pos, KNOT_QUANTILE))
-            cands.append(Candidate(f"{fam}({n})", np.asarray(_basis(fam, [q], knot, _NP)),
-                                   knot * scales[n]))
-        if units.get(n) == "rad":
-            for fam in ("sin", "cos"):
-                cands.append(Candidate(f"{fam}({n})", np.asarray(_basis(fam, [series[n]], 0.0,
-                                                                        _NP))))
-    for i, a in enumerate(kept):
-        for b in kept[i + 1:]:
-            cands.append(Candidate(f"prod({a},{b})",
-                                   series[a] / scales[a] * series[b] / scales[b]))
-    return cands, scales
+    for fam in FAMILIES:
+        knot = 0.0
+        if fam.startswith("hinge"):
+            side = q if fam == "hinge+" else -q
+            pos = side[side > 0]
+            if pos.size < 10:
+                continue  # too few samples on that side to place a knot
+            knot = float(np.quantile(pos, KNOT_QUANTILE))
+        cands.append(Candidate(f"{fam}({n})", np.asarray(_basis(fam, [q], knot, _NP)),
+                               knot * scale))
+    if rad:
+        for fam in ("sin", "cos"):
+            cands.append(Candidate(f"{fam}({n})", np.asarray(_basis(fam, [v], 0.0, _NP))))
+    return cands
 
 
 # --- first-order screening ------------------------------------------------------------------

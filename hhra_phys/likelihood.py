@@ -199,65 +199,19 @@ def profile_parameter(
 
 def _profile(prof: _Profiler, name: str, level: float, step: float | None,
              max_steps: int) -> Profile:
-    problem, engine = prof.problem, prof.engine
+    problem = prof.problem
     i = problem.free_names.index(name)
     n_obs, n_free = problem.y.size, problem.n_free
     limit = threshold(prof.ssr_min, n_obs, n_free, level)
     solves_before = prof.n_solves
-    if step is None:
-        _, J = engine(prof.z_hat)
-        s2 = prof.ssr_min / max(n_obs - n_free, 1)
-        with np.errstate(all="ignore"):
-            cov = np.linalg.pinv(J.T @ J) * s2
-        half = 1.96 * float(np.sqrt(max(cov[i, i], 0.0)))
-        step = half if np.isfinite(half) and half > 0 else 0.01
-    step = float(step)
+    step = float(_first_step(prof, i) if step is None else step)
     points: list[tuple[float, float]] = [(float(prof.z_hat[i]), prof.ssr_min)]
     ends: list[float] = []
     open_ends: list[bool] = []
     for side in (-1.0, 1.0):
-        bound = prof.box[i, 0] if side < 0 else prof.box[i, 1]
-        inner_c, inner_z, inner_ssr = float(prof.z_hat[i]), prof.z_hat.copy(), prof.ssr_min
-        h = step
-        crossing: float | None = None
-        for k in range(max(int(max_steps), 1)):
-            c = inner_c + side * h
-            # The last step goes to the bound, so an open end is always the box.
-            at_bound = (c - bound) * side >= 0 or k == max_steps - 1
-            if at_bound:
-                c = float(bound)
-            if c == inner_c:  # already at the bound
-                break
-            ssr, z = prof.solve(i, c, inner_z)
-            points.append((c, ssr))
-            if ssr > limit:
-                outer_c = c
-                starts = {"z": inner_z}
-                # brentq evaluates both bracket ends first: they are known already.
-                known = {inner_c: inner_ssr, outer_c: ssr}
-
-                def g(cc: float, starts: dict[str, np.ndarray] = starts,
-                      known: dict[float, float] = known) -> float:
-                    if cc in known:
-                        return known[cc] - limit
-                    val, zz = prof.solve(i, cc, starts["z"])
-                    points.append((cc, val))
-                    if val <= limit:
-                        starts["z"] = zz  # warm start from the inside
-                    return val - limit
-
-                crossing = float(brentq(g, inner_c, outer_c, xtol=1e-4 * step, rtol=1e-10))
-                break
-            inner_c, inner_z, inner_ssr = c, z, ssr
-            if at_bound:
-                break
-            h *= 2.0
-        if crossing is None:
-            ends.append(inner_c)
-            open_ends.append(True)
-        else:
-            ends.append(crossing)
-            open_ends.append(False)
+        end, is_open = _walk(prof, i, side, step, max_steps, limit, points)
+        ends.append(end)
+        open_ends.append(is_open)
     z_lo, z_hi = ends
     zl, zh = prof.z_hat.copy(), prof.z_hat.copy()
     zl[i], zh[i] = z_lo, z_hi
@@ -274,6 +228,73 @@ def _profile(prof: _Profiler, name: str, level: float, step: float | None,
         moved=prof.moved,
         lower_minimum=min(s for _, s in points) < prof.ssr_min * (1 - 1e-9),
     )
+
+
+def _first_step(prof: _Profiler, i: int) -> float:
+    """The first step of a profile of free parameter ``i`` (z units): the half-width of
+    its linearised 95 % interval, or 0.01 where that is not finite and positive."""
+    problem, engine = prof.problem, prof.engine
+    n_obs, n_free = problem.y.size, problem.n_free
+    _, J = engine(prof.z_hat)
+    s2 = prof.ssr_min / max(n_obs - n_free, 1)
+    with np.errstate(all="ignore"):
+        cov = np.linalg.pinv(J.T @ J) * s2
+    half = 1.96 * float(np.sqrt(max(cov[i, i], 0.0)))
+    return half if np.isfinite(half) and half > 0 else 0.01
+
+
+def _walk(prof: _Profiler, i: int, side: float, step: float, max_steps: int, limit: float,
+          points: list[tuple[float, float]]) -> tuple[float, bool]:
+    """Walk free parameter ``i`` from the optimum to one ``side`` (-1 or +1) in doubling
+    steps until the profile SSR exceeds ``limit``; returns ``(end, open)``.
+
+    The end is the crossing of ``limit`` (``open`` False) or, when the box bound comes
+    first, the last point inside (``open`` True). Every solve is appended to ``points``.
+    """
+    bound = prof.box[i, 0] if side < 0 else prof.box[i, 1]
+    inner_c, inner_z, inner_ssr = float(prof.z_hat[i]), prof.z_hat.copy(), prof.ssr_min
+    h = step
+    for k in range(max(int(max_steps), 1)):
+        c = inner_c + side * h
+        # The last step goes to the bound, so an open end is always the box.
+        at_bound = (c - bound) * side >= 0 or k == max_steps - 1
+        if at_bound:
+            c = float(bound)
+        if c == inner_c:  # already at the bound
+            break
+        ssr, z = prof.solve(i, c, inner_z)
+        points.append((c, ssr))
+        if ssr > limit:
+            return _crossing(prof, i, (inner_c, inner_z, inner_ssr), (c, ssr), limit, step,
+                             points), False
+        inner_c, inner_z, inner_ssr = c, z, ssr
+        if at_bound:
+            break
+        h *= 2.0
+    return inner_c, True
+
+
+def _crossing(prof: _Profiler, i: int, inner: tuple[float, np.ndarray, float],
+              outer: tuple[float, float], limit: float, step: float,
+              points: list[tuple[float, float]]) -> float:
+    """Where the profile SSR of parameter ``i`` crosses ``limit`` between the last point
+    inside (``inner``: value, solution, SSR) and the first outside (``outer``: value, SSR)."""
+    inner_c, inner_z, inner_ssr = inner
+    outer_c, outer_ssr = outer
+    starts = {"z": inner_z}
+    # brentq evaluates both bracket ends first: they are known already.
+    known = {inner_c: inner_ssr, outer_c: outer_ssr}
+
+    def g(cc: float) -> float:
+        if cc in known:
+            return known[cc] - limit
+        val, zz = prof.solve(i, cc, starts["z"])
+        points.append((cc, val))
+        if val <= limit:
+            starts["z"] = zz  # warm start from the inside
+        return val - limit
+
+    return float(brentq(g, inner_c, outer_c, xtol=1e-4 * step, rtol=1e-10))
 
 
 def profile_intervals(

@@ -62,6 +62,31 @@ GROUP_SPAN = 10.0
 MODEL_TYPES: dict[str, type[Model]] = {}
 
 
+def _check_parts(parts: Sequence[Part]) -> None:
+    """Refuse anything but :class:`Part` objects, and a part without a stage name."""
+    for part in parts:
+        if not isinstance(part, Part):
+            raise ModelError(f"a model is made of Part objects, got {part!r}")
+        if not isinstance(part.stage, str) or not part.stage:
+            raise ModelError(f"part {part.name!r} has no stage name (a non-empty string)")
+
+
+def _model_states(parts: Sequence[Part], name: str, pinned: Sequence[str]) -> list[State]:
+    """The parts' states in part order: at least one, each name once, ``pinned`` among them."""
+    states: list[State] = []
+    for part in parts:
+        states.extend(part.states)
+    names = [s.name for s in states]
+    if len(set(names)) != len(names):
+        raise ModelError(f"duplicate state names in model {name!r}: {names}")
+    if not states:
+        raise ModelError(f"model {name!r} has no states")
+    unknown = sorted(set(pinned) - set(names))
+    if unknown:
+        raise ModelError(f"pinned states {unknown} are not states of the model ({names})")
+    return states
+
+
 class Model:
     """A dynamic model composed of parts, assembled into CasADi functions.
 
@@ -112,37 +137,15 @@ class Model:
                 "(the model's name is the keyword name=)"
             )
         self.parts: tuple[Part, ...] = tuple(parts)
-        for part in self.parts:
-            if not isinstance(part, Part):
-                raise ModelError(f"a model is made of Part objects, got {part!r}")
-            if not isinstance(part.stage, str) or not part.stage:
-                raise ModelError(f"part {part.name!r} has no stage name (a non-empty string)")
+        _check_parts(self.parts)
         self.name = name
         self._overrides: dict[str, dict[str, Any]] = {}
         for pname, spec in (overrides or {}).items():
             self._overrides[pname] = dict(spec) if isinstance(spec, dict) else {"nominal": spec}
         self._stages_given = tuple(stages) if stages is not None else None
         self._ordered = self._order()
-
-        params = []
-        for part in self._ordered:
-            params.extend(part.parameters)
-        base = ParameterSet(params)  # raises on duplicates
-        for pname, changes in self._overrides.items():
-            base = base.replace(pname, **changes)
-        self.params = base
-
-        states: list[State] = []
-        for part in self.parts:
-            states.extend(part.states)
-        names = [s.name for s in states]
-        if len(set(names)) != len(names):
-            raise ModelError(f"duplicate state names in model {name!r}: {names}")
-        if not states:
-            raise ModelError(f"model {name!r} has no states")
-        unknown = sorted(set(pinned) - set(names))
-        if unknown:
-            raise ModelError(f"pinned states {unknown} are not states of the model ({names})")
+        self.params = self._parameter_set()
+        states = _model_states(self.parts, name, pinned)
         self.pinned: tuple[str, ...] = tuple(pinned)
         unknown = sorted(set(held) - set(self.params.names))
         if unknown:
@@ -152,6 +155,16 @@ class Model:
         self.n_lags = max((part.n_lags for part in self.parts), default=0)
         self._cache: dict[float, dict[str, ca.Function]] = {}
         self._signal_names: tuple[str, ...] | None = None
+
+    def _parameter_set(self) -> ParameterSet:
+        """The parts' parameters in assembly order, with the overrides applied."""
+        params = []
+        for part in self._ordered:
+            params.extend(part.parameters)
+        base = ParameterSet(params)  # raises on duplicates
+        for pname, changes in self._overrides.items():
+            base = base.replace(pname, **changes)
+        return base
 
     def _order(self) -> list[Part]:
         """Parts in assembly order (module docstring)."""

@@ -66,14 +66,22 @@ def _parse(spec: str) -> tuple[str, list[str]]:
 
 def _basis(family: str, q: Sequence[Any], knot: Any, lib: SimpleNamespace) -> Any:
     """Value of a term family on scaled arguments ``q`` (NumPy or CasADi, ``lib``)."""
-    e = SMOOTH
     if family == "one":
         return 1.0 + 0.0 * knot
     if family in ("sin", "cos"):
         return getattr(lib, family)(q[0])
     if family == "prod":
         return q[0] * q[1]
-    x = q[0]
+    if family in ("hinge+", "hinge-"):
+        e = SMOOTH
+        v = (q[0] if family == "hinge+" else -q[0]) - knot
+        return 0.5 * (v + lib.sqrt(v * v + e * e))
+    return _shape(family, q[0], lib)
+
+
+def _shape(family: str, x: Any, lib: SimpleNamespace) -> Any:
+    """Value of a one-variable family without a knot on the scaled variable ``x``."""
+    e = SMOOTH
     if family == "lin":
         return x
     if family == "sq":
@@ -86,9 +94,6 @@ def _basis(family: str, q: Sequence[Any], knot: Any, lib: SimpleNamespace) -> An
         return lib.sqrt(x * x + e * e) - e
     if family == "sign":
         return x / lib.sqrt(x * x + e * e)
-    if family in ("hinge+", "hinge-"):
-        v = (x if family == "hinge+" else -x) - knot
-        return 0.5 * (v + lib.sqrt(v * v + e * e))
     if family == "sat":
         return lib.tanh(2.0 * x)
     raise ModelError(f"unknown term family {family!r}")

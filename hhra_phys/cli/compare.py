@@ -127,22 +127,40 @@ def _load(args: argparse.Namespace) -> Any:
     """The record (or records, a list, for several DATA files) and its default split."""
     names = list(args.data or [])
     if len(names) > 1:
-        from hhra_phys.multi import check_records
-
-        records = []
-        for name in names:
-            if is_builtin(name) or name.lower() in PUBLIC_WORDS:
-                raise ParameterError(f"DATA {name!r}: several records must all be files")
-            records.append(_load(argparse.Namespace(**{**vars(args), "data": [name]}))[0])
-        check_records(records)
-        return records, 0.5
+        return _load_several(args, names), 0.5
     args = argparse.Namespace(**{**vars(args), "data": names[0] if names else None})
     from hhra_phys.data import load_public_actuator
     from hhra_phys.models.hhra.defaults import PLAUSIBLE_FS
-    from hhra_phys.models.hhra.rig import simulate_rig
     from hhra_phys.units import range_warnings
 
     word = (args.data or "").lower()
+    _check_builtin_choice(args, word)
+    if args.public or word in PUBLIC_WORDS:
+        # the usual split of that record (docs/data.md)
+        return with_intersample(args, load_public_actuator()), 512
+    if not args.data or word in RIG_WORDS:
+        return _load_rig(args), 0.5
+    data = read_record(args)
+    for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
+        print(f"warning: {line}", file=sys.stderr)
+    return data, 0.5
+
+
+def _load_several(args: argparse.Namespace, names: list[str]) -> list[Any]:
+    """Several DATA files, each read as one (files only), checked to belong together."""
+    from hhra_phys.multi import check_records
+
+    records = []
+    for name in names:
+        if is_builtin(name) or name.lower() in PUBLIC_WORDS:
+            raise ParameterError(f"DATA {name!r}: several records must all be files")
+        records.append(_load(argparse.Namespace(**{**vars(args), "data": [name]}))[0])
+    check_records(records)
+    return records
+
+
+def _check_builtin_choice(args: argparse.Namespace, word: str) -> None:
+    """Refuse DATA with --public, and a file's options with a built-in record."""
     if args.public and args.data and word not in PUBLIC_WORDS:
         raise ParameterError(f"give DATA ({args.data!r}) or --public, not both")
     if args.public or is_builtin(args.data):
@@ -150,26 +168,23 @@ def _load(args: argparse.Namespace) -> Any:
         if given:
             raise ParameterError(f"{', '.join(given)}: options of a DATA file; the built-in "
                                  "records need none")
-    if args.public or word in PUBLIC_WORDS:
-        # the usual split of that record (docs/data.md)
-        return with_intersample(args, load_public_actuator()), 512
-    if not args.data or word in RIG_WORDS:
-        if not (math.isfinite(args.duration) and args.duration > 0):
-            raise ParameterError(f"--duration must be a finite number > 0, got {args.duration}")
-        check_size(args.duration * 250.0, f"--duration {args.duration:g} s of the rig at 250 Hz")
-        try:
-            return with_intersample(args, simulate_rig(seed=args.seed,
-                                                       duration=args.duration)), 0.5
-        except ParameterError as exc:
-            if "cannot hold" not in str(exc):  # the excitation's words for too few samples
-                raise
-            raise ParameterError(f"--duration {args.duration:g} s of the rig at 250 Hz is too "
-                                 f"short for its excitation ({exc}); lengthen --duration"
-                                 ) from None
-    data = read_record(args)
-    for line in range_warnings(data, {}, PLAUSIBLE_FS):  # a time axis in ms inflates ITAE
-        print(f"warning: {line}", file=sys.stderr)
-    return data, 0.5
+
+
+def _load_rig(args: argparse.Namespace) -> Any:
+    """The simulated rig's record of ``--duration`` s (checked before it is simulated)."""
+    from hhra_phys.models.hhra.rig import simulate_rig
+
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        raise ParameterError(f"--duration must be a finite number > 0, got {args.duration}")
+    check_size(args.duration * 250.0, f"--duration {args.duration:g} s of the rig at 250 Hz")
+    try:
+        return with_intersample(args, simulate_rig(seed=args.seed, duration=args.duration))
+    except ParameterError as exc:
+        if "cannot hold" not in str(exc):  # the excitation's words for too few samples
+            raise
+        raise ParameterError(f"--duration {args.duration:g} s of the rig at 250 Hz is too "
+                             f"short for its excitation ({exc}); lengthen --duration"
+                             ) from None
 
 
 def _outputs(args: argparse.Namespace) -> dict[str, Path | None]:
@@ -209,20 +224,9 @@ def run(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     try:
         paths = _outputs(args)  # before any work, so a clash fails fast
-        registered = load_plugins(C, args.plugin)
-        unknown = [m for m in args.methods or () if m not in registered]
-        if unknown:  # checked before the data are loaded or simulated
-            raise ParameterError(
-                f"--methods: unknown {unknown}; registered: {', '.join(registered)}"
-            )
+        _check_methods(C, args)
         dataset, default_split = _load(args)
-        if isinstance(dataset, list) and args.plot:
-            raise ParameterError("--plot draws one record; with several DATA records use "
-                                 "--json/--report (scores per record)")
-        split = default_split if args.split is None else args.split
-        if split == 1.0 and not isinstance(split, int):
-            raise ParameterError("--split 1: the comparison scores every method on a "
-                                 "validation part; give a fraction below 1 or a sample index")
+        split = _split(args, dataset, default_split)
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
             say(f"compare: {what}, split {split}")
@@ -243,18 +247,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report = comp.to_dict()
         table = C.markdown_table(report)
-        with all_or_nothing(paths.values()):  # Ctrl-C: none of them stays
-            if paths["json"] and str(paths["json"]) == STDOUT:
-                print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
-            elif paths["json"]:
-                C.write_json(report, paths["json"], overwrite=args.overwrite)
-            if paths["report"]:
-                text = f"# Identification comparison: {report['dataset']}\n\n{table}"
-                atomic_write_text(paths["report"], text)
-            if paths["plot"]:
-                C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
-                if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
-                    C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
+        _write_outputs(C, comp, report, table, paths, args)
     except (HHRAError, OSError) as exc:
         return report_error("compare", exc)
     print(table, file=sys.stderr if args.json == STDOUT else sys.stdout)
@@ -264,6 +257,45 @@ def run(args: argparse.Namespace) -> int:
               "table's notes", file=sys.stderr)
         return 1
     return 0
+
+
+def _check_methods(C: Any, args: argparse.Namespace) -> None:
+    """Load the plugins and refuse an unknown ``--methods`` name."""
+    registered = load_plugins(C, args.plugin)
+    unknown = [m for m in args.methods or () if m not in registered]
+    if unknown:  # checked before the data are loaded or simulated
+        raise ParameterError(
+            f"--methods: unknown {unknown}; registered: {', '.join(registered)}"
+        )
+
+
+def _split(args: argparse.Namespace, dataset: Any, default_split: float) -> float:
+    """``--split`` (or the record's default), refusing what the comparison cannot score."""
+    if isinstance(dataset, list) and args.plot:
+        raise ParameterError("--plot draws one record; with several DATA records use "
+                             "--json/--report (scores per record)")
+    split = default_split if args.split is None else args.split
+    if split == 1.0 and not isinstance(split, int):
+        raise ParameterError("--split 1: the comparison scores every method on a "
+                             "validation part; give a fraction below 1 or a sample index")
+    return split
+
+
+def _write_outputs(C: Any, comp: Any, report: dict[str, Any], table: str,
+                   paths: dict[str, Path | None], args: argparse.Namespace) -> None:
+    """Write the JSON, Markdown and figures asked for, all or none of them."""
+    with all_or_nothing(paths.values()):  # Ctrl-C: none of them stays
+        if paths["json"] and str(paths["json"]) == STDOUT:
+            print(json.dumps(jsonable(report, default=str), indent=1), flush=True)
+        elif paths["json"]:
+            C.write_json(report, paths["json"], overwrite=args.overwrite)
+        if paths["report"]:
+            text = f"# Identification comparison: {report['dataset']}\n\n{table}"
+            atomic_write_text(paths["report"], text)
+        if paths["plot"]:
+            C.plot_outputs(comp, path=paths["plot"], overwrite=args.overwrite)
+            if any(r.outcome and r.outcome.history is not None for r in comp.results.values()):
+                C.plot_convergence(comp, path=paths["convergence"], overwrite=args.overwrite)
 
 
 def load_plugins(C: Any, modules: list[str]) -> list[str]:

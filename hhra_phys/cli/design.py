@@ -203,19 +203,8 @@ def run(args: argparse.Namespace) -> int:
     from hhra_phys.design import design_input
 
     try:
-        if args.out is None:
-            args.out = str(Path(args.fit).with_name("design.csv"))
-        if not str(args.out).lower().endswith(".csv"):
-            raise ParameterError(f"--out {args.out}: the designed input is written as .csv")
-        check_arguments(args, {"--out": args.out,
-                               "--out's side-car": str(sidecar_path(args.out))})
-        out = check_output_path(args.out, overwrite=args.overwrite, what="designed input")
-        side = check_output_path(sidecar_path(args.out), overwrite=args.overwrite,
-                                 what="design side-car")
-        for flag, value in (("--duration", args.duration), ("--max-input", args.max_input),
-                            ("--output-limit", args.output_limit), ("--min-hold", args.min_hold)):
-            if value is not None and not (math.isfinite(value) and value > 0):
-                raise ParameterError(f"{flag} must be a finite number > 0, got {value}")
+        out, side = _output_paths(args)
+        _check_limits(args)
         res = load_fit(args.fit, args.model)
         fs = float(res.settings.get("fs") or 0) or None
         if fs:  # the sensitivities of every sample and parameter are held at once
@@ -241,22 +230,58 @@ def run(args: argparse.Namespace) -> int:
     except (HHRAError, OSError) as exc:
         return report_error("design", exc)
     broken = design.check()
-    fitted = None
-    if record is not None:
-        if abs(record.fs - design.fs) > 1e-9 * design.fs:
-            print(f"note: the fitted record is sampled at {record.fs} Hz, the design at "
-                  f"{design.fs} Hz; its widths are predicted at its own rate", file=sys.stderr)
-        # The part of the fitted record its fit estimated from (its split), as for the design.
-        own = fit_split(res)
-        n_own = record.n if own >= 1 else int(round(own * record.n))
-        w = InformationModel(res, record.fs).widths(record.u[:n_own])
-        fitted = {"name": record.name or record.source, "duration": float(record.duration),
-                  "split": own, "n_est": n_own, "widths": w, "geomean": _geomean(w)}
+    fitted = None if record is None else _fitted_widths(res, record, design)
     validate = None if record is None else (record.source or None)
-    buf = io.StringIO()
-    np.savetxt(buf, np.column_stack([design.t, design.u]), delimiter=",", header="t,u",
-               comments="", fmt="%.10g")
-    report = {
+    report = _side_car(args, design, broken, fitted, validate)
+    _write_design(out, side, design, report)
+    _say_widths(design, fitted, out, side, validate)
+    if broken:
+        print(f"hhra-phys design: error: the design breaks limits: {'; '.join(broken)}",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _output_paths(args: argparse.Namespace) -> tuple[Path, Path]:
+    """The designed input's .csv (default: design.csv beside the fit) and its side-car,
+    checked before any work."""
+    if args.out is None:
+        args.out = str(Path(args.fit).with_name("design.csv"))
+    if not str(args.out).lower().endswith(".csv"):
+        raise ParameterError(f"--out {args.out}: the designed input is written as .csv")
+    check_arguments(args, {"--out": args.out,
+                           "--out's side-car": str(sidecar_path(args.out))})
+    out = check_output_path(args.out, overwrite=args.overwrite, what="designed input")
+    side = check_output_path(sidecar_path(args.out), overwrite=args.overwrite,
+                             what="design side-car")
+    return out, side
+
+
+def _check_limits(args: argparse.Namespace) -> None:
+    """Refuse a duration or limit that is not a finite number > 0."""
+    for flag, value in (("--duration", args.duration), ("--max-input", args.max_input),
+                        ("--output-limit", args.output_limit), ("--min-hold", args.min_hold)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ParameterError(f"{flag} must be a finite number > 0, got {value}")
+
+
+def _fitted_widths(res: Any, record: Any, design: Any) -> dict[str, Any]:
+    """The predicted widths of the fitted record's own input, for comparison."""
+    if abs(record.fs - design.fs) > 1e-9 * design.fs:
+        print(f"note: the fitted record is sampled at {record.fs} Hz, the design at "
+              f"{design.fs} Hz; its widths are predicted at its own rate", file=sys.stderr)
+    # The part of the fitted record its fit estimated from (its split), as for the design.
+    own = fit_split(res)
+    n_own = record.n if own >= 1 else int(round(own * record.n))
+    w = InformationModel(res, record.fs).widths(record.u[:n_own])
+    return {"name": record.name or record.source, "duration": float(record.duration),
+            "split": own, "n_est": n_own, "widths": w, "geomean": _geomean(w)}
+
+
+def _side_car(args: argparse.Namespace, design: Any, broken: list[str],
+              fitted: dict[str, Any] | None, validate: str | None) -> dict[str, Any]:
+    """The JSON side-car of the design."""
+    return {
         "format": "hhra-phys design",
         "fit": str(args.fit),
         "criterion": design.criterion,
@@ -282,9 +307,21 @@ def run(args: argparse.Namespace) -> int:
                  "information at the fitted values for a fit of the estimation part (the first "
                  "n_est samples; the fitted record's with its fit's split)",
     }
+
+
+def _write_design(out: Path, side: Path, design: Any, report: dict[str, Any]) -> None:
+    """Write the designed input (t,u) and its side-car, both or neither."""
+    buf = io.StringIO()
+    np.savetxt(buf, np.column_stack([design.t, design.u]), delimiter=",", header="t,u",
+               comments="", fmt="%.10g")
     with all_or_nothing([out, side]):  # Ctrl-C between the two: neither stays
         atomic_write_text(out, buf.getvalue())
         atomic_write_text(side, json.dumps(jsonable(report), indent=1))
+
+
+def _say_widths(design: Any, fitted: dict[str, Any] | None, out: Path, side: Path,
+                validate: str | None) -> None:
+    """The table of predicted widths, the files written and the command that fits the record."""
     print(f"{'parameter':<12} {'designed':>10} {'fitted rec.':>12}")
     for name, w in design.widths.items():
         other = f"{fitted['widths'][name]:12.4g}" if fitted else f"{'-':>12}"
@@ -296,8 +333,3 @@ def run(args: argparse.Namespace) -> int:
            f"its first {design.n_est / design.fs:g} s (the rest validates)")
     print(f"the widths are those of a fit that estimates from {est}; run {out.name} on the rig "
           f"and fit the record (RECORD.csv) with:\n  {fit_command(design.split, validate)}")
-    if broken:
-        print(f"hhra-phys design: error: the design breaks limits: {'; '.join(broken)}",
-              file=sys.stderr)
-        return 1
-    return 0

@@ -97,10 +97,34 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
+def _automatic_box(args: argparse.Namespace, model: Any, auto_bounds: dict[str, Any],
+                   free: list[str] | None, fixed: dict[str, float],
+                   others: list[Any]) -> dict[str, tuple[float, float]]:
+    """The automatic box of the free parameters, the widest over every record given."""
     from hhra_phys.fit import default_free
 
+    chosen = set(free) if free is not None else set(default_free(model, fixed))
+    bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
+    for other in others:  # the widest automatic box of all
+        for k, (lo, hi) in model_for(args, other, args.valve)[1].items():
+            if k in bounds:
+                bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
+    return bounds
+
+
+def _say_fitting(args: argparse.Namespace, records: list[Any]) -> None:
+    """The line on stderr that says what is fitted, and how."""
+    data = records[0]
+    what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
+            if len(records) > 1 else
+            f"{data.name or data.source or 'record'} ({len(data)} samples)")
+    print(f"fitting {what} with {args.optimizer} (pop {args.pop}, {args.iters} it.) + "
+          f"{args.refine}" + (f", {args.starts} starts" if args.starts > 1 else ""),
+          file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
     try:
         check_arguments(args, {"--json": args.json, "--plot": args.plot})
         check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
@@ -120,19 +144,10 @@ def run(args: argparse.Namespace) -> int:
         # Problem runs the same check in every fit; here it names --fix before any worker
         # starts. Notes about values accepted outside their box come with the result.
         model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
-        chosen = set(free) if free is not None else set(default_free(model, fixed))
-        bounds = {k: v for k, v in auto_bounds.items() if k in chosen}
-        for other in records[1:] + (validation or []):  # the widest automatic box of all
-            for k, (lo, hi) in model_for(args, other, args.valve)[1].items():
-                if k in bounds:
-                    bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
+        bounds = _automatic_box(args, model, auto_bounds, free, fixed,
+                                records[1:] + (validation or []))
         refine = [r for r in args.refine.split("+")] if args.refine else None
-        what = (f"{len(records)} records ({sum(len(d) for d in records)} samples)"
-                if len(records) > 1 else
-                f"{data.name or data.source or 'record'} ({len(data)} samples)")
-        print(f"fitting {what} with {args.optimizer} (pop {args.pop}, {args.iters} it.) + "
-              f"{args.refine}" + (f", {args.starts} starts" if args.starts > 1 else ""),
-              file=sys.stderr)
+        _say_fitting(args, records)
         if len(records) == 1 and (validation is None or len(validation) == 1):
             target, val_arg = data, (validation[0] if validation else None)
         else:  # several records, or one record with several validation records

@@ -9,7 +9,7 @@ from typing import Any
 
 from hhra_phys.cli._common import report_error
 from hhra_phys.cli._guards import check_size, output_path, seed
-from hhra_phys.data import check_save_path, save
+from hhra_phys.data import Dataset, check_save_path, save
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
@@ -181,29 +181,11 @@ def run(args: argparse.Namespace) -> int:
         if args.effect and args.generator != "reference":
             raise ParameterError("--effect needs --generator reference")
         effects = _parse_effects(args.effect)
-        if not (math.isfinite(args.noise_ar) and abs(args.noise_ar) < 1):
-            raise ParameterError(f"--noise-ar must lie in (-1, 1), got {args.noise_ar}")
-        if not math.isfinite(args.drift):
-            raise ParameterError(f"--drift must be finite, got {args.drift}")
+        _check_noise_model(args)
         if args.generator == "reference":
-            from hhra_phys.reference import reference_record
-
-            say_time_estimate(args, effects)
-            ds = reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
-                                  fs=args.fs, amplitude=args.amplitude,
-                                  quantization=args.quantization, effects=effects or None,
-                                  intersample=args.intersample or "zoh",
-                                  noise_ar=args.noise_ar, drift_deg=args.drift)
+            ds = _reference(args, effects)
         else:
-            if effects or args.noise_ar or args.drift:
-                raise ParameterError("--effect, --noise-ar and --drift need --generator "
-                                     "reference")
-            if args.intersample not in (None, "zoh"):
-                raise ParameterError("--intersample foh needs --generator reference (the "
-                                     "built-in rig's valve current is held by its DAC)")
-            ds = simulate_rig(seed=args.seed, noise=args.noise, duration=args.duration,
-                              fs=args.fs, amplitude=args.amplitude,
-                              quantization=args.quantization)
+            ds = _builtin(args, effects)
         path = save(ds, args.out, overwrite=args.overwrite)
     except ParameterError as exc:
         if "cannot hold" not in str(exc):  # the excitation's words for too few samples
@@ -223,3 +205,36 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {path} ({len(ds)} samples, {ds.duration:.2f} s, angle "
           f"{ds.y.min():.1f}..{ds.y.max():.1f} deg)")
     return 0
+
+
+def _check_noise_model(args: argparse.Namespace) -> None:
+    """Refuse an AR(1) factor outside (-1, 1) (not stationary) and a drift that is not finite."""
+    if not (math.isfinite(args.noise_ar) and abs(args.noise_ar) < 1):
+        raise ParameterError(f"--noise-ar must lie in (-1, 1), got {args.noise_ar}")
+    if not math.isfinite(args.drift):
+        raise ParameterError(f"--drift must be finite, got {args.drift}")
+
+
+def _reference(args: argparse.Namespace, effects: dict[str, dict[str, float]]) -> Dataset:
+    """The record of the independently written reference rig (``--generator reference``)."""
+    from hhra_phys.reference import reference_record
+
+    say_time_estimate(args, effects)
+    return reference_record(seed=args.seed, noise_deg=args.noise, duration=args.duration,
+                            fs=args.fs, amplitude=args.amplitude,
+                            quantization=args.quantization, effects=effects or None,
+                            intersample=args.intersample or "zoh",
+                            noise_ar=args.noise_ar, drift_deg=args.drift)
+
+
+def _builtin(args: argparse.Namespace, effects: dict[str, dict[str, float]]) -> Dataset:
+    """The record of the built-in rig, refusing the reference rig's own options."""
+    if effects or args.noise_ar or args.drift:
+        raise ParameterError("--effect, --noise-ar and --drift need --generator "
+                             "reference")
+    if args.intersample not in (None, "zoh"):
+        raise ParameterError("--intersample foh needs --generator reference (the "
+                             "built-in rig's valve current is held by its DAC)")
+    return simulate_rig(seed=args.seed, noise=args.noise, duration=args.duration,
+                        fs=args.fs, amplitude=args.amplitude,
+                        quantization=args.quantization)

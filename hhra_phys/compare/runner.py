@@ -209,12 +209,31 @@ def run_comparison(
     A method that raises an :class:`~hhra_phys.errors.HHRAError` (e.g. no stable candidate
     found) is reported with ``error`` set and null scores; other exceptions propagate.
     """
+    dataset = _records(dataset)
+    s = _settings(settings, seed, pop_size, max_iter, progress, overrides)
+    names = _method_names(methods)
+    est, val = _parts(dataset, split)
+    say = _reporter(progress)
+    results: dict[str, MethodResult] = {}
+    for i, name in enumerate(names, 1):
+        results[name] = _run_method(f"[{i}/{len(names)}] {name}", name, est, val, s, say)
+    return Comparison(dataset, est, val, split, s, results)
+
+
+def _records(dataset: Dataset | Sequence[Dataset]) -> Dataset | RecordSet:
+    """One record as it is; several (checked to belong together) as a :class:`RecordSet`."""
     records = list(dataset) if isinstance(dataset, (list, tuple)) else [dataset]
     if not records or not all(isinstance(d, Dataset) for d in records):
         raise ParameterError(f"dataset must be a hhra_phys.data.Dataset or a list of them, "
                              f"got {type(dataset)}")
     check_records(records)
-    dataset = records[0] if len(records) == 1 else RecordSet(records)
+    return records[0] if len(records) == 1 else RecordSet(records)
+
+
+def _settings(settings: CompareSettings | None, seed: int, pop_size: int, max_iter: int,
+              progress: bool | Callable[[str], None],
+              overrides: dict[str, Any]) -> CompareSettings:
+    """``settings`` (default :class:`CompareSettings`) with the arguments' fields replaced."""
     base = settings or CompareSettings()
     fields = {**asdict(base), "seed": seed, "pop_size": pop_size, "max_iter": max_iter}
     unknown = sorted(set(overrides) - set(fields))
@@ -223,7 +242,11 @@ def run_comparison(
     fields.update(overrides)
     # Bars only for progress=True: a callable receives lines and would be garbled by bars.
     fields["progress"] = progress is True or (not callable(progress) and base.progress)
-    s = CompareSettings(**fields)
+    return CompareSettings(**fields)
+
+
+def _method_names(methods: Sequence[str] | None) -> list[str]:
+    """The methods to run, in report order (default every registered one), each known once."""
     if isinstance(methods, str):
         raise ParameterError("methods must be a sequence of names, e.g. ['ls', 'pso']")
     names = list(available_methods() if methods is None else methods)
@@ -233,42 +256,46 @@ def run_comparison(
         raise ParameterError(
             f"methods: unknown or repeated {bad or names}; registered: {', '.join(registered)}"
         )
+    return names
+
+
+def _parts(dataset: Dataset | RecordSet, split: Any) -> tuple[Any, Any]:
+    """The estimation and validation parts (of each record, for several: by a fraction)."""
     if isinstance(dataset, RecordSet):
         if not isinstance(split, float):
             raise ParameterError(f"split: several records are each split by a fraction in "
                                  f"(0, 1), got {split!r}")
         parts = [_split(d, split) for d in dataset]
-        est, val = RecordSet(p[0] for p in parts), RecordSet(p[1] for p in parts)
-    else:
-        est, val = _split(dataset, split)
-    say = _reporter(progress)
-    results: dict[str, MethodResult] = {}
-    for i, name in enumerate(names, 1):
+        return RecordSet(p[0] for p in parts), RecordSet(p[1] for p in parts)
+    return _split(dataset, split)
+
+
+def _run_method(tag: str, name: str, est: Any, val: Any, s: CompareSettings,
+                say: Callable[[str], None] | None) -> MethodResult:
+    """Fit and score one method; its failure (an :class:`HHRAError`) is its result's error.
+
+    ``tag`` (``"[i/n] name"``) starts each progress line.
+    """
+    if say:
+        say(f"{tag} ...")
+    start = time.perf_counter()
+    if isinstance(est, RecordSet) and not getattr(METHODS[name], "several_records", False):
         if say:
-            say(f"[{i}/{len(names)}] {name} ...")
-        start = time.perf_counter()
-        if isinstance(est, RecordSet) and not getattr(METHODS[name], "several_records", False):
-            results[name] = MethodResult(name, None, {}, {}, 0.0,
-                                         "this method fits one record only")
-            if say:
-                say(f"[{i}/{len(names)}] {name}: skipped: fits one record only")
-            continue
-        try:
-            outcome = METHODS[name](est, val, s)
-        except HHRAError as exc:
-            results[name] = MethodResult(name, None, {}, {}, time.perf_counter() - start, str(exc))
-            if say:
-                say(f"[{i}/{len(names)}] {name}: failed: {exc}")
-            continue
-        elapsed = time.perf_counter() - start
-        results[name] = _scored(name, outcome, est, val, elapsed)
+            say(f"{tag}: skipped: fits one record only")
+        return MethodResult(name, None, {}, {}, 0.0, "this method fits one record only")
+    try:
+        outcome = METHODS[name](est, val, s)
+    except HHRAError as exc:
+        result = MethodResult(name, None, {}, {}, time.perf_counter() - start, str(exc))
         if say:
-            v = results[name].val
-            say(
-                f"[{i}/{len(names)}] {name}: {results[name].seconds:.1f} s, validation "
-                f"MSE {v['mse']:.4g}, VAF {v['vaf']:.2f} %"
-            )
-    return Comparison(dataset, est, val, split, s, results)
+            say(f"{tag}: failed: {exc}")
+        return result
+    elapsed = time.perf_counter() - start
+    result = _scored(name, outcome, est, val, elapsed)
+    if say:
+        v = result.val
+        say(f"{tag}: {result.seconds:.1f} s, validation MSE {v['mse']:.4g}, VAF {v['vaf']:.2f} %")
+    return result
 
 
 def _scored(

@@ -50,15 +50,34 @@ def decode(data: bytes, source: str, encoding: str | None = None) -> tuple[str, 
         Binary content, or bytes the given ``encoding`` cannot decode.
     """
     if encoding is not None:
+        return _decode_as(data, source, encoding)
+    marked = _decode_marked(data, source)
+    if marked is not None:
+        return marked
+    _refuse_binary(data, source)
+    for codec in ("utf-8", "cp1252"):
         try:
-            return data.decode(encoding), encoding
-        except LookupError:
-            raise DataFormatError(f"{source}: unknown encoding {encoding!r}") from None
-        except UnicodeDecodeError as exc:
-            raise DataFormatError(
-                f"{source}: not valid {encoding} text (byte {exc.start}: {exc.reason}); "
-                "leave encoding=None to detect it"
-            ) from None
+            return data.decode(codec), codec
+        except UnicodeDecodeError:
+            continue
+    return data.decode("latin-1"), "latin-1"
+
+
+def _decode_as(data: bytes, source: str, encoding: str) -> tuple[str, str]:
+    """``(text, encoding)`` with the codec the user named; an error names the file."""
+    try:
+        return data.decode(encoding), encoding
+    except LookupError:
+        raise DataFormatError(f"{source}: unknown encoding {encoding!r}") from None
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(
+            f"{source}: not valid {encoding} text (byte {exc.start}: {exc.reason}); "
+            "leave encoding=None to detect it"
+        ) from None
+
+
+def _decode_marked(data: bytes, source: str) -> tuple[str, str] | None:
+    """``(text, encoding)`` by the byte-order mark the bytes start with; ``None`` without one."""
     for bom, codec in _BOMS:
         if data.startswith(bom):
             try:
@@ -68,6 +87,11 @@ def decode(data: bytes, source: str, encoding: str | None = None) -> tuple[str, 
                     f"{source}: starts with a {codec.upper()} byte-order mark but is not valid "
                     f"{codec.upper()} text (byte {exc.start}: {exc.reason})"
                 ) from None
+    return None
+
+
+def _refuse_binary(data: bytes, source: str) -> None:
+    """Refuse binary content (checked before Latin-1, which would decode any bytes)."""
     if _looks_binary(data):
         hint = ""
         if data[1::2].count(0) > len(data) // 4 or data[0::2].count(0) > len(data) // 4:
@@ -76,12 +100,6 @@ def decode(data: bytes, source: str, encoding: str | None = None) -> tuple[str, 
             f"{source}: binary or undecodable content (NUL or control bytes), not a text "
             f"record{hint}"
         )
-    for codec in ("utf-8", "cp1252"):
-        try:
-            return data.decode(codec), codec
-        except UnicodeDecodeError:
-            continue
-    return data.decode("latin-1"), "latin-1"
 
 
 def _looks_binary(data: bytes) -> bool:

@@ -10,7 +10,7 @@ text files also give the 1-based line of the file.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -153,6 +153,24 @@ def _validate(
     tt = _as_vector(t, lab("t"), source)
     uu = _as_vector(u, lab("u"), source)
     yy = _as_vector(y, lab("y"), source)
+    ex = _extra_vectors(extra, lab, source)
+    _check_values({"t": tt, "u": uu, "y": yy, **ex}, lab, pre, lines)
+    n = tt.size
+    if n < checks.min_samples:
+        raise TooFewSamplesError(
+            f"{pre}only {n} sample{'s' * (n != 1)}; at least {checks.min_samples} are needed "
+            "(DataChecks.min_samples)"
+        )
+    _check_time(tt, checks, lab, pre, lines)
+    if checks.require_excitation:
+        _check_excitation(uu, checks, lab, pre, input_desc)
+    return tt, uu, yy, ex
+
+
+def _extra_vectors(extra: Mapping[str, Any], lab: Callable[[str], str],
+                   source: str | None) -> dict[str, np.ndarray]:
+    """The extra channels as vectors, refusing names that are empty or clash with t, u, y."""
+    pre = _prefix(source)
     ex: dict[str, np.ndarray] = {}
     for key, value in extra.items():
         if not isinstance(key, str) or not key.strip():
@@ -160,8 +178,12 @@ def _validate(
         if key in ("t", "u", "y"):
             raise DataError(f"{pre}extra channel name {key!r} clashes with the columns t, u, y")
         ex[key] = _as_vector(value, lab(key), source)
+    return ex
 
-    columns = {"t": tt, "u": uu, "y": yy, **ex}
+
+def _check_values(columns: dict[str, np.ndarray], lab: Callable[[str], str], pre: str,
+                  lines: np.ndarray | None) -> None:
+    """Refuse columns of different lengths, non-finite values and values beyond any unit."""
     sizes = {key: arr.size for key, arr in columns.items()}
     if len(set(sizes.values())) > 1:
         listing = ", ".join(f"{lab(k)} {n}" for k, n in sizes.items())
@@ -186,13 +208,10 @@ def _validate(
                 "and products of such values overflow; fix or remove those rows"
             )
 
-    n = tt.size
-    if n < checks.min_samples:
-        raise TooFewSamplesError(
-            f"{pre}only {n} sample{'s' * (n != 1)}; at least {checks.min_samples} are needed "
-            "(DataChecks.min_samples)"
-        )
 
+def _check_time(tt: np.ndarray, checks: DataChecks, lab: Callable[[str], str], pre: str,
+                lines: np.ndarray | None) -> None:
+    """Refuse a time axis that does not strictly increase or is not uniformly sampled."""
     step = np.diff(tt)
     bad = np.flatnonzero(step <= 0) + 1
     if bad.size:
@@ -214,18 +233,20 @@ def _validate(
             "record or loosen DataChecks(time_rtol=...)"
         )
 
-    if checks.require_excitation:
-        scale = float(np.max(np.abs(uu)))
-        spread = float(np.std(uu))
-        if spread <= checks.input_rtol * scale or spread == 0.0:
-            raise NonExcitingInputError(
-                f"{pre}input column {lab('u')} ({input_desc}) is constant or nearly so "
-                f"(std {spread:.3g} <= {checks.input_rtol:g} * max(abs(u)) = "
-                f"{checks.input_rtol * scale:.3g}): it does not excite the system, so nothing can "
-                "be identified from it. Use DataChecks(require_excitation=False) to accept it "
-                "anyway"
-            )
-    return tt, uu, yy, ex
+
+def _check_excitation(uu: np.ndarray, checks: DataChecks, lab: Callable[[str], str], pre: str,
+                      input_desc: str) -> None:
+    """Refuse an input that is constant or nearly so: nothing can be identified from it."""
+    scale = float(np.max(np.abs(uu)))
+    spread = float(np.std(uu))
+    if spread <= checks.input_rtol * scale or spread == 0.0:
+        raise NonExcitingInputError(
+            f"{pre}input column {lab('u')} ({input_desc}) is constant or nearly so "
+            f"(std {spread:.3g} <= {checks.input_rtol:g} * max(abs(u)) = "
+            f"{checks.input_rtol * scale:.3g}): it does not excite the system, so nothing can "
+            "be identified from it. Use DataChecks(require_excitation=False) to accept it "
+            "anyway"
+        )
 
 
 def _time_axis(t: Any, fs: float | None, n: int) -> tuple[Any, bool]:

@@ -399,6 +399,66 @@ def _header_unit(name: str) -> str | None:
     return m.group(1).strip() if m else None
 
 
+def _parsed_delimiter(delimiter: str | None) -> str | None:
+    """The delimiter a user named (``None``: detect it), a bad one as a ParameterError."""
+    if delimiter is None:
+        return None
+    try:
+        return _text.parse_delimiter(delimiter)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+
+
+def _csv_table(
+    p: Path, delimiter: str | None, comments: str | None, encoding: str | None
+) -> tuple[list[str], list[list[str]], np.ndarray, str]:
+    """``(header, rows, line of each row, delimiter hint)`` of a CSV file.
+
+    Every row must have as many fields as the header; the hint (empty, or a note on
+    another delimiter the header looks split by) goes into the messages about columns.
+    """
+    used, records, header_text = _csv_records(p, delimiter, comments, encoding)
+    if not records:
+        raise DataFormatError(f"{p}: empty file (no header row)")
+    (header_line, header), body = records[0], records[1:]
+    hint = _text.delimiter_hint(header_text, used)
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    for number, fields in body:
+        if len(fields) != len(header):
+            raise DataFormatError(
+                f"{p}: line {number} has {len(fields)} fields but the header (line {header_line}) "
+                f"has {len(header)} (delimiter {_text.display(used)!r}){hint}"
+            )
+        rows.append(fields)
+        lines.append(number)
+    return header, rows, np.array(lines, dtype=np.int64), hint
+
+
+def _column_roles(
+    header: list[str],
+    t: str | int | None,
+    u: str | int,
+    y: str | int,
+    extra: Sequence[str | int] | Mapping[str, str | int],
+    fs: float | None,
+    p: Path,
+    hint: str,
+) -> dict[str, int]:
+    """``{role: column index}`` for t (when the file has it), u, y and each extra channel."""
+    roles: dict[str, str | int] = {}
+    if t is not None and (isinstance(t, int) or t in header or fs is None):
+        roles["t"] = t
+    roles.update({"u": u, "y": y})
+    pairs = extra.items() if isinstance(extra, Mapping) else ((e, e) for e in extra)
+    for key, e in pairs:
+        if not isinstance(key, str):  # an index without a name: use the header's
+            key = header[_column_index(e, header, p, "extra", hint)]
+        _check_extra_name(key, p)
+        roles[key] = e
+    return {role: _column_index(spec, header, p, role, hint) for role, spec in roles.items()}
+
+
 def load_csv(
     path: PathLike,
     t: str | int | None = "t",
@@ -472,49 +532,17 @@ def load_csv(
     """
     p = _existing_file(path)
     checks = checks or DataChecks()
-    if delimiter is not None:
-        try:
-            delimiter = _text.parse_delimiter(delimiter)
-        except ValueError as exc:
-            raise ParameterError(str(exc)) from None
-    info: dict[str, Any] = {}
+    delimiter = _parsed_delimiter(delimiter)
     side = sidecar_path(p)
-    if sidecar and side.is_file() and side != p:
-        info = _read_sidecar(side)
+    info: dict[str, Any] = _read_sidecar(side) if sidecar and side.is_file() and side != p else {}
     where = f"the side-car {side}"
 
-    used, records, header_text = _csv_records(p, delimiter, comments, encoding)
-    if not records:
-        raise DataFormatError(f"{p}: empty file (no header row)")
-    (header_line, header), body = records[0], records[1:]
-    hint = _text.delimiter_hint(header_text, used)
-    rows: list[list[str]] = []
-    lines: list[int] = []
-    for number, fields in body:
-        if len(fields) != len(header):
-            raise DataFormatError(
-                f"{p}: line {number} has {len(fields)} fields but the header (line {header_line}) "
-                f"has {len(header)} (delimiter {_text.display(used)!r}){hint}"
-            )
-        rows.append(fields)
-        lines.append(number)
-    line_of = np.array(lines, dtype=np.int64)
-
+    header, rows, line_of, hint = _csv_table(p, delimiter, comments, encoding)
     if extra is None:
         extra = [e for e in info.get("extra") or [] if e in header]
     if fs is None and (t is None or (not isinstance(t, int) and t not in header)):
         fs = _sidecar_fs(info)  # no time column: the side-car knows the sample rate
-    roles: dict[str, str | int] = {}
-    if t is not None and (isinstance(t, int) or t in header or fs is None):
-        roles["t"] = t
-    roles.update({"u": u, "y": y})
-    pairs = extra.items() if isinstance(extra, Mapping) else ((e, e) for e in extra)
-    for key, e in pairs:
-        if not isinstance(key, str):  # an index without a name: use the header's
-            key = header[_column_index(e, header, p, "extra", hint)]
-        _check_extra_name(key, p)
-        roles[key] = e
-    index = {role: _column_index(spec, header, p, role, hint) for role, spec in roles.items()}
+    index = _column_roles(header, t, u, y, extra, fs, p, hint)
     columns = {role: [r[i] for r in rows] for role, i in index.items()}
     values = {
         role: _parse_column(cells, header[index[role]], line_of, p)

@@ -465,32 +465,56 @@ def run_study(
     """
     jobs = check_int(jobs, "jobs", 1)
     start = time.perf_counter()
-    per_function: dict[str, dict[str, dict[str, dict[str, Cell]]]] = {}
     timing: dict[str, Any] = {"per_function": {}}
     if executor is not None:
-        futures = {key: executor.submit(run_function, settings, key)
-                   for key in settings.functions}
-        for key, fut in futures.items():
-            per_function[key] = fut.result()
-            if progress is not None:
-                progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
+        per_function = _run_on(executor, settings, progress, start)
     elif jobs == 1:
-        for key in settings.functions:
-            t0 = time.perf_counter()
-            per_function[key] = run_function(settings, key)
-            timing["per_function"][key] = time.perf_counter() - t0
-            if progress is not None:
-                progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
+        per_function = _run_here(settings, progress, start, timing["per_function"])
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {key: pool.submit(run_function, settings, key) for key in settings.functions}
-            for key, fut in futures.items():
-                per_function[key] = fut.result()
-                if progress is not None:
-                    progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
+            per_function = _run_on(pool, settings, progress, start)
     timing["total"] = time.perf_counter() - start
     timing["jobs"] = jobs if executor is None else type(executor).__name__
+    return _study_report(settings, per_function, timing)
 
+
+#: One function's tables: ``{table: {row: {method: Cell}}}`` (:func:`run_function`).
+_FunctionTables = dict[str, dict[str, dict[str, Cell]]]
+
+
+def _say_done(progress: Callable[[str], None] | None, key: str, start: float) -> None:
+    """The progress line after function ``key`` (wall seconds since ``start``)."""
+    if progress is not None:
+        progress(f"{key} done ({time.perf_counter() - start:.1f} s)")
+
+
+def _run_on(executor: Executor, settings: StudySettings,
+            progress: Callable[[str], None] | None, start: float) -> dict[str, _FunctionTables]:
+    """Every function of ``settings`` as one task each on ``executor``, in order."""
+    futures = {key: executor.submit(run_function, settings, key) for key in settings.functions}
+    per_function: dict[str, _FunctionTables] = {}
+    for key, fut in futures.items():
+        per_function[key] = fut.result()
+        _say_done(progress, key, start)
+    return per_function
+
+
+def _run_here(settings: StudySettings, progress: Callable[[str], None] | None, start: float,
+              seconds: dict[str, float]) -> dict[str, _FunctionTables]:
+    """Every function of ``settings`` in this process; each one's wall time goes to
+    ``seconds``."""
+    per_function: dict[str, _FunctionTables] = {}
+    for key in settings.functions:
+        t0 = time.perf_counter()
+        per_function[key] = run_function(settings, key)
+        seconds[key] = time.perf_counter() - t0
+        _say_done(progress, key, start)
+    return per_function
+
+
+def _study_report(settings: StudySettings, per_function: dict[str, _FunctionTables],
+                  timing: dict[str, Any]) -> dict[str, Any]:
+    """The JSON-ready report of :func:`run_study` from each function's tables."""
     report: dict[str, Any] = {
         "settings": {
             **asdict(settings),

@@ -229,23 +229,10 @@ class PhysicalParameters:
                           / (4 * new.displacement))
         ch = new.compliance
         if "g_torque" in groups:
-            me = new.A * new.p_s / groups["g_torque"]
-            J = (me - new.m / (2 * math.pi * new.zeta)) / new.torque_ratio
-            if J < 0:
-                raise ParameterError(
-                    f"g_torque={groups['g_torque']:.6g} implies M_e={me:.6g} kg*m, below the "
-                    "piston mass share m/(2 pi zeta): J would be negative"
-                )
-            new = replace(new, J=J)
+            new = new._with_g_torque(groups["g_torque"])
         me = new.M_e
         if "g_damping" in groups:
-            B_m = (groups["g_damping"] * me - new.B_c / (2 * math.pi * new.zeta)) / new.torque_ratio
-            if B_m < 0:
-                raise ParameterError(
-                    f"g_damping={groups['g_damping']:.6g} is below the piston's own viscous "
-                    "share B_c/(2 pi zeta M_e): B_m would be negative"
-                )
-            new = replace(new, B_m=B_m)
+            new = new._with_g_damping(groups["g_damping"])
         if "g_spring" in groups:
             new = replace(new, G=groups["g_spring"] * me / new.torque_ratio)
         if "g_load" in groups:
@@ -255,6 +242,28 @@ class PhysicalParameters:
         if "g_valve" in groups:
             new = replace(new, k_x=groups["g_valve"] * ch * math.sqrt(new.p_s) / new.k_q)
         return new
+
+    def _with_g_torque(self, g_torque: float) -> PhysicalParameters:
+        """The motor inertia ``J`` that gives ``g_torque`` [rad/s^2] (refused below zero)."""
+        me = self.A * self.p_s / g_torque
+        J = (me - self.m / (2 * math.pi * self.zeta)) / self.torque_ratio
+        if J < 0:
+            raise ParameterError(
+                f"g_torque={g_torque:.6g} implies M_e={me:.6g} kg*m, below the "
+                "piston mass share m/(2 pi zeta): J would be negative"
+            )
+        return replace(self, J=J)
+
+    def _with_g_damping(self, g_damping: float) -> PhysicalParameters:
+        """The motor's viscous coefficient ``B_m`` that gives ``g_damping`` [1/s] (refused
+        below zero)."""
+        B_m = (g_damping * self.M_e - self.B_c / (2 * math.pi * self.zeta)) / self.torque_ratio
+        if B_m < 0:
+            raise ParameterError(
+                f"g_damping={g_damping:.6g} is below the piston's own viscous "
+                "share B_c/(2 pi zeta M_e): B_m would be negative"
+            )
+        return replace(self, B_m=B_m)
 
     def tf_coefficients(self, k_pa: float | None = None) -> dict[str, float]:
         """The paper's ``G(s) = k_v / (a s^3 + b s^2 + c s)`` in physical units.
