@@ -139,7 +139,7 @@ def _metaheuristic(method: str) -> MethodFn:
             pop_size=s.pop_size,
             max_iter=s.max_iter,
             seed=s.seed,
-            options=s.options.get(method),
+            optimizer_options=s.options.get(method),
             progress=s.progress,
             **_orders(s),
         )
@@ -158,7 +158,7 @@ def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> Method
         pop_size=s.pop_size,
         max_iter=s.max_iter,
         seed=s.seed,
-        options=s.options.get("ffrls_hgwo"),
+        optimizer_options=s.options.get("ffrls_hgwo"),
         progress=s.progress,
         **_orders(s),
     )
