@@ -246,6 +246,19 @@ def _spec(
         raise ValueError(f"valve must be 'orifice' or 'linear', got {valve!r}")
     if output not in ("angle", "pressure"):
         raise ValueError(f"output must be 'angle' or 'pressure', got {output!r}")
+    p = _group_values(params, valve, output, spool_lag)
+    eff = {name: _effect_values(name, given, p, dt) for name, given in (effects or {}).items()}
+    if output == "pressure" and "backlash" in eff:
+        raise ValueError("backlash is seen by an angle encoder; use output='angle'")
+    names = reference_state_names(spool_lag=spool_lag, effects=eff)
+    return _Spec(valve, output, spool_lag, float(dt), smooth, float(stick_band), p, eff,
+                 tuple(names))
+
+
+def _group_values(params: Mapping[str, float], valve: str, output: str, spool_lag: bool
+                  ) -> dict[str, float]:
+    """``params`` as floats, with the groups the plant needs (``g_spring``, ``g_load``
+    default to 0; the others must be given)."""
     p = {k: float(v) for k, v in params.items()}
     needed = ["g_torque", "g_damping", "g_compress", "g_leak", "g_valve"]
     needed += ["g_kp"] if valve == "linear" else []
@@ -256,33 +269,30 @@ def _spec(
     missing = [k for k in needed if k not in p]
     if missing:
         raise ValueError(f"params lacks {missing}")
-    eff: dict[str, dict[str, float]] = {}
-    for name, given in (effects or {}).items():
-        if name not in _EFFECT_PARAMS:
-            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
-        vals = dict(_SETTINGS[name])
-        if name == "coulomb_friction":
-            vals["dt"] = dt
-        for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
-            if key in p:
-                vals[key] = p[key]
-        vals.update({k: float(v) for k, v in given.items()})
-        lacking = [k for k in _EFFECT_PARAMS[name] if k not in vals]
-        if lacking:
-            raise ValueError(f"effect {name!r} needs parameter(s) {lacking}")
-        if name == "coulomb_friction" and ("g_stribeck" in vals) != ("v_stribeck" in vals):
-            raise ValueError("the Stribeck term needs both g_stribeck and v_stribeck")
-        if name == "input_delay" and vals["delay"] < 0:
-            raise ValueError("delay must be >= 0 samples")
-        eff[name] = vals
-    names = ["theta", "omega", "p"]
-    names += ["xs"] if spool_lag else []
-    names += ["x_spool"] if "valve_dynamics" in eff else []
-    names += ["gap"] if "backlash" in eff else []
-    if output == "pressure" and "backlash" in eff:
-        raise ValueError("backlash is seen by an angle encoder; use output='angle'")
-    return _Spec(valve, output, spool_lag, float(dt), smooth, float(stick_band), p, eff,
-                 tuple(names))
+    return p
+
+
+def _effect_values(name: str, given: Mapping[str, float], p: Mapping[str, float], dt: float
+                   ) -> dict[str, float]:
+    """An effect's settings and parameter values: its defaults, then ``p``'s values of its
+    parameters, then ``given``; checked."""
+    if name not in _EFFECT_PARAMS:
+        raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    vals = dict(_SETTINGS[name])
+    if name == "coulomb_friction":
+        vals["dt"] = dt
+    for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
+        if key in p:
+            vals[key] = p[key]
+    vals.update({k: float(v) for k, v in given.items()})
+    lacking = [k for k in _EFFECT_PARAMS[name] if k not in vals]
+    if lacking:
+        raise ValueError(f"effect {name!r} needs parameter(s) {lacking}")
+    if name == "coulomb_friction" and ("g_stribeck" in vals) != ("v_stribeck" in vals):
+        raise ValueError("the Stribeck term needs both g_stribeck and v_stribeck")
+    if name == "input_delay" and vals["delay"] < 0:
+        raise ValueError("delay must be >= 0 samples")
+    return vals
 
 
 # --- right-hand side and output -------------------------------------------------------------
@@ -325,6 +335,23 @@ def _rates(
     P = s.p
     th, w, p = x["theta"], x["omega"], x["p"]
     c = _command(x, u_lags, s, rates)
+    rates["p"] = _flow(c, p, s) - P["g_compress"] * w - P["g_leak"] * p
+    acc = P["g_torque"] * p - P["g_damping"] * w - P["g_spring"] * th - P["g_load"]
+    if "gravity_load" in s.effects:
+        v = s.effects["gravity_load"]
+        acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
+    if "coulomb_friction" in s.effects:
+        acc = _with_friction(acc, w, s, mode)
+    rates["theta"] = w
+    rates["omega"] = acc
+    if "backlash" in s.effects:
+        rates["gap"] = _gap_rate(w, x["gap"], s)
+    return rates
+
+
+def _flow(c: float, p: float, s: _Spec) -> float:
+    """Valve flow for command ``c`` at load pressure ``p`` (and the asymmetric valve)."""
+    P = s.p
     if s.valve == "orifice":
         # The orifice law: the pressure drop across the open edge is p_s - sign(x_v)*P_L,
         # i.e. 1 - sign(c)*p: the sign of the VALVE COMMAND, not of the pressure.
@@ -335,54 +362,51 @@ def _rates(
     if "asymmetric_valve" in s.effects:
         v = s.effects["asymmetric_valve"]
         q *= 1.0 + v["asym"] * _sgn(c, v["eps"] * v["u_scale"], s.smooth)
-    rates["p"] = q - P["g_compress"] * w - P["g_leak"] * p
-    acc = P["g_torque"] * p - P["g_damping"] * w - P["g_spring"] * th - P["g_load"]
-    if "gravity_load" in s.effects:
-        v = s.effects["gravity_load"]
-        acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
-    if "coulomb_friction" in s.effects:
-        v = s.effects["coulomb_friction"]
-        level = v["g_coulomb"]
-        if "g_stribeck" in v:
-            level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
-        acc -= v.get("g_viscous", 0.0) * w
-        if s.smooth:
-            # The package's documented width: a physical v_switch (fitted) or width
-            # [rad/s]; the legacy eps ties it to the sample period.
-            if "eps" in v:
-                width = v["eps"] + 0.5 * v["dt"] * level
-            else:
-                width = v.get("v_switch", v["width"])
-            acc -= level * _sgn(w, width, True)
-        elif mode == 0:
-            acc = 0.0  # stuck: the simulation set omega = 0 exactly and holds it
-        elif mode is not None:
-            acc -= level * mode  # sliding: the direction is fixed until omega reaches 0
-        elif abs(w) <= s.stick_band and abs(acc) <= level:
-            # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
-            acc = -w / max(s.dt, 1e-12)
-        elif abs(w) <= s.stick_band:
-            acc -= level * math.copysign(1.0, acc)  # breaks away in the direction of the push
+    return q
+
+
+def _with_friction(acc: float, w: float, s: _Spec, mode: int | None) -> float:
+    """The acceleration ``acc`` (without friction) with Coulomb friction at velocity ``w``:
+    smoothed, or exact with stick and slip (``mode`` as in :func:`_rates`)."""
+    v = s.effects["coulomb_friction"]
+    level = v["g_coulomb"]
+    if "g_stribeck" in v:
+        level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
+    acc -= v.get("g_viscous", 0.0) * w
+    if s.smooth:
+        # The package's documented width: a physical v_switch (fitted) or width
+        # [rad/s]; the legacy eps ties it to the sample period.
+        if "eps" in v:
+            width = v["eps"] + 0.5 * v["dt"] * level
         else:
-            acc -= level * math.copysign(1.0, w)
-    rates["theta"] = w
-    rates["omega"] = acc
-    if "backlash" in s.effects:
-        v = s.effects["backlash"]
-        half = 0.5 * v["play"] / RAD2DEG
-        gap = x["gap"]
-        if not s.smooth:
-            contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
-            rates["gap"] = w * (1.0 - contact)
-        elif "eps_omega" in v:  # the legacy soft contact
-            e = (0.1 * v["play"] + 0.03) / RAD2DEG
-            z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
-            rates["gap"] = w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
-        else:
-            wid = v.get("w_contact", v["width"]) / RAD2DEG
-            rates["gap"] = (max(w, 0.0) * _contact((half - gap) / wid)
-                            + min(w, 0.0) * _contact((half + gap) / wid))
-    return rates
+            width = v.get("v_switch", v["width"])
+        return acc - level * _sgn(w, width, True)
+    if mode == 0:
+        return 0.0  # stuck: the simulation set omega = 0 exactly and holds it
+    if mode is not None:
+        return acc - level * mode  # sliding: the direction is fixed until omega reaches 0
+    if abs(w) <= s.stick_band and abs(acc) <= level:
+        # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
+        return -w / max(s.dt, 1e-12)
+    if abs(w) <= s.stick_band:
+        return acc - level * math.copysign(1.0, acc)  # breaks away in the push's direction
+    return acc - level * math.copysign(1.0, w)
+
+
+def _gap_rate(w: float, gap: float, s: _Spec) -> float:
+    """Rate of the backlash gap [rad/s] at shaft velocity ``w``."""
+    v = s.effects["backlash"]
+    half = 0.5 * v["play"] / RAD2DEG
+    if not s.smooth:
+        contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
+        return w * (1.0 - contact)
+    if "eps_omega" in v:  # the legacy soft contact
+        e = (0.1 * v["play"] + 0.03) / RAD2DEG
+        z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
+        return w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
+    wid = v.get("w_contact", v["width"]) / RAD2DEG
+    return (max(w, 0.0) * _contact((half - gap) / wid)
+            + min(w, 0.0) * _contact((half + gap) / wid))
 
 
 def _xdot(x: np.ndarray, u_lags: np.ndarray, s: _Spec, mode: int | None = None) -> np.ndarray:
@@ -433,11 +457,7 @@ def _segment(
     back; while stuck (``omega = 0`` held) an event stops it where that
     acceleration reaches the level (breakaway). Nothing chatters across 0.
     """
-    held = u_lags
-
-    def ul(t: float) -> np.ndarray:
-        return held if slope is None else held + t * slope
-
+    ul = _input_path(u_lags, slope)
     if not _sticky(s):
         sol = solve_ivp(lambda t, xx: _xdot(xx, ul(t), s), (0.0, t_eval[-1]), x,
                         method=method, t_eval=t_eval, rtol=rtol, atol=atol,
@@ -448,6 +468,24 @@ def _segment(
             turns.extend((float(t), float(xe[0]))
                          for t, xe in zip(sol.t_events[0], sol.y_events[0], strict=True))
         return sol.y
+    return _stick_slip_segment(x, u_lags, ul, s, t_eval, (method, rtol, atol), turns)
+
+
+def _input_path(u_lags: np.ndarray, slope: np.ndarray | None) -> Any:
+    """The input lags at time ``t`` into the sample: held, or moving at ``slope``."""
+    def ul(t: float) -> np.ndarray:
+        return u_lags if slope is None else u_lags + t * slope
+
+    return ul
+
+
+def _stick_slip_segment(
+    x: np.ndarray, u_lags: np.ndarray, ul: Any, s: _Spec, t_eval: np.ndarray,
+    solver: tuple[str, float, float], turns: list[tuple[float, float]] | None,
+) -> np.ndarray:
+    """:func:`_segment` with exact Coulomb friction: one integration per stick or slide
+    phase, each ended by its switching event (:func:`_switch_event`)."""
+    method, rtol, atol = solver
     out = np.empty((x.size, t_eval.size))
     out[:, 0] = x
     done, t0, mode = 1, 0.0, _initial_mode(x, u_lags, s)
@@ -457,19 +495,9 @@ def _segment(
     for _ in range(10000):
         if done == t_eval.size:
             return out
-        if mode == 0:
-            def event(t: float, xx: np.ndarray) -> float:
-                push, level = _push_and_level(xx, ul(t), s)
-                return abs(push) - level
-            event.direction = 1.0  # type: ignore[attr-defined]
-        else:
-            def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
-                return d * xx[1]
-            event.direction = -1.0  # type: ignore[attr-defined]
-        event.terminal = True  # type: ignore[attr-defined]
-        te = t_eval[done:]
         sol = solve_ivp(lambda t, xx, m=mode: _xdot(xx, ul(t), s, m), (t0, t_eval[-1]), x,
-                        method=method, t_eval=te, rtol=rtol, atol=atol, events=event)
+                        method=method, t_eval=t_eval[done:], rtol=rtol, atol=atol,
+                        events=_switch_event(mode, ul, s))
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
         k = len(sol.t)  # (an empty t_eval tail comes back as a list)
@@ -481,18 +509,40 @@ def _segment(
         t0, x = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
         if turns is not None:  # a stop (omega = 0) or a breakaway from rest
             turns.append((t0, float(x[0])))
-        if mode == 0:
-            push, _ = _push_and_level(x, ul(t0), s)
-            mode = 1 if push > 0 else -1
-        else:
-            x[1] = 0.0
-            push, level = _push_and_level(x, ul(t0), s)
-            mode = 0 if abs(push) <= level else (1 if push > 0 else -1)
+        mode = _mode_after_switch(mode, x, ul(t0), s)
         if t_eval[-1] - t0 <= 1e-12 * max(1.0, t_eval[-1]):
             # The event fell on the end of the segment: its state is the last sample's.
             out[:, done:] = x[:, None]
             return out
     raise RuntimeError("too many stick-slip switches in one held sample segment")
+
+
+def _switch_event(mode: int, ul: Any, s: _Spec) -> Any:
+    """The terminal event that ends a phase: breakaway while stuck (``mode = 0``: the
+    push reaches the static level), the stop while sliding in direction ``mode``."""
+    if mode == 0:
+        def event(t: float, xx: np.ndarray) -> float:
+            push, level = _push_and_level(xx, ul(t), s)
+            return abs(push) - level
+        event.direction = 1.0  # type: ignore[attr-defined]
+    else:
+        def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
+            return d * xx[1]
+        event.direction = -1.0  # type: ignore[attr-defined]
+    event.terminal = True  # type: ignore[attr-defined]
+    return event
+
+
+def _mode_after_switch(mode: int, x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
+    """The phase after a switch at state ``x``: sliding in the push's direction after a
+    breakaway; after a stop (``x``'s velocity set to exactly 0 in place) stuck if the push
+    is within the static level, else sliding back."""
+    if mode == 0:
+        push, _ = _push_and_level(x, u_lags, s)
+        return 1 if push > 0 else -1
+    x[1] = 0.0
+    push, level = _push_and_level(x, u_lags, s)
+    return 0 if abs(push) <= level else (1 if push > 0 else -1)
 
 
 def _y(x: np.ndarray, s: _Spec) -> float:
