@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -97,6 +97,9 @@ __all__ = [
     "simulate_reference",
     "velocity_gain",
     "reference_record",
+    "RecordOptions",
+    "SolverOptions",
+    "SOLVE_IVP_METHODS",
     "REFERENCE_GROUPS",
     "EFFECT_NAMES",
 ]
@@ -675,6 +678,156 @@ def _lags(u_lags: Sequence[float] | np.ndarray | float, n_lags: int) -> np.ndarr
 # --- simulation ----------------------------------------------------------------------------
 
 
+#: Integrators of :func:`scipy.integrate.solve_ivp` by name.
+SOLVE_IVP_METHODS: tuple[str, ...] = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How the reference is integrated (:func:`simulate_reference`, :func:`reference_record`).
+
+    Every field is also a keyword of both functions (``rtol=1e-8``), overriding the
+    options they are given.
+
+    Attributes
+    ----------
+    method : str
+        Integrator of :func:`~scipy.integrate.solve_ivp` (:data:`SOLVE_IVP_METHODS`):
+        ``"LSODA"`` switches to a stiff method where needed; ``"Radau"`` for stiff sets;
+        ``"DOP853"`` for smooth, non-stiff ones.
+    rtol, atol : float
+        Tolerances of :func:`~scipy.integrate.solve_ivp` (> 0).
+    stick_band : float
+        Velocity [rad/s] below which exact Coulomb friction may stick (``smooth=False``),
+        ``>= 0``.
+    """
+
+    method: str = "LSODA"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    stick_band: float = 1e-6
+
+    def validate(self) -> SolverOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            Naming the setting and what is wrong with it.
+        """
+        if self.method not in SOLVE_IVP_METHODS:
+            raise ValueError(f"method must be one of {', '.join(SOLVE_IVP_METHODS)} "
+                                 f"(scipy's solve_ivp), got {self.method!r}")
+        for name in ("rtol", "atol"):
+            _check_number(name, getattr(self, name), "> 0", lambda v: v > 0)
+        _check_number("stick_band", self.stick_band, ">= 0", lambda v: v >= 0)
+        return self
+
+
+def _check_number(name: str, value: Any, what: str, ok: Any) -> None:
+    """``value`` a finite number for which ``ok`` holds, else an error naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not math.isfinite(value) or not ok(value):
+        raise ValueError(f"{name} must be a finite number {what}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """How :func:`reference_record` makes a record: its excitation, its sensor, its solver.
+
+    Every field (and every field of :class:`SolverOptions`) is also a keyword of
+    :func:`reference_record`, overriding the options it is given.
+
+    Attributes
+    ----------
+    amplitude : float
+        Largest current [mA] of the default excitation (> 0).
+    levels : int
+        Number of levels of the default excitation (>= 1).
+    angle_limit_deg : float
+        Half range [deg] the linear angle estimate may reach before the input is scaled.
+    quantization : float, optional
+        Encoder resolution [deg] (a 12-bit encoder: ``360 / 4096``).
+    noise_ar : float
+        Coefficient ``a`` of first-order autoregressive (coloured) sensor noise,
+        ``n[k] = a n[k-1] + sqrt(1 - a^2) noise_deg w[k]`` with white ``w`` and a
+        stationary start; 0 (default): white noise. ``|a| < 1``.
+    drift_deg : float
+        A slow sensor drift [deg]: the output moves by this much, linearly in time,
+        over the record (0: none).
+    solver : SolverOptions
+        How the plant is integrated.
+    """
+
+    amplitude: float = 1.0
+    levels: int = 4
+    angle_limit_deg: float = 80.0
+    quantization: float | None = None
+    noise_ar: float = 0.0
+    drift_deg: float = 0.0
+    solver: SolverOptions = SolverOptions()
+
+    def validate(self) -> RecordOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            Naming the setting and what is wrong with it.
+        """
+        _check_number("amplitude", self.amplitude, "> 0", lambda v: v > 0)
+        if isinstance(self.levels, bool) or not isinstance(self.levels, int | np.integer) \
+                or self.levels < 1:
+            raise ValueError(f"levels must be an integer >= 1, got {self.levels!r}")
+        _check_number("angle_limit_deg", self.angle_limit_deg, "> 0", lambda v: v > 0)
+        if self.quantization is not None:
+            _check_number("quantization", self.quantization, ">= 0", lambda v: v >= 0)
+        _check_number("noise_ar", self.noise_ar, "in (-1, 1)", lambda v: abs(v) < 1)
+        _check_number("drift_deg", self.drift_deg, "", lambda v: True)
+        if not isinstance(self.solver, SolverOptions):
+            raise ValueError(f"solver must be a SolverOptions, got {self.solver!r}")
+        self.solver.validate()
+        return self
+
+
+def _with_overrides(options: Any, overrides: Mapping[str, Any], what: str) -> Any:
+    """``options`` (a frozen dataclass) with ``overrides`` of its fields applied.
+
+    (:func:`hhra_phys.options.with_overrides` does this for the package; the reference
+    imports nothing of the package but the data container and the excitation signals.)
+    """
+    names = {f.name for f in fields(options)}
+    bad = sorted(set(overrides) - names)
+    if bad:
+        raise ValueError(f"unknown {what} setting(s) {', '.join(bad)}; settings: "
+                         f"{', '.join(sorted(names))}")
+    return replace(options, **overrides)
+
+
+def _solver_options(solver: SolverOptions | None, settings: Mapping[str, Any]) -> SolverOptions:
+    """``solver`` (default: the defaults) with ``settings`` applied, validated."""
+    return _with_overrides(solver if solver is not None else SolverOptions(), settings,
+                           "solver").validate()
+
+
+def _record_options(options: RecordOptions | None, settings: Mapping[str, Any]
+                    ) -> RecordOptions:
+    """``options`` with ``settings`` (its fields and :class:`SolverOptions`'s) applied."""
+    base = options if options is not None else RecordOptions()
+    solver_names = {f.name for f in fields(SolverOptions)}
+    record_names = {f.name for f in fields(RecordOptions)}
+    unknown = sorted(set(settings) - solver_names - record_names)
+    if unknown:
+        raise ValueError(f"unknown reference record setting(s) {', '.join(unknown)}; "
+                             f"settings: {', '.join(sorted(record_names | solver_names))}")
+    solver = {k: v for k, v in settings.items() if k in solver_names}
+    own = {k: v for k, v in settings.items() if k not in solver_names}
+    if solver:
+        own["solver"] = _solver_options(own.get("solver", base.solver), solver)
+    return _with_overrides(base, own, "reference record").validate()
+
+
+
 def simulate_reference(
     u: Sequence[float] | np.ndarray,
     fs: float,
@@ -686,12 +839,10 @@ def simulate_reference(
     effects: Mapping[str, Mapping[str, float]] | None = None,
     x0: Sequence[float] | np.ndarray | None = None,
     smooth: bool = True,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    method: str = "LSODA",
-    stick_band: float = 1e-6,
     states: bool = False,
     intersample: str = "zoh",
+    solver: SolverOptions | None = None,
+    **solver_settings: Any,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Simulate the sampled system with an exact zero-order (or first-order) hold.
 
@@ -713,19 +864,20 @@ def simulate_reference(
         Sample rate [Hz].
     params : mapping
         Parameters by name (see :func:`reference_rhs`).
-    valve, output, spool_lag, effects, smooth, stick_band
+    valve, output, spool_lag, effects, smooth
         As in :func:`reference_rhs`.
     x0 : array, shape (nx,), optional
         Initial state (default: all zero, at rest).
-    rtol, atol : float
-        Tolerances of :func:`~scipy.integrate.solve_ivp`.
-    method : str
-        Integrator (``"LSODA"`` switches to a stiff method where needed; ``"Radau"``
-        for stiff sets; ``"DOP853"`` for smooth, non-stiff ones).
     states : bool
         Also return the state at every sample.
     intersample : {"zoh", "foh"}
         What the input does between samples: held, or linear to the next sample.
+    solver : SolverOptions, optional
+        The integrator, its tolerances and exact friction's stick band (default
+        :class:`SolverOptions`'s: LSODA, ``rtol=1e-10``, ``atol=1e-12``).
+    **solver_settings
+        Any field of :class:`SolverOptions` (``method``, ``rtol``, ``atol``,
+        ``stick_band``), overriding ``solver``.
 
     Returns
     -------
@@ -736,9 +888,12 @@ def simulate_reference(
 
     Raises
     ------
+    ValueError
+        A bad solver setting, naming it.
     RuntimeError
         When the integrator fails.
     """
+    so = _solver_options(solver, solver_settings)
     u = np.asarray(u, dtype=float).ravel()
     if u.size < 1 or not np.isfinite(u).all():
         raise ValueError("u must be a non-empty finite 1-D array")
@@ -747,7 +902,7 @@ def simulate_reference(
     if intersample not in ("zoh", "foh"):
         raise ValueError(f"intersample must be 'zoh' or 'foh', got {intersample!r}")
     dt = 1.0 / fs
-    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, stick_band)
+    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, so.stick_band)
     nl = s.n_lags
     padded = np.concatenate([np.full(nl, u[0]), u])
     # Row k: u[k], u[k-1], ..., u[k-nl].
@@ -777,7 +932,7 @@ def simulate_reference(
         t_eval = np.arange(b - a + 1) * dt
         seg: list[tuple[float, float]] | None = [] if play_after else None
         try:
-            Y = _segment(xc, ul, core, t_eval, method, rtol, atol, seg,
+            Y = _segment(xc, ul, core, t_eval, so.method, so.rtol, so.atol, seg,
                          slope=slopes[a] if slopes[a].any() else None)
         except RuntimeError as exc:
             raise RuntimeError(f"at sample {a}: {exc}") from exc
@@ -842,17 +997,10 @@ def reference_record(
     valve: str = "orifice",
     spool_lag: bool = False,
     u: Sequence[float] | np.ndarray | None = None,
-    amplitude: float = 1.0,
-    levels: int = 4,
-    angle_limit_deg: float = 80.0,
-    quantization: float | None = None,
-    noise_ar: float = 0.0,
-    drift_deg: float = 0.0,
     smooth: bool = True,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    method: str = "LSODA",
     intersample: str = "zoh",
+    options: RecordOptions | None = None,
+    **settings: Any,
 ) -> Dataset:
     """A simulated rig record generated by the reference implementation.
 
@@ -886,22 +1034,16 @@ def reference_record(
         Spool lag (then ``params`` needs ``tau_v``).
     u : array, optional
         Valve current [mA] instead of the default excitation.
-    amplitude, levels : float, int
-        Largest current [mA] and number of levels of the excitation.
-    angle_limit_deg : float
-        Half range [deg] the linear angle estimate may reach before the input is scaled.
-    quantization : float, optional
-        Encoder resolution [deg] (a 12-bit encoder: ``360 / 4096``).
-    noise_ar : float
-        Coefficient ``a`` of first-order autoregressive (coloured) sensor noise,
-        ``n[k] = a n[k-1] + sqrt(1 - a^2) noise_deg w[k]`` with white ``w`` and a
-        stationary start; 0 (default): white noise. ``|a| < 1``.
-    drift_deg : float
-        A slow sensor drift [deg]: the output moves by this much, linearly in time,
-        over the record (0: none).
-    smooth, rtol, atol, method, intersample
+    smooth, intersample
         As in :func:`simulate_reference`; the record carries ``intersample`` (what its
         input did between samples).
+    options : RecordOptions, optional
+        The excitation, the sensor and the solver (default :class:`RecordOptions`'s).
+    **settings
+        Any field of :class:`RecordOptions` (``amplitude``, ``levels``,
+        ``angle_limit_deg``, ``quantization``, ``noise_ar``, ``drift_deg``) or of
+        :class:`SolverOptions` (``method``, ``rtol``, ``atol``, ``stick_band``), overriding
+        ``options``.
 
     Returns
     -------
@@ -912,51 +1054,31 @@ def reference_record(
         (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
         ``truth``: everything :func:`simulate_reference` needs to reproduce the
         noise-free output (``params``, ``effects`` with settings, ``valve``,
-        ``spool_lag``, ``smooth``, ``x0``, ``integrator``). No
-        ``physical`` entry: the reference works in groups only.
+        ``spool_lag``, ``smooth``, ``x0``, ``integrator``: the :class:`SolverOptions`).
+        No ``physical`` entry: the reference works in groups only.
+
+    Raises
+    ------
+    ValueError
+        A bad setting (or a negative ``noise_deg``), naming it.
     """
+    o = _record_options(options, settings)
     if not (math.isfinite(noise_deg) and noise_deg >= 0):
         raise ValueError(f"noise_deg must be >= 0, got {noise_deg}")
-    if not (math.isfinite(noise_ar) and abs(noise_ar) < 1):
-        raise ValueError(f"noise_ar must lie in (-1, 1), got {noise_ar}")
-    if not math.isfinite(drift_deg):
-        raise ValueError(f"drift_deg must be finite, got {drift_deg}")
-    if quantization is not None and not (math.isfinite(quantization) and quantization >= 0):
-        raise ValueError(f"quantization must be >= 0, got {quantization}")
     p = dict(REFERENCE_GROUPS)
     if valve == "orifice":
         p.pop("g_kp")
     p.update({k: float(v) for k, v in (params or {}).items()})
     rng = np.random.default_rng(seed)
     gain = velocity_gain(p, valve)
-    if u is None:
-        n = samples(duration, fs)
-        periods = max(1, int(round(duration / 20.0)))
-        u = irregular_steps(n, levels=levels, amplitude=amplitude, n_periods=periods, seed=rng)
-        est = np.degrees(np.cumsum(u) / fs * gain)
-        half = 0.5 * float(est.max() - est.min())
-        if half > angle_limit_deg:
-            u = u * (angle_limit_deg / half)
+    u = _excitation(duration, fs, gain, rng, o) if u is None else u
     u = np.asarray(u, dtype=float)
-    est = np.degrees(np.cumsum(u) / fs * gain)
-    est -= est[0]
     names = reference_state_names(spool_lag=spool_lag, effects=effects)
     x0 = np.zeros(len(names))
-    x0[0] = -math.radians(0.5 * float(est.max() + est.min()))
+    x0[0] = _centred_angle(u, fs, gain)
     y_true = simulate_reference(u, fs, p, valve=valve, spool_lag=spool_lag, effects=effects,
-                                x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method,
-                                intersample=intersample)
-    w = noise_deg * rng.standard_normal(u.size)
-    if noise_ar:
-        # Stationary AR(1) with the standard deviation noise_deg: first sample at the
-        # stationary spread, then innovations scaled by sqrt(1 - a^2).
-        w[1:] *= math.sqrt(1.0 - noise_ar ** 2)
-        w = sps.lfilter([1.0], [1.0, -noise_ar], w)
-    y = y_true + w
-    if drift_deg:
-        y = y + drift_deg * np.arange(u.size) / max(u.size - 1, 1)
-    if quantization:
-        y = np.round(y / quantization) * quantization
+                                x0=x0, smooth=smooth, intersample=intersample, solver=o.solver)
+    y = _sensor(y_true, noise_deg, rng, o)
     eff = {k: dict(v) for k, v in (effects or {}).items()}
     true_params = dict(p)
     for vals in eff.values():
@@ -965,9 +1087,9 @@ def reference_record(
         "generator": "reference",
         "seed": seed,
         "noise_deg": noise_deg,
-        "noise_ar": noise_ar,
-        "drift_deg": drift_deg,
-        "quantization_deg": quantization,
+        "noise_ar": o.noise_ar,
+        "drift_deg": o.drift_deg,
+        "quantization_deg": o.quantization,
         "valve": valve,
         "intersample": intersample,
         "true_params": true_params,
@@ -980,13 +1102,49 @@ def reference_record(
             "spool_lag": spool_lag,
             "smooth": smooth,
             "x0": x0.tolist(),
-            "integrator": {"method": method, "rtol": rtol, "atol": atol},
+            "integrator": {f.name: getattr(o.solver, f.name) for f in fields(SolverOptions)},
         },
     }
     return Dataset.from_arrays(
         u, y, fs=fs, metadata=meta, name=f"reference-seed{seed}",
         input_name="current", input_unit="mA", output_name="angle", output_unit="deg",
     )
+
+
+def _excitation(duration: float, fs: float, gain: float, rng: np.random.Generator,
+                o: RecordOptions) -> np.ndarray:
+    """The default input: irregular steps, scaled down if the linear estimate of the angle
+    (``gain`` [rad/s per mA]) would span more than ``2 * angle_limit_deg``."""
+    n = samples(duration, fs)
+    periods = max(1, int(round(duration / 20.0)))
+    u = irregular_steps(n, levels=o.levels, amplitude=o.amplitude, n_periods=periods, seed=rng)
+    est = np.degrees(np.cumsum(u) / fs * gain)
+    half = 0.5 * float(est.max() - est.min())
+    return u * (o.angle_limit_deg / half) if half > o.angle_limit_deg else u
+
+
+def _centred_angle(u: np.ndarray, fs: float, gain: float) -> float:
+    """Initial angle [rad] that centres the linear estimate's stroke on 0."""
+    est = np.degrees(np.cumsum(u) / fs * gain)
+    est -= est[0]
+    return -math.radians(0.5 * float(est.max() + est.min()))
+
+
+def _sensor(y_true: np.ndarray, noise_deg: float, rng: np.random.Generator,
+            o: RecordOptions) -> np.ndarray:
+    """The measured angle: noise (white or AR(1)), drift and quantisation added."""
+    w = noise_deg * rng.standard_normal(y_true.size)
+    if o.noise_ar:
+        # Stationary AR(1) with the standard deviation noise_deg: first sample at the
+        # stationary spread, then innovations scaled by sqrt(1 - a^2).
+        w[1:] *= math.sqrt(1.0 - o.noise_ar ** 2)
+        w = sps.lfilter([1.0], [1.0, -o.noise_ar], w)
+    y = y_true + w
+    if o.drift_deg:
+        y = y + o.drift_deg * np.arange(y.size) / max(y.size - 1, 1)
+    if o.quantization:
+        y = np.round(y / o.quantization) * o.quantization
+    return y
 
 
 _ALL_EFFECT_PARAMS = ({k for v in _EFFECT_PARAMS.values() for k in v}
