@@ -427,8 +427,9 @@ class DesignOptions:
         if self.split is not None and not (isinstance(self.split, int | float)
                                            and 0.0 < self.split <= 1.0):
             raise ParameterError(f"split must be a fraction in (0, 1], got {self.split!r}")
-        _check_positive(max_input=self.max_input, output_limit=self.output_limit,
-                        min_hold=self.min_hold, fs=self.fs)
+        _check_positive(output_limit=self.output_limit, min_hold=self.min_hold,
+                        **{k: v for k, v in (("max_input", self.max_input), ("fs", self.fs))
+                           if v is not None})
         for name in ("candidates", "local_steps", "draws"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
@@ -448,11 +449,10 @@ class DesignOptions:
                               ("families",)).validate()
 
 
-def _check_positive(**values: float | None) -> None:
-    """Each value given (not None) a finite number > 0, else an error naming it."""
+def _check_positive(**values: Any) -> None:
+    """Each value a finite number > 0, else an error naming it."""
     for name, value in values.items():
-        if value is not None and not (isinstance(value, int | float) and math.isfinite(value)
-                                      and value > 0):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
             raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
 
 

@@ -110,6 +110,8 @@ def test_design_options_object_and_keywords_give_one_design(fitted, seed: int) -
     ({"families": ()}, "families must be among"),
     ({"split": 1.5}, "split must be a fraction"),
     ({"output_limit": float("nan")}, "output_limit must be a finite number > 0"),
+    ({"min_hold": None}, "min_hold must be a finite number > 0"),
+    ({"fs": 0.0}, "fs must be a finite number > 0"),
     ({"candidates": -1}, "candidates must be an integer >= 0"),
     ({"draw": 2}, "unknown design setting.*draw"),
 ])
