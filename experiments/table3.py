@@ -93,7 +93,7 @@ def _hybrid_warm_start(est: Dataset, val: Dataset, s: C.CompareSettings) -> C.Me
         pop_size=s.pop_size,
         max_iter=s.max_iter,
         seed=s.seed,
-        options=s.options.get("ffrls_hgwo"),
+        optimizer_options=s.options.get("ffrls_hgwo"),
         progress=s.progress,
         na=s.na,
         nb=s.nb,

@@ -33,16 +33,18 @@ estimators never invent a past: without ``y_init``/``u_init`` the first
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 import scipy.signal
 
 from hhra_phys.errors import DataError, ParameterError
+from hhra_phys.options import with_overrides
 
 __all__ = [
     "DEFAULT_ZETA_S",
@@ -56,6 +58,8 @@ __all__ = [
     "ARXFit",
     "ARXModel",
     "ConditioningWarning",
+    "HybridOptions",
+    "MetaheuristicOptions",
     "fit_ffrls",
     "fit_ffrls_hgwo",
     "fit_ls",
@@ -1030,25 +1034,156 @@ def _bounds(bounds: Any, p: int) -> np.ndarray:
     return arr
 
 
+@dataclass(frozen=True)
+class _SearchOptions:
+    """Settings both metaheuristic ARX fits share (see :class:`MetaheuristicOptions`)."""
+
+    na: int = 3
+    nb: int = 3
+    nk: int = 1
+    pop_size: int = 100
+    max_iter: int = 200
+    seed: int | None = 0
+    optimizer_options: Mapping[str, Any] | None = None
+    y_init: Any = None
+    u_init: Any = None
+    max_pole_radius: float | None = MAX_POLE_RADIUS
+    progress: bool = False
+
+    def _validate_search(self) -> None:
+        _orders(self.na, self.nb, self.nk)
+        for name in ("pop_size", "max_iter"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ParameterError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.optimizer_options is not None and not isinstance(self.optimizer_options, Mapping):
+            raise ParameterError(f"optimizer_options (options=) must be a dict of the "
+                                 f"optimiser's settings, got {self.optimizer_options!r}")
+        r = self.max_pole_radius
+        if r is not None and not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
+            raise ParameterError(f"max_pole_radius must be a positive number or None, got {r!r}")
+
+
+def _search_options(cls: type[Any], options: Any, settings: dict[str, Any], what: str) -> Any:
+    """``options`` (an instance of ``cls``, or a dict of optimiser settings as the old
+    ``options=``) with ``settings`` applied, validated."""
+    if options is None or isinstance(options, cls):
+        base = options if options is not None else cls()
+    elif isinstance(options, Mapping):
+        base = cls(optimizer_options=dict(options))
+    else:
+        raise ParameterError(f"options must be a {cls.__name__} or a dict of the optimiser's "
+                             f"settings, got {options!r}")
+    return with_overrides(base, settings, what).validate()
+
+
+@dataclass(frozen=True)
+class MetaheuristicOptions(_SearchOptions):
+    """Settings of :func:`fit_metaheuristic`, validated as a whole.
+
+    Every field is also a keyword of :func:`fit_metaheuristic`, which overrides the options
+    it is given (``fit_metaheuristic(u, y, t, options=MetaheuristicOptions(method="pso"),
+    seed=2)``).
+
+    Attributes
+    ----------
+    method : str
+        Optimiser, a key of :data:`hhra_phys.optim.registry.METHODS` (the paper's ``"pso"``,
+        ``"gwo"``, ``"hgwo"``; ``"de"`` works too).
+    na, nb, nk : int
+        Structure.
+    bounds : (lo, hi) or array of shape (na + nb, 2)
+        Search box (default the paper's [-5, 5] for every coefficient).
+    pop_size, max_iter : int
+        Population size and iterations (paper: 100 and 200).
+    seed : int or None
+        Seed of the optimiser; the same seed reproduces the fit.
+    optimizer_options : dict, optional
+        Optimiser options (the functions' ``options={...}``), merged over
+        :data:`METAHEURISTIC_OPTIONS` for the method.
+    x0 : array_like, optional
+        Warm-start points, see :func:`hhra_phys.optim.minimize`.
+    y_init, u_init : scalar or array_like, optional
+        Samples before the record (default: at rest at ``y[0]``), see :func:`itae_cost`.
+    max_pole_radius : float or None
+        Stability limit of candidates.
+    progress : bool
+        Show a progress bar.
+    """
+
+    method: str = "hgwo"
+    bounds: Any = PAPER_BOX
+    x0: Any = None
+
+    def validate(self) -> MetaheuristicOptions:
+        """Check every setting before any work; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        from hhra_phys.optim.registry import optimiser_class
+
+        self._validate_search()
+        optimiser_class(self.method)
+        _bounds(self.bounds, self.na + self.nb)
+        return self
+
+
+@dataclass(frozen=True)
+class HybridOptions(_SearchOptions):
+    """Settings of the paper's hybrid :func:`fit_ffrls_hgwo`, validated as a whole.
+
+    Every field is also a keyword of :func:`fit_ffrls_hgwo`, which overrides the options it
+    is given.
+
+    Attributes
+    ----------
+    na, nb, nk, pop_size, max_iter, seed
+        As in :class:`MetaheuristicOptions`, for the H-GWO stage (paper: 100, 200).
+    optimizer_options, y_init, u_init, max_pole_radius, progress
+        As in :class:`MetaheuristicOptions` (H-GWO's paper options: ``F = 0.5``,
+        ``lam = 0.25``).
+    zeta_s : float
+        Expansion gain of the box (:func:`hybrid_box`), in (0, 1].
+    warm_start : bool
+        Also put the FFRLS estimate itself into the first population. The paper only uses it
+        to place the box, so the default is False.
+    xi0, xi_init, p0, theta0
+        FFRLS settings, see :func:`fit_ffrls`.
+    """
+
+    zeta_s: float = DEFAULT_ZETA_S
+    warm_start: bool = False
+    xi0: float = FFRLS_XI0
+    xi_init: float = FFRLS_XI_INIT
+    p0: float = RLS_P0
+    theta0: Any = RLS_THETA0
+
+    def validate(self) -> HybridOptions:
+        """Check every setting before any work; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        self._validate_search()
+        z = self.zeta_s
+        if not (isinstance(z, int | float) and math.isfinite(z) and 0.0 < z <= 1.0):
+            raise ParameterError(f"zeta_s must lie in (0, 1], got {z!r}")
+        forgetting_factor(1, self.xi0, self.xi_init)
+        return self
+
+
 def fit_metaheuristic(
     u: Any,
     y: Any,
     t: Any = None,
     *,
-    method: str = "hgwo",
-    na: int = 3,
-    nb: int = 3,
-    nk: int = 1,
-    bounds: Any = PAPER_BOX,
-    pop_size: int = 100,
-    max_iter: int = 200,
-    seed: int | None = 0,
-    options: Mapping[str, Any] | None = None,
-    x0: Any = None,
-    y_init: Any = None,
-    u_init: Any = None,
-    max_pole_radius: float | None = MAX_POLE_RADIUS,
-    progress: bool = False,
+    options: MetaheuristicOptions | Mapping[str, Any] | None = None,
+    **settings: Any,
 ) -> ARXFit:
     """ARX coefficients by PSO, GWO or H-GWO minimising the ITAE of the free-run output.
 
@@ -1063,26 +1198,14 @@ def fit_metaheuristic(
         Measured input and output (estimation data).
     t : array_like, shape (N,), optional
         Time axis [s] for the ITAE.
-    method : {"pso", "gwo", "hgwo"}
-        Optimiser (``"de"`` works too).
-    na, nb, nk : int
-        Structure.
-    bounds : (lo, hi) or array of shape (na + nb, 2)
-        Search box.
-    pop_size, max_iter : int
-        Population size and iterations.
-    seed : int or None
-        Seed of the optimiser; the same seed reproduces the fit.
-    options : dict, optional
-        Optimiser options, merged over :data:`METAHEURISTIC_OPTIONS` for the method.
-    x0 : array_like, optional
-        Warm-start points, see :func:`hhra_phys.optim.minimize`.
-    y_init, u_init : scalar or array_like, optional
-        Samples before the record (default: at rest at ``y[0]``), see :func:`itae_cost`.
-    max_pole_radius : float or None
-        Stability limit of candidates.
-    progress : bool
-        Show a progress bar.
+    options : MetaheuristicOptions or dict, optional
+        The fit's settings (default :class:`MetaheuristicOptions`'s); a plain dict holds only
+        the optimiser's own options (``optimizer_options``).
+    **settings
+        Any field of :class:`MetaheuristicOptions`, overriding ``options``: ``method``
+        (``"pso"``, ``"gwo"``, ``"hgwo"``), ``na``, ``nb``, ``nk``, ``bounds``, ``pop_size``,
+        ``max_iter``, ``seed``, ``x0``, ``y_init``, ``u_init``, ``max_pole_radius``,
+        ``progress``.
 
     Returns
     -------
@@ -1092,29 +1215,30 @@ def fit_metaheuristic(
     Raises
     ------
     ParameterError
-        On bad bounds, an unknown method or option.
+        On bad bounds, an unknown method or option, or any bad setting (before any work).
     DataError
         If no candidate with a finite cost was found (e.g. every one unstable).
     """
     from hhra_phys.optim import minimize
 
-    na, nb, nk = _orders(na, nb, nk)
-    box = _bounds(bounds, na + nb)
-    key = str(method).lower()
-    opts = {**METAHEURISTIC_OPTIONS.get(key, {}), **dict(options or {})}
-    cost = itae_cost(u, y, t, na, nb, nk, y_init, u_init, max_pole_radius=max_pole_radius)
+    o = _search_options(MetaheuristicOptions, options, settings, "fit_metaheuristic")
+    na, nb, nk = _orders(o.na, o.nb, o.nk)
+    box = _bounds(o.bounds, na + nb)
+    key = str(o.method).lower()
+    opts = {**METAHEURISTIC_OPTIONS.get(key, {}), **dict(o.optimizer_options or {})}
+    cost = itae_cost(u, y, t, na, nb, nk, o.y_init, o.u_init, max_pole_radius=o.max_pole_radius)
     start = time.perf_counter()
     res = minimize(
         cost,
         box,
         method=key,
-        pop_size=pop_size,
-        max_iter=max_iter,
-        seed=seed,
+        pop_size=o.pop_size,
+        max_iter=o.max_iter,
+        seed=o.seed,
         vectorized=True,
         options=opts,
-        progress=progress,
-        x0=x0,
+        progress=o.progress,
+        x0=o.x0,
     )
     seconds = time.perf_counter() - start
     if not np.isfinite(res.fun):
@@ -1136,8 +1260,8 @@ def fit_metaheuristic(
             "nit": int(res.nit),
             "bounds": box.tolist(),
             "options": {k: v for k, v in opts.items() if np.isscalar(v)},
-            "pop_size": int(pop_size),
-            "seed": seed,
+            "pop_size": int(o.pop_size),
+            "seed": o.seed,
             "message": str(res.message),
         },
     )
@@ -1182,23 +1306,8 @@ def fit_ffrls_hgwo(
     y: Any,
     t: Any = None,
     *,
-    na: int = 3,
-    nb: int = 3,
-    nk: int = 1,
-    zeta_s: float = DEFAULT_ZETA_S,
-    pop_size: int = 100,
-    max_iter: int = 200,
-    seed: int | None = 0,
-    options: Mapping[str, Any] | None = None,
-    warm_start: bool = False,
-    xi0: float = FFRLS_XI0,
-    xi_init: float = FFRLS_XI_INIT,
-    p0: float = RLS_P0,
-    theta0: Any = RLS_THETA0,
-    y_init: Any = None,
-    u_init: Any = None,
-    max_pole_radius: float | None = MAX_POLE_RADIUS,
-    progress: bool = False,
+    options: HybridOptions | Mapping[str, Any] | None = None,
+    **settings: Any,
 ) -> ARXFit:
     """The paper's hybrid: FFRLS estimate, then H-GWO on the box of eq. 29 around it.
 
@@ -1206,19 +1315,14 @@ def fit_ffrls_hgwo(
     ----------
     u, y, t : array_like
         As in :func:`fit_metaheuristic`.
-    na, nb, nk : int
-        Structure.
-    zeta_s : float
-        Expansion gain of the box (:func:`hybrid_box`).
-    pop_size, max_iter, seed, options
-        H-GWO settings (paper: 100, 200, F = 0.5, lam = 0.25).
-    warm_start : bool
-        Also put the FFRLS estimate itself into the first population. The paper only uses it to
-        place the box, so the default is False.
-    xi0, xi_init, p0, theta0
-        FFRLS settings, see :func:`fit_ffrls`.
-    y_init, u_init, max_pole_radius, progress
-        As in :func:`fit_metaheuristic`.
+    options : HybridOptions or dict, optional
+        The fit's settings (default :class:`HybridOptions`'s); a plain dict holds only
+        H-GWO's own options (``optimizer_options``).
+    **settings
+        Any field of :class:`HybridOptions`, overriding ``options``: ``na``, ``nb``, ``nk``,
+        ``zeta_s``, ``pop_size``, ``max_iter``, ``seed``, ``warm_start``, ``xi0``,
+        ``xi_init``, ``p0``, ``theta0``, ``y_init``, ``u_init``, ``max_pole_radius``,
+        ``progress``.
 
     Returns
     -------
@@ -1233,35 +1337,28 @@ def fit_ffrls_hgwo(
     so the pull points toward zero coefficients, which lie outside the box when ``zeta_s < 1``
     (the excess is re-drawn inside the box).
     """
+    o = _search_options(HybridOptions, options, settings, "fit_ffrls_hgwo")
     start = time.perf_counter()
-    ff = fit_ffrls(u, y, na, nb, nk, xi0=xi0, xi_init=xi_init, p0=p0, theta0=theta0)
+    ff = fit_ffrls(u, y, o.na, o.nb, o.nk, xi0=o.xi0, xi_init=o.xi_init, p0=o.p0,
+                   theta0=o.theta0)
     theta_hat = ff.model.theta
-    box = hybrid_box(theta_hat, zeta_s)
+    box = hybrid_box(theta_hat, o.zeta_s)
+    search = {f.name: getattr(o, f.name) for f in fields(_SearchOptions)}
     fit = fit_metaheuristic(
         u,
         y,
         t,
         method="hgwo",
-        na=na,
-        nb=nb,
-        nk=nk,
         bounds=box,
-        pop_size=pop_size,
-        max_iter=max_iter,
-        seed=seed,
-        options=options,
-        x0=theta_hat[None, :] if warm_start else None,
-        y_init=y_init,
-        u_init=u_init,
-        max_pole_radius=max_pole_radius,
-        progress=progress,
+        x0=theta_hat[None, :] if o.warm_start else None,
+        **search,
     )
     fit.method = "ffrls_hgwo"
     fit.seconds = time.perf_counter() - start
     fit.info.update(
         ffrls_theta=theta_hat.tolist(),
-        zeta_s=zeta_s,
-        warm_start=warm_start,
+        zeta_s=o.zeta_s,
+        warm_start=o.warm_start,
         ffrls_stable=ff.model.is_stable(),
     )
     return fit

@@ -65,6 +65,7 @@ import numpy as np
 from hhra_phys.data import DataChecks, Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.excitation import aprbs, irregular_steps, multisine
+from hhra_phys.options import with_overrides
 from hhra_phys.problem import Problem
 from hhra_phys.refine import CompiledLeastSquares
 
@@ -72,6 +73,7 @@ __all__ = [
     "CRITERIA",
     "FAMILIES",
     "Design",
+    "DesignOptions",
     "InformationModel",
     "criterion_value",
     "design_input",
@@ -355,31 +357,15 @@ def _candidate(family: str, rng: np.random.Generator, n: int, fs: float, amp: fl
     return np.repeat(amp * levels, hold)[:n]
 
 
-def design_input(
-    result: Any,
-    duration: float,
-    *,
-    max_input: float | None = None,
-    output_limit: float = OUTPUT_LIMIT_DEG,
-    min_hold: float = MIN_HOLD_S,
-    criterion: str = "d",
-    seed: int | None = 0,
-    fs: float | None = None,
-    families: Sequence[str] = FAMILIES,
-    candidates: int = 48,
-    local_steps: int = 120,
-    draws: int = 4,
-    reference_input: np.ndarray | None = None,
-    split: float | None = None,
-) -> Design:
-    """Design the input that maximises the information about a fit's free parameters.
+@dataclass(frozen=True)
+class DesignOptions:
+    """Settings of :func:`design_input`, validated as a whole.
 
-    Parameters
+    Every field is also a keyword of :func:`design_input`, which overrides the options it
+    is given (``design_input(res, 10.0, options=DesignOptions(criterion="a"), seed=2)``).
+
+    Attributes
     ----------
-    result : FitResult
-        The fit to design from (its values, free parameters, noise level).
-    duration : float
-        Length of the designed record [s].
     max_input : float, optional
         Largest ``|u|`` (input units); default: the largest ``|u|`` of
         ``reference_input`` (the fitted record's input), required without it.
@@ -402,8 +388,6 @@ def design_input(
     draws : int
         Parameter sets from the fit's covariance the criterion is averaged over
         (besides the fitted values).
-    reference_input : ndarray, optional
-        The fitted record's input (for the default ``max_input``).
     split : float, optional
         Share of the record the fit will estimate from, ``0 < split <= 1``
         (``hhra-phys fit --split``; module docstring); default: the share the
@@ -411,6 +395,91 @@ def design_input(
         default fit, 1 for one made with ``split=1`` or validation records).
         Below 1 the first ``round(split * N)`` samples are designed and the rest
         is a validation input within the same limits.
+    """
+
+    max_input: float | None = None
+    output_limit: float = OUTPUT_LIMIT_DEG
+    min_hold: float = MIN_HOLD_S
+    criterion: str = "d"
+    seed: int | None = 0
+    fs: float | None = None
+    families: tuple[str, ...] = FAMILIES
+    candidates: int = 48
+    local_steps: int = 120
+    draws: int = 4
+    split: float | None = None
+
+    def validate(self) -> DesignOptions:
+        """Check every setting before any simulation; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        if self.criterion not in CRITERIA:
+            raise ParameterError(f"criterion must be one of {', '.join(CRITERIA)}, got "
+                                 f"{self.criterion!r}")
+        unknown = sorted(set(self.families) - set(FAMILIES))
+        if unknown or not self.families:
+            raise ParameterError(f"families must be among {', '.join(FAMILIES)}, got "
+                                 f"{list(self.families)}")
+        if self.split is not None and not (isinstance(self.split, int | float)
+                                           and 0.0 < self.split <= 1.0):
+            raise ParameterError(f"split must be a fraction in (0, 1], got {self.split!r}")
+        _check_positive(output_limit=self.output_limit, min_hold=self.min_hold,
+                        **{k: v for k, v in (("max_input", self.max_input), ("fs", self.fs))
+                           if v is not None})
+        for name in ("candidates", "local_steps", "draws"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+                raise ParameterError(f"{name} must be an integer >= 0, got {value!r}")
+        return self
+
+    @classmethod
+    def of(cls, options: DesignOptions | None = None, **overrides: Any) -> DesignOptions:
+        """``options`` (default: the defaults) with ``overrides`` applied, validated.
+
+        Raises
+        ------
+        ParameterError
+            An override that is not a setting (with the settings' names), or a bad value.
+        """
+        return with_overrides(options if options is not None else cls(), overrides, "design",
+                              ("families",)).validate()
+
+
+def _check_positive(**values: Any) -> None:
+    """Each value a finite number > 0, else an error naming it."""
+    for name, value in values.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def design_input(
+    result: Any,
+    duration: float,
+    *,
+    options: DesignOptions | None = None,
+    reference_input: np.ndarray | None = None,
+    **settings: Any,
+) -> Design:
+    """Design the input that maximises the information about a fit's free parameters.
+
+    Parameters
+    ----------
+    result : FitResult
+        The fit to design from (its values, free parameters, noise level).
+    duration : float
+        Length of the designed record [s].
+    options : DesignOptions, optional
+        The design's settings (default :class:`DesignOptions`'s).
+    reference_input : ndarray, optional
+        The fitted record's input (for the default ``max_input``).
+    **settings
+        Any field of :class:`DesignOptions` (``max_input``, ``output_limit``, ``min_hold``,
+        ``criterion``, ``seed``, ``fs``, ``families``, ``candidates``, ``local_steps``,
+        ``draws``, ``split``), overriding ``options``.
 
     Returns
     -------
@@ -421,103 +490,142 @@ def design_input(
     ParameterError
         Bad limits, criterion or family, before any simulation.
     """
-    if criterion not in CRITERIA:
-        raise ParameterError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
-    unknown = sorted(set(families) - set(FAMILIES))
-    if unknown or not families:
-        raise ParameterError(f"families must be among {', '.join(FAMILIES)}, got {list(families)}")
+    o = DesignOptions.of(options, **settings)
+    max_input = o.max_input
     if max_input is None:
         if reference_input is None:
             raise ParameterError("max_input is needed when the fitted record's input is unknown")
         max_input = float(np.max(np.abs(reference_input)))
-    if split is None:
-        split = estimation_split(result)
-    if not (isinstance(split, int | float) and 0.0 < split <= 1.0):
-        raise ParameterError(f"split must be a fraction in (0, 1], got {split!r}")
-    for name, value in (("duration", duration), ("max_input", max_input),
-                        ("output_limit", output_limit), ("min_hold", min_hold)):
-        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-            raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
-    info = InformationModel(result, fs)
+    split = estimation_split(result) if o.split is None else o.split
+    _check_positive(duration=duration, max_input=max_input)
+    info = InformationModel(result, o.fs)
     fs = info.fs
+    n_total, n, hold = _samples(duration, fs, split, o.min_hold, len(info.free))
+    rng = np.random.default_rng(o.seed)
+    points = info.draws(o.draws, rng)
+    score = _Scorer(info, points, o.criterion, max_input, o.output_limit)
+    best = _random_search(score, o.families, o.candidates, rng, n, fs, max_input, hold)
+    steps_ok = [b for f, b in best.items() if f != "multisine" and math.isfinite(b[0])]
+    if steps_ok and o.local_steps > 0:
+        start = min(steps_ok, key=lambda b: b[0])
+        best["free"] = _local_search(score, start, o.local_steps, rng, max_input, hold)
+    value, peak, u, family = min(best.values(), key=lambda b: b[0])
+    u_est = u
+    if n < n_total:
+        u, peak = _with_validation(info, u_est, n_total - n, points, rng, fs, max_input, hold,
+                                   o.output_limit)
+    return Design(
+        u=u, fs=fs, criterion=o.criterion, value=value, family=family,
+        widths=info.widths(u_est), peak_output=peak, evaluations=score.evaluations,
+        history=score.history,
+        limits={"max_input": float(max_input), "min_hold": float(o.min_hold),
+                "output_limit": float(o.output_limit), "duration": float(duration)},
+        split=float(min(split, 1.0)), n_est=n,
+        widths_whole=info.widths(u) if n < n_total else {},
+    )
+
+
+def _samples(duration: float, fs: float, split: float, min_hold: float, n_free: int
+             ) -> tuple[int, int, int]:
+    """Samples of the record and of its designed (estimation) part, and of the shortest hold.
+
+    The fit cuts its estimation part as :meth:`Dataset.split` does: ``round(split * N)``.
+    """
     n_total = int(round(duration * fs))
-    # The fit cuts its estimation part as Dataset.split does: round(split * N) samples.
     n = n_total if split >= 1.0 else int(round(split * n_total))
     hold = max(1, int(math.ceil(min_hold * fs - 1e-9)))
-    if n < 2 * hold or n < 20 * (len(info.free) + 1) or (n < n_total and n_total - n < hold):
+    if n < 2 * hold or n < 20 * (n_free + 1) or (n < n_total and n_total - n < hold):
         raise ParameterError(f"duration {duration} s is too short for min_hold {min_hold} s "
-                             f"and {len(info.free)} free parameters"
+                             f"and {n_free} free parameters"
                              + (f" with split {split}" if split < 1 else ""))
-    rng = np.random.default_rng(seed)
-    points = info.draws(draws, rng)
-    counter = {"n": 0}
+    return n_total, n, hold
 
-    def evaluate(u: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(robust criterion, peak |y|, the input actually used) with one rescale to fit.
+
+#: A scored candidate: (robust criterion, peak |y|, the input used, family).
+_Scored = tuple[float, float, np.ndarray, str]
+
+
+class _Scorer:
+    """The robust criterion of candidate inputs, each rescaled once to fit the output limit.
+
+    Counts the candidates simulated (:attr:`evaluations`) and keeps every value scored
+    (:attr:`history`).
+    """
+
+    def __init__(self, info: InformationModel, points: list[dict[str, float]],
+                 criterion: str, max_input: float, output_limit: float) -> None:
+        self.info, self.points, self.criterion = info, points, criterion
+        self.max_input, self.output_limit = max_input, output_limit
+        self.evaluations = 0
+        self.history: list[float] = []
+
+    def __call__(self, u: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(robust criterion, peak |y|, the input actually used).
 
         Draws whose simulation diverges are skipped; the fitted values must not.
         """
-        u = np.clip(u, -max_input, max_input)
+        value, peak, u = self._score(np.clip(u, -self.max_input, self.max_input))
+        self.history.append(value)
+        return value, peak, u
+
+    def _score(self, u: np.ndarray) -> tuple[float, float, np.ndarray]:
         for attempt in range(2):
-            counter["n"] += 1
-            results = [info.covariance(u, vals) for vals in points]
+            self.evaluations += 1
+            results = [self.info.covariance(u, vals) for vals in self.points]
             if not math.isfinite(results[0][1]):
                 return math.inf, math.inf, u
-            ok = [(criterion_value(c, criterion), pk) for c, pk in results if math.isfinite(pk)]
+            ok = [(criterion_value(c, self.criterion), pk) for c, pk in results
+                  if math.isfinite(pk)]
             peak = max(pk for _, pk in ok)
-            if peak <= output_limit:
-                crits = [c for c, _ in ok]
-                return float(np.mean(crits)), peak, u
+            if peak <= self.output_limit:
+                return float(np.mean([c for c, _ in ok])), peak, u
             if attempt == 0:
-                u = u * (0.97 * output_limit / peak)
+                u = u * (0.97 * self.output_limit / peak)
         return math.inf, peak, u
 
-    best: dict[str, tuple[float, float, np.ndarray, str]] = {}
-    history: list[float] = []
+
+def _random_search(score: _Scorer, families: Sequence[str], candidates: int,
+                   rng: np.random.Generator, n: int, fs: float, max_input: float, hold: int
+                   ) -> dict[str, _Scored]:
+    """The best of ``candidates`` random inputs of each family, by family."""
+    best: dict[str, _Scored] = {}
     for family in families:
         for _ in range(int(candidates)):
             u = _candidate(family, rng, n, fs, max_input, hold)
             if u is None:
                 continue
-            value, peak, used = evaluate(u)
-            history.append(value)
+            value, peak, used = score(u)
             if value < best.get(family, (math.inf,))[0]:
                 best[family] = (value, peak, used, family)
     if not best or all(not math.isfinite(b[0]) for b in best.values()):
         raise ParameterError("no candidate input keeps the output within the limit; "
                              "raise output_limit or lower max_input")
-    # Local search on the best piecewise-constant candidate: change one hold's level.
-    steps_ok = [b for f, b in best.items() if f != "multisine" and math.isfinite(b[0])]
-    if steps_ok and local_steps > 0:
-        value, peak, u, family = min(steps_ok, key=lambda b: b[0])
-        u = u.copy()
-        levels = np.array([-1.0, -0.5, 0.5, 1.0]) * max_input
-        edges = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
-        for _ in range(int(local_steps)):
-            k = int(rng.integers(0, edges.size - 1))
-            trial = u.copy()
-            trial[edges[k]:edges[k + 1]] = rng.choice(levels)
-            if shortest_hold(trial) < hold:
-                continue
-            v, pk, used = evaluate(trial)
-            history.append(v)
-            if v < value and np.array_equal(used, np.clip(trial, -max_input, max_input)):
-                value, peak, u, family = v, pk, used, "free"
-                edges = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
-        best["free"] = (value, peak, u, family)
-    value, peak, u, family = min(best.values(), key=lambda b: b[0])
-    u_est = u
-    if n < n_total:
-        u, peak = _with_validation(info, u_est, n_total - n, points, rng, fs, max_input, hold,
-                                   output_limit)
-    return Design(
-        u=u, fs=fs, criterion=criterion, value=value, family=family,
-        widths=info.widths(u_est), peak_output=peak, evaluations=counter["n"], history=history,
-        limits={"max_input": float(max_input), "min_hold": float(min_hold),
-                "output_limit": float(output_limit), "duration": float(duration)},
-        split=float(min(split, 1.0)), n_est=n,
-        widths_whole=info.widths(u) if n < n_total else {},
-    )
+    return best
+
+
+def _hold_edges(u: np.ndarray) -> np.ndarray:
+    """Sample indices where the holds of ``u`` start, and its length."""
+    return np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [u.size]])
+
+
+def _local_search(score: _Scorer, start: _Scored, steps: int, rng: np.random.Generator,
+                  max_input: float, hold: int) -> _Scored:
+    """Improve a piecewise-constant candidate by changing one hold's level at a time."""
+    value, peak, u, family = start
+    u = u.copy()
+    levels = np.array([-1.0, -0.5, 0.5, 1.0]) * max_input
+    edges = _hold_edges(u)
+    for _ in range(int(steps)):
+        k = int(rng.integers(0, edges.size - 1))
+        trial = u.copy()
+        trial[edges[k]:edges[k + 1]] = rng.choice(levels)
+        if shortest_hold(trial) < hold:
+            continue
+        v, pk, used = score(trial)
+        if v < value and np.array_equal(used, np.clip(trial, -max_input, max_input)):
+            value, peak, u, family = v, pk, used, "free"
+            edges = _hold_edges(u)
+    return value, peak, u, family
 
 
 def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
@@ -534,48 +642,76 @@ def _with_validation(info: InformationModel, u_est: np.ndarray, n_val: int,
     fitted values and every draw, within ``output_limit``. Returns the record's
     input and its peak ``|y|``.
     """
-    def peak_of(u: np.ndarray) -> float:
-        peaks = [info.peak(u, vals) for vals in points]
-        if not math.isfinite(peaks[0]):
-            return math.inf
-        return max(pk for pk in peaks if math.isfinite(pk))
-
-    # The record's end may have cut the designed part's last hold; the record goes on, so
-    # that hold is completed before the validation input starts.
-    last = u_est.size - (np.flatnonzero(np.diff(u_est) != 0)[-1] + 1
-                         if np.any(np.diff(u_est) != 0) else 0)
-    head = np.concatenate([u_est, np.full(min(max(0, hold - last), n_val), u_est[-1])])
-    y = info.output(head)
-    room = n_val - (head.size - u_est.size) - hold  # leave at least one hold of steps
-    if y is not None and abs(y[-1]) > 0.25 * output_limit and room > hold:
-        # Back towards 0: the shortest whole number of holds after which |y| is smallest.
-        back = np.full(room, -np.sign(y[-1]) * max_input)
-        y_back = info.output(np.concatenate([head, back]))
-        if y_back is not None:
-            tail = np.abs(y_back[head.size:])
-            k = max(hold, int(math.ceil((int(np.argmin(tail)) + 1) / hold)) * hold)
-            head = np.concatenate([head, back[:min(k, room)]])
+    head = _complete_last_hold(u_est, n_val, hold)
+    head = _back_towards_zero(info, head, u_est.size + n_val, hold, max_input, output_limit)
     rest = u_est.size + n_val - head.size
     best: tuple[float, np.ndarray, float] = (0.0, np.concatenate([head, np.zeros(rest)]), 0.0)
     for attempt in range(8 if rest >= hold else 0):
         v = _candidate("steps" if attempt < 4 else "aprbs", rng, rest, fs, max_input, hold)
         if v is None:
             continue
-        lo, hi = 0.0, 1.0
-        for scale in [1.0] + [None] * 8:  # full scale, else bisection on the scale
-            scale = scale or 0.5 * (lo + hi)
-            u = np.concatenate([head, scale * v])
-            pk = peak_of(u)
-            if pk <= output_limit:
-                lo = scale
-                if scale > best[0]:
-                    best = (scale, u, pk)
-                if scale == 1.0:
-                    break
-            else:
-                hi = scale
+        best = _largest_scale(info, points, head, v, output_limit, best)
         if best[0] >= 0.5:
             break
     if best[0] == 0.0:  # no validation input fits: rest after the designed part
-        return best[1], peak_of(best[1])
+        return best[1], _peak_over(info, points, best[1])
     return best[1], best[2]
+
+
+def _complete_last_hold(u_est: np.ndarray, n_val: int, hold: int) -> np.ndarray:
+    """``u_est`` with its last hold completed to ``hold`` samples (within ``n_val`` more).
+
+    The record's end may have cut the designed part's last hold; the record goes on, so
+    that hold is completed before the validation input starts.
+    """
+    last = u_est.size - (np.flatnonzero(np.diff(u_est) != 0)[-1] + 1
+                         if np.any(np.diff(u_est) != 0) else 0)
+    return np.concatenate([u_est, np.full(min(max(0, hold - last), n_val), u_est[-1])])
+
+
+def _back_towards_zero(info: InformationModel, head: np.ndarray, n_record: int, hold: int,
+                       max_input: float, output_limit: float) -> np.ndarray:
+    """``head`` and, if its output ends far from 0, the shortest whole number of holds at
+    the largest input against the output's sign after which ``|y|`` is smallest (leaving
+    at least one hold of the ``n_record`` samples for the validation steps)."""
+    y = info.output(head)
+    room = n_record - head.size - hold
+    if y is None or abs(y[-1]) <= 0.25 * output_limit or room <= hold:
+        return head
+    back = np.full(room, -np.sign(y[-1]) * max_input)
+    y_back = info.output(np.concatenate([head, back]))
+    if y_back is None:
+        return head
+    tail = np.abs(y_back[head.size:])
+    k = max(hold, int(math.ceil((int(np.argmin(tail)) + 1) / hold)) * hold)
+    return np.concatenate([head, back[:min(k, room)]])
+
+
+def _peak_over(info: InformationModel, points: list[dict[str, float]], u: np.ndarray) -> float:
+    """Largest ``|y|`` over the fitted values and the draws (``inf`` if the fitted values
+    diverge; diverging draws are skipped)."""
+    peaks = [info.peak(u, vals) for vals in points]
+    if not math.isfinite(peaks[0]):
+        return math.inf
+    return max(pk for pk in peaks if math.isfinite(pk))
+
+
+def _largest_scale(info: InformationModel, points: list[dict[str, float]], head: np.ndarray,
+                   v: np.ndarray, output_limit: float, best: tuple[float, np.ndarray, float]
+                   ) -> tuple[float, np.ndarray, float]:
+    """``best`` or, if larger, the largest scale of ``v`` after ``head`` (full scale, else
+    bisection) within ``output_limit``: (scale, record input, its peak)."""
+    lo, hi = 0.0, 1.0
+    for scale in [1.0] + [None] * 8:
+        scale = scale or 0.5 * (lo + hi)
+        u = np.concatenate([head, scale * v])
+        pk = _peak_over(info, points, u)
+        if pk <= output_limit:
+            lo = scale
+            if scale > best[0]:
+                best = (scale, u, pk)
+            if scale == 1.0:
+                break
+        else:
+            hi = scale
+    return best

@@ -44,6 +44,7 @@ from hhra_phys.model import Model
 from hhra_phys.multi import MultiProblem, pooled_score
 from hhra_phys.noise import interval_factor
 from hhra_phys.optim import minimize
+from hhra_phys.optim.registry import METHODS
 from hhra_phys.options import with_overrides
 from hhra_phys.parameters import split_record_name
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
@@ -76,7 +77,9 @@ __all__ = [
     "records_result",
 ]
 
-OPTIMIZERS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de", "none")
+#: Global searches of a fit: the registered optimisers (:mod:`hhra_phys.optim.registry`) and
+#: ``"none"`` (the refiners alone).
+OPTIMIZERS: tuple[str, ...] = (*METHODS, "none")
 
 
 def default_model(

@@ -88,6 +88,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -97,9 +98,11 @@ from hhra_phys.data.dataset import INTERSAMPLE
 from hhra_phys.errors import ParameterError, SimulationError
 from hhra_phys.integrate import METHODS, advance
 from hhra_phys.model import Model
+from hhra_phys.options import with_overrides
 from hhra_phys.vectorize import SimdTarget, simd_target, supports
 
 __all__ = [
+    "CodeOptions",
     "Simulator",
     "step_doubling_error",
     "accuracy_tolerance",
@@ -216,6 +219,65 @@ class _Compiled:
     width: int = 1  # members per SIMD vector (vector code)
 
 
+@dataclass(frozen=True)
+class CodeOptions:
+    """How a :class:`Simulator`'s compiled code is laid out: speed, not the integration.
+
+    Every field is also a keyword of :class:`Simulator` (``Simulator(model, simd=None)``),
+    overriding the options it is given.
+
+    Attributes
+    ----------
+    threads : int
+        Threads used for a population (CasADi thread map).
+    block : int
+        Samples advanced per call of the compiled step (amortises call overhead).
+    lanes : int
+        Scalar code only: population members advanced together in one
+        straight-line step, so the CPU overlaps their latency-bound arithmetic
+        (populations are padded to a multiple of ``lanes * threads``; single
+        simulations use one lane).
+    chunk : int
+        Samples per compiled call (rounded to a multiple of ``block``). Records of
+        any length are simulated chunk after chunk, so one compiled function per
+        population size serves every record length.
+    simd : "auto", int or None
+        Members per SIMD vector for populations: ``"auto"`` takes the machine's
+        width (:func:`hhra_phys.vectorize.simd_target`, 8 with AVX-512, 4 with
+        AVX2), an integer (a power of two) forces a width, ``None`` or 1 uses scalar
+        code. Vector code needs a C++ compiler and a model whose operations all have
+        lane-wise versions; otherwise the scalar code is used. Populations are padded
+        to a multiple of ``simd * threads``.
+    """
+
+    threads: int = 2
+    block: int = 10
+    lanes: int = 4
+    chunk: int = 500
+    simd: int | str | None = "auto"
+
+    def validate(self) -> CodeOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        for name in ("threads", "block", "lanes", "chunk"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+        simd = self.simd
+        if simd not in ("auto", None) and (
+                isinstance(simd, bool) or not isinstance(simd, (int, np.integer)) or simd < 1):
+            raise ParameterError(f"simd must be 'auto', a positive integer or None, got "
+                                 f"{simd!r}")
+        if isinstance(simd, (int, np.integer)) and simd & (simd - 1):
+            raise ParameterError(f"simd must be a power of two, got {simd}")
+        return self
+
+
 class Simulator:
     """Compiled fixed-step simulator of a model for a fixed sample rate.
 
@@ -236,26 +298,6 @@ class Simulator:
     method : {"auto", "rk4", "ros2", "ros4"}
         Integration method (:mod:`hhra_phys.integrate`). ``"auto"``: RK4 unless
         the nominal model is stiff (module docstring), then ROS4.
-    threads : int
-        Threads used for a population (CasADi thread map).
-    block : int
-        Samples advanced per call of the compiled step (amortises call overhead).
-    lanes : int
-        Scalar code only: population members advanced together in one
-        straight-line step, so the CPU overlaps their latency-bound arithmetic
-        (populations are padded to a multiple of ``lanes * threads``; single
-        simulations use one lane).
-    simd : "auto", int or None
-        Members per SIMD vector for populations: ``"auto"`` takes the machine's
-        width (:func:`hhra_phys.vectorize.simd_target`, 8 with AVX-512, 4 with
-        AVX2), an integer forces a width, ``None`` or 1 uses scalar code. Vector
-        code needs a C++ compiler and a model whose operations all have lane-wise
-        versions; otherwise the scalar code is used. Populations are padded to a
-        multiple of ``simd * threads``.
-    chunk : int
-        Samples per compiled call (rounded to a multiple of ``block``). Records of
-        any length are simulated chunk after chunk, so one compiled function per
-        population size serves every record length.
     backend : {"auto", "native", "casadi"}
         ``"native"`` compiles with the C compiler (error if impossible),
         ``"casadi"`` uses CasADi's virtual machine, ``"auto"`` compiles when a
@@ -273,6 +315,11 @@ class Simulator:
         convolution through four samples (``"cubic"``). Normally the
         record's :attr:`~hhra_phys.data.Dataset.intersample`;
         :meth:`with_intersample` gives the same simulator with the other one.
+    code : CodeOptions, optional
+        How the compiled code is laid out (default :class:`CodeOptions`'s).
+    **code_settings
+        Any field of :class:`CodeOptions` (``threads``, ``block``, ``lanes``, ``chunk``,
+        ``simd``), overriding ``code``.
 
     Attributes
     ----------
@@ -300,42 +347,76 @@ class Simulator:
         model: Model,
         fs: float = 250.0,
         substeps: int | str = "auto",
-        threads: int = 2,
-        block: int = 10,
-        lanes: int = 4,
-        chunk: int = 500,
+        *,
+        method: str = "auto",
         backend: str = "auto",
+        intersample: str = "zoh",
         rho_max: float = 2.0,
         diverge_limit: float = 1e8,
-        simd: int | str | None = "auto",
-        method: str = "auto",
-        intersample: str = "zoh",
+        code: CodeOptions | None = None,
+        **code_settings: Any,
     ) -> None:
+        self._check_settings(fs, substeps, method, backend, intersample)
+        lay = with_overrides(code if code is not None else CodeOptions(), code_settings,
+                             "simulator code").validate()
+        #: How the compiled code is laid out (as given; block and lanes may shrink below).
+        self.code = lay
+        #: What the input does between samples: "zoh" (held), "foh" (linear), "cubic".
+        self.intersample = intersample
+        self.model = model
+        self.fs = float(fs)
+        self.dt = 1.0 / self.fs
+        self.threads = int(lay.threads)
+        self.block = int(lay.block)
+        self.backend = backend
+        self.rho_max = float(rho_max)
+        self.diverge_limit = float(diverge_limit)
+        self.simd = self._simd_target(lay.simd)
+        self._simd_arg = lay.simd
+        self._threads_arg, self._lanes_arg = int(lay.threads), int(lay.lanes)
+        self._block_arg, self._chunk_arg = int(lay.block), int(lay.chunk)
+        self._fns = model.functions(self.dt)
+        #: Whether the substeps were chosen by the rule (single vectors then follow
+        #: their parameters) rather than given.
+        self.substeps_auto = substeps == "auto"
+        self._choose_method(method, substeps)
+        self.h = self.dt / self.substeps
+        self.lanes = int(lay.lanes)
+        self._fit_unroll_budget()
+        #: Samples per compiled call (a multiple of the block); records are
+        #: simulated chunk after chunk.
+        self.chunk = max(1, int(lay.chunk) // self.block) * self.block
+        self._steps: dict[tuple[bool, int], ca.Function] = {}
+        # Keyed by (members, lanes, width, kind) and (population, kind); kind is
+        # "y" (outputs), "x" (outputs and states), "abs"/"sq" (fused cost).
+        self._compiled: dict[tuple[int, int, int, str], _Compiled] = {}
+        self._entries: dict[tuple[int, str], _Compiled] = {}
+        self._simd_ok: bool | None = None
+        self._stab: dict[int, CompiledFunction | ca.Function] = {}
+        #: Status per row of the last :meth:`simulate` call (``STATUS_*`` codes).
+        self.last_status: np.ndarray = np.zeros(0, dtype=int)
+        #: Spectral radius times substep per row of the last call.
+        self.last_rho: np.ndarray = np.zeros(0)
+        self.last_method: str = self.method
+        self.last_substeps: int = self.substeps
+        self._derived: dict[tuple[str, int | str], Simulator] = {}
+        #: What :meth:`accurate` chose (empty until it was asked).
+        self.accuracy: dict[str, object] = {}
+        self._vm_maps: dict[tuple[str, int], ca.Function] = {}
+
+    # -- construction -------------------------------------------------------------
+    @staticmethod
+    def _check_settings(fs: float, substeps: int | str, method: str, backend: str,
+                        intersample: str) -> None:
+        """The constructor's own settings, each checked before any work."""
         if intersample not in INTERSAMPLE:
             raise ParameterError(
                 f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))} (input held "
                 f"over each sample, linear or cubic between samples), got {intersample!r}")
-        #: What the input does between samples: "zoh" (held), "foh" (linear), "cubic".
-        self.intersample = intersample
         if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
             raise ParameterError(f"fs must be a positive sample rate in Hz, got {fs!r}")
         if backend not in ("auto", "native", "casadi"):
             raise ParameterError(f"backend must be 'auto', 'native' or 'casadi', got {backend!r}")
-        if int(threads) < 1 or int(block) < 1 or int(lanes) < 1:
-            raise ParameterError("threads, block and lanes must be positive integers")
-        self.model = model
-        self.fs = float(fs)
-        self.dt = 1.0 / self.fs
-        self.threads = int(threads)
-        self.block = int(block)
-        self.backend = backend
-        self.rho_max = float(rho_max)
-        self.diverge_limit = float(diverge_limit)
-        self.simd = self._simd_target(simd)
-        self._simd_arg = simd
-        self._threads_arg, self._lanes_arg, self._block_arg = int(threads), int(lanes), int(block)
-        self._chunk_arg = int(chunk)
-        self._fns = model.functions(self.dt)
         if method not in ("auto", *METHODS):
             raise ParameterError(
                 f"method must be 'auto' or one of {', '.join(METHODS)}, got {method!r}")
@@ -345,11 +426,15 @@ class Simulator:
             raise ParameterError(
                 f"substeps must be a positive integer or 'auto', got {substeps!r}"
             )
-        #: Whether the substeps were chosen by the rule (single vectors then follow
-        #: their parameters) rather than given.
-        self.substeps_auto = substeps == "auto"
-        chosen, n_auto, why = self.plan(model.nominal(), method=None if method == "auto"
-                                        else method)
+
+    def _choose_method(self, method: str, substeps: int | str) -> None:
+        """Set :attr:`method`, :attr:`method_reason` and :attr:`substeps` (module docstring).
+
+        Refuses (before anything is compiled) a rule that asks for more than
+        :data:`MAX_AUTO_SUBSTEPS`, and warns from twice :data:`RK4_MAX_SUBSTEPS`.
+        """
+        chosen, n_auto, why = self.plan(self.model.nominal(),
+                                        method=None if method == "auto" else method)
         self.method = chosen
         self.method_reason = why if method == "auto" else f"{method} requested; {why}"
         if substeps == "auto":
@@ -375,42 +460,20 @@ class Simulator:
                 f"the model's modes that must be resolved need {n_auto} {chosen.upper()} "
                 f"substeps per {self.dt:.3g} s sample ({why}); check that the model's time "
                 "units match the data's (Model.time_scaled for records in sample units)",
-                RuntimeWarning, stacklevel=2,
+                RuntimeWarning, stacklevel=3,
             )
-        self.h = self.dt / self.substeps
-        self.lanes = int(lanes)
-        # Keep the unrolled step small: a stiff model needing many substeps would
-        # otherwise generate megabytes of C (slow to compile, no faster to run).
+
+    def _fit_unroll_budget(self) -> None:
+        """Shrink the block, then the lanes, so the unrolled step stays within
+        :data:`UNROLL_BUDGET` RK4 steps: a stiff model needing many substeps would
+        otherwise generate megabytes of C (slow to compile, no faster to run)."""
         while self.substeps * self.block * self.lanes > UNROLL_BUDGET and self.block > 1:
             self.block = max(1, UNROLL_BUDGET // (self.substeps * self.lanes))
             if self.substeps * self.block * self.lanes > UNROLL_BUDGET:
                 self.block = 1
         while self.substeps * self.block * self.lanes > UNROLL_BUDGET and self.lanes > 1:
             self.lanes //= 2
-        if int(chunk) < 1:
-            raise ParameterError("chunk must be a positive number of samples")
-        #: Samples per compiled call (a multiple of the block); records are
-        #: simulated chunk after chunk.
-        self.chunk = max(1, int(chunk) // self.block) * self.block
-        self._steps: dict[tuple[bool, int], ca.Function] = {}
-        # Keyed by (members, lanes, width, kind) and (population, kind); kind is
-        # "y" (outputs), "x" (outputs and states), "abs"/"sq" (fused cost).
-        self._compiled: dict[tuple[int, int, int, str], _Compiled] = {}
-        self._entries: dict[tuple[int, str], _Compiled] = {}
-        self._simd_ok: bool | None = None
-        self._stab: dict[int, CompiledFunction | ca.Function] = {}
-        #: Status per row of the last :meth:`simulate` call (``STATUS_*`` codes).
-        self.last_status: np.ndarray = np.zeros(0, dtype=int)
-        #: Spectral radius times substep per row of the last call.
-        self.last_rho: np.ndarray = np.zeros(0)
-        self.last_method: str = self.method
-        self.last_substeps: int = self.substeps
-        self._derived: dict[tuple[str, int | str], Simulator] = {}
-        #: What :meth:`accurate` chose (empty until it was asked).
-        self.accuracy: dict[str, object] = {}
-        self._vm_maps: dict[tuple[str, int], ca.Function] = {}
 
-    # -- construction -------------------------------------------------------------
     def _simd_target(self, simd: int | str | None) -> SimdTarget | None:
         if self.backend == "casadi" or simd is None:
             return None

@@ -11,6 +11,7 @@ from hhra_phys.cli._common import population, positive_int, report_error
 from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
+from hhra_phys.optim.registry import METHODS
 from hhra_phys.outputs import jsonable
 from hhra_phys.paper.benchmarks import BENCHMARK_KEYS
 from hhra_phys.paper.table2 import PAPER_METHODS, TABLES, StudySettings, run_and_write
@@ -46,7 +47,7 @@ def register(subparsers: Any) -> None:
         "--methods",
         type=_names,
         default=PAPER_METHODS,
-        help="comma-separated subset of hgwo,gwo,pso,de (default all)",
+        help=f"comma-separated subset of {','.join(METHODS)} (default {','.join(PAPER_METHODS)})",
     )
     p.add_argument(
         "--tables",

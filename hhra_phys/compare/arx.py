@@ -22,6 +22,7 @@ from hhra_phys import arx
 from hhra_phys.compare.registry import CompareSettings, MethodFn, MethodOutcome, register_method
 from hhra_phys.data import Dataset
 from hhra_phys.multi import RecordSet
+from hhra_phys.optim.registry import LABELS
 
 __all__ = ["ARX_METHODS", "arx_outcome"]
 
@@ -29,15 +30,14 @@ __all__ = ["ARX_METHODS", "arx_outcome"]
 #: The built-in ARX methods, in the order of the paper's Table 3 (plus plain H-GWO).
 ARX_METHODS: tuple[str, ...] = ("ls", "rls", "ffrls", "pso", "gwo", "hgwo", "ffrls_hgwo")
 
-#: Display names of the ARX rows (registered with them).
+#: Display names of the ARX rows (registered with them); the metaheuristics' are the
+#: optimisers' (:data:`hhra_phys.optim.registry.LABELS`).
 _LABELS: dict[str, str] = {
     "ls": "LS",
     "rls": "RLS",
     "ffrls": "FFRLS",
-    "pso": "PSO",
-    "gwo": "GWO",
-    "hgwo": "H-GWO",
-    "ffrls_hgwo": "FFRLS+H-GWO",
+    **{m: LABELS[m] for m in ("pso", "gwo", "hgwo")},
+    "ffrls_hgwo": f"FFRLS+{LABELS['hgwo']}",
 }
 
 
@@ -139,7 +139,7 @@ def _metaheuristic(method: str) -> MethodFn:
             pop_size=s.pop_size,
             max_iter=s.max_iter,
             seed=s.seed,
-            options=s.options.get(method),
+            optimizer_options=s.options.get(method),
             progress=s.progress,
             **_orders(s),
         )
@@ -158,7 +158,7 @@ def _method_ffrls_hgwo(est: Dataset, val: Dataset, s: CompareSettings) -> Method
         pop_size=s.pop_size,
         max_iter=s.max_iter,
         seed=s.seed,
-        options=s.options.get("ffrls_hgwo"),
+        optimizer_options=s.options.get("ffrls_hgwo"),
         progress=s.progress,
         **_orders(s),
     )

@@ -1,6 +1,8 @@
 """Population optimisers with an ask/tell core: H-GWO (the reference paper), GWO, PSO and DE.
 
-Use :func:`minimize` for a whole run, or an optimiser class directly::
+Every optimiser is registered by name in :mod:`hhra_phys.optim.registry` (:data:`METHODS`).
+Use :func:`minimize` for a whole run (its settings: :class:`MinimizeOptions`), or an
+optimiser class directly::
 
     opt = HGWO(bounds, pop_size=30, max_iter=100, seed=0)
     while not opt.done:
@@ -14,19 +16,23 @@ from __future__ import annotations
 from hhra_phys.optim.bounds import Box
 from hhra_phys.optim.core import Optimiser
 from hhra_phys.optim.de import DE
-from hhra_phys.optim.driver import METHODS, IterationState, make_optimiser, minimize
+from hhra_phys.optim.driver import IterationState, MinimizeOptions, make_optimiser, minimize
 from hhra_phys.optim.gwo import GWO
 from hhra_phys.optim.hgwo import HGWO
 from hhra_phys.optim.history import NOI_RTOL, History, noi
-from hhra_phys.optim.pso import PSO
+from hhra_phys.optim.pso import PSO, PSOOptions
+from hhra_phys.optim.registry import LABELS, METHODS, optimiser_class
 
 __all__ = [
     "DE",
     "GWO",
     "HGWO",
+    "LABELS",
     "METHODS",
     "NOI_RTOL",
     "PSO",
+    "MinimizeOptions",
+    "PSOOptions",
     "Box",
     "History",
     "IterationState",
@@ -34,4 +40,5 @@ __all__ = [
     "make_optimiser",
     "minimize",
     "noi",
+    "optimiser_class",
 ]

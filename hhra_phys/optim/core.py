@@ -96,6 +96,8 @@ class Optimiser(ABC):
 
     #: Name used by :func:`hhra_phys.optim.minimize`.
     method: ClassVar[str] = ""
+    #: Display name (tables, plots, reports).
+    label: ClassVar[str] = ""
     #: Method-specific options accepted in ``minimize(..., options=...)``.
     option_names: ClassVar[tuple[str, ...]] = ()
     #: Smallest population the method can work with.

@@ -52,6 +52,7 @@ class DE(Optimiser):
     """
 
     method = "de"
+    label = "DE"
     option_names = ("F", "Cr")
     min_pop_size = 4
 

@@ -116,6 +116,7 @@ class GWO(Optimiser):
     """
 
     method = "gwo"
+    label = "GWO"
     option_names = ()
     min_pop_size = 3
 

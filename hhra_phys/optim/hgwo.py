@@ -98,6 +98,7 @@ class HGWO(Optimiser):
     """
 
     method = "hgwo"
+    label = "H-GWO"
     option_names = ("F", "lam", "Cr", "target_vector")
     min_pop_size = 4
 

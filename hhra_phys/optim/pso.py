@@ -2,16 +2,72 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from hhra_phys.errors import ParameterError
 from hhra_phys.optim.core import Optimiser, SeedLike, check_float
+from hhra_phys.options import with_overrides
 
 __all__ = [
     "PSO",
+    "PSOOptions",
 ]
+
+
+@dataclass(frozen=True)
+class PSOOptions:
+    """PSO's own settings, validated as a whole (:class:`PSO`, ``minimize(options=...)``).
+
+    Attributes
+    ----------
+    w : float
+        Constant inertia weight (paper's benchmarks: 0.8). Ignored when ``w_start`` and
+        ``w_end`` are given.
+    w_start, w_end : float or None
+        Linearly decreasing inertia from ``w_start`` (first move) to ``w_end`` (move number
+        ``max_iter``); the paper's identification uses 0.9 to 0.1. Give both or neither.
+    c1, c2 : float
+        Cognitive and social coefficients (paper: 2 and 2), ``>= 0``.
+    vmax : float, array of shape (d,) or None
+        Velocity clamp per component (positive). The paper's benchmarks use 6 in absolute
+        units; the default ``None`` uses 20 % of the box width in each dimension, which
+        does not depend on the units of the problem.
+    """
+
+    w: float = 0.8
+    w_start: float | None = None
+    w_end: float | None = None
+    c1: float = 2.0
+    c2: float = 2.0
+    vmax: float | np.ndarray | None = None
+
+    def validate(self) -> PSOOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ParameterError
+            Naming the setting and what is wrong with it.
+        """
+        check_float(self.w, "w")
+        if (self.w_start is None) != (self.w_end is None):
+            raise ParameterError("w_start: give both w_start and w_end, or neither")
+        for name in ("w_start", "w_end"):
+            if getattr(self, name) is not None:
+                check_float(getattr(self, name), name)
+        check_float(self.c1, "c1", 0.0)
+        check_float(self.c2, "c2", 0.0)
+        if self.vmax is not None:
+            try:
+                v = np.asarray(self.vmax, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ParameterError(f"vmax: expected numbers, got {self.vmax!r}") from exc
+            if not np.all(np.isfinite(v) & (v > 0)):
+                raise ParameterError(f"vmax: must be positive and finite, got {self.vmax!r}")
+        return self
 
 
 class PSO(Optimiser):
@@ -26,22 +82,16 @@ class PSO(Optimiser):
     ----------
     bounds, pop_size, max_iter, max_nfev, target, seed, x0
         See :class:`hhra_phys.optim.core.Optimiser`.
-    w : float
-        Constant inertia weight (paper's benchmarks: 0.8). Ignored when ``w_start`` and
-        ``w_end`` are given.
-    w_start, w_end : float or None
-        Linearly decreasing inertia from ``w_start`` (first move) to ``w_end`` (move number
-        ``max_iter``); the paper's identification uses 0.9 to 0.1. Give both or neither.
-    c1, c2 : float
-        Cognitive and social coefficients (paper: 2 and 2).
-    vmax : float, array of shape (d,) or None
-        Velocity clamp per component. The paper's benchmarks use 6 in absolute units; the
-        default ``None`` uses 20 % of the box width in each dimension, which does not depend on
-        the units of the problem.
+    options : PSOOptions, optional
+        The inertia, coefficients and velocity clamp (default :class:`PSOOptions`'s).
+    **settings
+        Any field of :class:`PSOOptions` (``w=0.5``, ``w_start=0.9, w_end=0.4``, ``c1``,
+        ``c2``, ``vmax``), overriding ``options``; validated with it.
     """
 
     method = "pso"
-    option_names = ("w", "w_start", "w_end", "c1", "c2", "vmax")
+    label = "PSO"
+    option_names = tuple(f.name for f in fields(PSOOptions))
     min_pop_size = 2
 
     def __init__(
@@ -54,30 +104,30 @@ class PSO(Optimiser):
         target: float | None = None,
         seed: SeedLike = None,
         x0: Any = None,
-        w: float = 0.8,
-        w_start: float | None = None,
-        w_end: float | None = None,
-        c1: float = 2.0,
-        c2: float = 2.0,
-        vmax: float | np.ndarray | None = None,
+        options: PSOOptions | None = None,
+        **settings: Any,
     ) -> None:
         super().__init__(
             bounds, pop_size, max_iter=max_iter, max_nfev=max_nfev, target=target, seed=seed, x0=x0
         )
-        self.w = check_float(w, "w")
-        if (w_start is None) != (w_end is None):
-            raise ParameterError("w_start: give both w_start and w_end, or neither")
-        self.w_start = None if w_start is None else check_float(w_start, "w_start")
-        self.w_end = None if w_end is None else check_float(w_end, "w_end")
-        self.c1 = check_float(c1, "c1", 0.0)
-        self.c2 = check_float(c2, "c2", 0.0)
-        if vmax is None:
+        opts = with_overrides(options if options is not None else PSOOptions(), settings,
+                              "PSO").validate()
+        #: The settings the run uses.
+        self.options = opts
+        self.w = float(opts.w)
+        self.w_start = None if opts.w_start is None else float(opts.w_start)
+        self.w_end = None if opts.w_end is None else float(opts.w_end)
+        self.c1 = float(opts.c1)
+        self.c2 = float(opts.c2)
+        if opts.vmax is None:
             self.vmax = 0.2 * self.box.width
         else:
-            v = np.broadcast_to(np.asarray(vmax, dtype=float), (self.box.dim,)).copy()
-            if not np.all(np.isfinite(v) & (v > 0)):
-                raise ParameterError(f"vmax: must be positive and finite, got {vmax!r}")
-            self.vmax = v
+            try:
+                self.vmax = np.broadcast_to(np.asarray(opts.vmax, dtype=float),
+                                            (self.box.dim,)).copy()
+            except ValueError as exc:
+                raise ParameterError(f"vmax: expected a number or {self.box.dim} numbers, "
+                                     f"got {opts.vmax!r}") from exc
         self.velocity = np.zeros((self.pop_size, self.box.dim))
         self.pbest: np.ndarray | None = None
         self.pbest_costs: np.ndarray | None = None

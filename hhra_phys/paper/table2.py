@@ -51,8 +51,9 @@ from scipy.stats import qmc
 
 from hhra_phys.errors import ParameterError
 from hhra_phys.optim.core import check_int
-from hhra_phys.optim.driver import METHODS, make_optimiser, minimize
+from hhra_phys.optim.driver import make_optimiser, minimize
 from hhra_phys.optim.history import noi
+from hhra_phys.optim.registry import LABELS, METHODS
 from hhra_phys.outputs import (
     FIGURE_SUFFIXES,
     atomic_path,
@@ -82,12 +83,10 @@ __all__ = [
 #: The paper's four methods, in the order of our tables.
 PAPER_METHODS: tuple[str, ...] = ("hgwo", "gwo", "pso", "de")
 
-#: Display names.
+#: Display names: the optimisers' (:data:`hhra_phys.optim.registry.LABELS`), SciPy's DE
+#: and the variants.
 METHOD_LABELS: dict[str, str] = {
-    "hgwo": "H-GWO",
-    "gwo": "GWO",
-    "pso": "PSO",
-    "de": "DE",
+    **LABELS,
     "scipy_de": "SciPy DE",
     "hgwo_lam1": "H-GWO lam=1",
     "hgwo_previous": "H-GWO target=previous",

@@ -8,6 +8,9 @@ restating them.
 from hhra_phys.reference.hhra import (
     EFFECT_NAMES,
     REFERENCE_GROUPS,
+    SOLVE_IVP_METHODS,
+    RecordOptions,
+    SolverOptions,
     reference_output,
     reference_record,
     reference_rhs,
@@ -19,6 +22,9 @@ from hhra_phys.reference.hhra import (
 __all__ = [
     "EFFECT_NAMES",
     "REFERENCE_GROUPS",
+    "SOLVE_IVP_METHODS",
+    "RecordOptions",
+    "SolverOptions",
     "reference_output",
     "reference_record",
     "reference_rhs",

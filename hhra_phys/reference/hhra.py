@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -97,6 +97,9 @@ __all__ = [
     "simulate_reference",
     "velocity_gain",
     "reference_record",
+    "RecordOptions",
+    "SolverOptions",
+    "SOLVE_IVP_METHODS",
     "REFERENCE_GROUPS",
     "EFFECT_NAMES",
 ]
@@ -246,6 +249,19 @@ def _spec(
         raise ValueError(f"valve must be 'orifice' or 'linear', got {valve!r}")
     if output not in ("angle", "pressure"):
         raise ValueError(f"output must be 'angle' or 'pressure', got {output!r}")
+    p = _group_values(params, valve, output, spool_lag)
+    eff = {name: _effect_values(name, given, p, dt) for name, given in (effects or {}).items()}
+    if output == "pressure" and "backlash" in eff:
+        raise ValueError("backlash is seen by an angle encoder; use output='angle'")
+    names = reference_state_names(spool_lag=spool_lag, effects=eff)
+    return _Spec(valve, output, spool_lag, float(dt), smooth, float(stick_band), p, eff,
+                 tuple(names))
+
+
+def _group_values(params: Mapping[str, float], valve: str, output: str, spool_lag: bool
+                  ) -> dict[str, float]:
+    """``params`` as floats, with the groups the plant needs (``g_spring``, ``g_load``
+    default to 0; the others must be given)."""
     p = {k: float(v) for k, v in params.items()}
     needed = ["g_torque", "g_damping", "g_compress", "g_leak", "g_valve"]
     needed += ["g_kp"] if valve == "linear" else []
@@ -256,33 +272,30 @@ def _spec(
     missing = [k for k in needed if k not in p]
     if missing:
         raise ValueError(f"params lacks {missing}")
-    eff: dict[str, dict[str, float]] = {}
-    for name, given in (effects or {}).items():
-        if name not in _EFFECT_PARAMS:
-            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
-        vals = dict(_SETTINGS[name])
-        if name == "coulomb_friction":
-            vals["dt"] = dt
-        for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
-            if key in p:
-                vals[key] = p[key]
-        vals.update({k: float(v) for k, v in given.items()})
-        lacking = [k for k in _EFFECT_PARAMS[name] if k not in vals]
-        if lacking:
-            raise ValueError(f"effect {name!r} needs parameter(s) {lacking}")
-        if name == "coulomb_friction" and ("g_stribeck" in vals) != ("v_stribeck" in vals):
-            raise ValueError("the Stribeck term needs both g_stribeck and v_stribeck")
-        if name == "input_delay" and vals["delay"] < 0:
-            raise ValueError("delay must be >= 0 samples")
-        eff[name] = vals
-    names = ["theta", "omega", "p"]
-    names += ["xs"] if spool_lag else []
-    names += ["x_spool"] if "valve_dynamics" in eff else []
-    names += ["gap"] if "backlash" in eff else []
-    if output == "pressure" and "backlash" in eff:
-        raise ValueError("backlash is seen by an angle encoder; use output='angle'")
-    return _Spec(valve, output, spool_lag, float(dt), smooth, float(stick_band), p, eff,
-                 tuple(names))
+    return p
+
+
+def _effect_values(name: str, given: Mapping[str, float], p: Mapping[str, float], dt: float
+                   ) -> dict[str, float]:
+    """An effect's settings and parameter values: its defaults, then ``p``'s values of its
+    parameters, then ``given``; checked."""
+    if name not in _EFFECT_PARAMS:
+        raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    vals = dict(_SETTINGS[name])
+    if name == "coulomb_friction":
+        vals["dt"] = dt
+    for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
+        if key in p:
+            vals[key] = p[key]
+    vals.update({k: float(v) for k, v in given.items()})
+    lacking = [k for k in _EFFECT_PARAMS[name] if k not in vals]
+    if lacking:
+        raise ValueError(f"effect {name!r} needs parameter(s) {lacking}")
+    if name == "coulomb_friction" and ("g_stribeck" in vals) != ("v_stribeck" in vals):
+        raise ValueError("the Stribeck term needs both g_stribeck and v_stribeck")
+    if name == "input_delay" and vals["delay"] < 0:
+        raise ValueError("delay must be >= 0 samples")
+    return vals
 
 
 # --- right-hand side and output -------------------------------------------------------------
@@ -325,6 +338,23 @@ def _rates(
     P = s.p
     th, w, p = x["theta"], x["omega"], x["p"]
     c = _command(x, u_lags, s, rates)
+    rates["p"] = _flow(c, p, s) - P["g_compress"] * w - P["g_leak"] * p
+    acc = P["g_torque"] * p - P["g_damping"] * w - P["g_spring"] * th - P["g_load"]
+    if "gravity_load" in s.effects:
+        v = s.effects["gravity_load"]
+        acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
+    if "coulomb_friction" in s.effects:
+        acc = _with_friction(acc, w, s, mode)
+    rates["theta"] = w
+    rates["omega"] = acc
+    if "backlash" in s.effects:
+        rates["gap"] = _gap_rate(w, x["gap"], s)
+    return rates
+
+
+def _flow(c: float, p: float, s: _Spec) -> float:
+    """Valve flow for command ``c`` at load pressure ``p`` (and the asymmetric valve)."""
+    P = s.p
     if s.valve == "orifice":
         # The orifice law: the pressure drop across the open edge is p_s - sign(x_v)*P_L,
         # i.e. 1 - sign(c)*p: the sign of the VALVE COMMAND, not of the pressure.
@@ -335,54 +365,51 @@ def _rates(
     if "asymmetric_valve" in s.effects:
         v = s.effects["asymmetric_valve"]
         q *= 1.0 + v["asym"] * _sgn(c, v["eps"] * v["u_scale"], s.smooth)
-    rates["p"] = q - P["g_compress"] * w - P["g_leak"] * p
-    acc = P["g_torque"] * p - P["g_damping"] * w - P["g_spring"] * th - P["g_load"]
-    if "gravity_load" in s.effects:
-        v = s.effects["gravity_load"]
-        acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
-    if "coulomb_friction" in s.effects:
-        v = s.effects["coulomb_friction"]
-        level = v["g_coulomb"]
-        if "g_stribeck" in v:
-            level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
-        acc -= v.get("g_viscous", 0.0) * w
-        if s.smooth:
-            # The package's documented width: a physical v_switch (fitted) or width
-            # [rad/s]; the legacy eps ties it to the sample period.
-            if "eps" in v:
-                width = v["eps"] + 0.5 * v["dt"] * level
-            else:
-                width = v.get("v_switch", v["width"])
-            acc -= level * _sgn(w, width, True)
-        elif mode == 0:
-            acc = 0.0  # stuck: the simulation set omega = 0 exactly and holds it
-        elif mode is not None:
-            acc -= level * mode  # sliding: the direction is fixed until omega reaches 0
-        elif abs(w) <= s.stick_band and abs(acc) <= level:
-            # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
-            acc = -w / max(s.dt, 1e-12)
-        elif abs(w) <= s.stick_band:
-            acc -= level * math.copysign(1.0, acc)  # breaks away in the direction of the push
+    return q
+
+
+def _with_friction(acc: float, w: float, s: _Spec, mode: int | None) -> float:
+    """The acceleration ``acc`` (without friction) with Coulomb friction at velocity ``w``:
+    smoothed, or exact with stick and slip (``mode`` as in :func:`_rates`)."""
+    v = s.effects["coulomb_friction"]
+    level = v["g_coulomb"]
+    if "g_stribeck" in v:
+        level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
+    acc -= v.get("g_viscous", 0.0) * w
+    if s.smooth:
+        # The package's documented width: a physical v_switch (fitted) or width
+        # [rad/s]; the legacy eps ties it to the sample period.
+        if "eps" in v:
+            width = v["eps"] + 0.5 * v["dt"] * level
         else:
-            acc -= level * math.copysign(1.0, w)
-    rates["theta"] = w
-    rates["omega"] = acc
-    if "backlash" in s.effects:
-        v = s.effects["backlash"]
-        half = 0.5 * v["play"] / RAD2DEG
-        gap = x["gap"]
-        if not s.smooth:
-            contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
-            rates["gap"] = w * (1.0 - contact)
-        elif "eps_omega" in v:  # the legacy soft contact
-            e = (0.1 * v["play"] + 0.03) / RAD2DEG
-            z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
-            rates["gap"] = w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
-        else:
-            wid = v.get("w_contact", v["width"]) / RAD2DEG
-            rates["gap"] = (max(w, 0.0) * _contact((half - gap) / wid)
-                            + min(w, 0.0) * _contact((half + gap) / wid))
-    return rates
+            width = v.get("v_switch", v["width"])
+        return acc - level * _sgn(w, width, True)
+    if mode == 0:
+        return 0.0  # stuck: the simulation set omega = 0 exactly and holds it
+    if mode is not None:
+        return acc - level * mode  # sliding: the direction is fixed until omega reaches 0
+    if abs(w) <= s.stick_band and abs(acc) <= level:
+        # Stuck (Karnopp): friction holds the shaft; the residual velocity decays.
+        return -w / max(s.dt, 1e-12)
+    if abs(w) <= s.stick_band:
+        return acc - level * math.copysign(1.0, acc)  # breaks away in the push's direction
+    return acc - level * math.copysign(1.0, w)
+
+
+def _gap_rate(w: float, gap: float, s: _Spec) -> float:
+    """Rate of the backlash gap [rad/s] at shaft velocity ``w``."""
+    v = s.effects["backlash"]
+    half = 0.5 * v["play"] / RAD2DEG
+    if not s.smooth:
+        contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
+        return w * (1.0 - contact)
+    if "eps_omega" in v:  # the legacy soft contact
+        e = (0.1 * v["play"] + 0.03) / RAD2DEG
+        z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
+        return w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
+    wid = v.get("w_contact", v["width"]) / RAD2DEG
+    return (max(w, 0.0) * _contact((half - gap) / wid)
+            + min(w, 0.0) * _contact((half + gap) / wid))
 
 
 def _xdot(x: np.ndarray, u_lags: np.ndarray, s: _Spec, mode: int | None = None) -> np.ndarray:
@@ -433,11 +460,7 @@ def _segment(
     back; while stuck (``omega = 0`` held) an event stops it where that
     acceleration reaches the level (breakaway). Nothing chatters across 0.
     """
-    held = u_lags
-
-    def ul(t: float) -> np.ndarray:
-        return held if slope is None else held + t * slope
-
+    ul = _input_path(u_lags, slope)
     if not _sticky(s):
         sol = solve_ivp(lambda t, xx: _xdot(xx, ul(t), s), (0.0, t_eval[-1]), x,
                         method=method, t_eval=t_eval, rtol=rtol, atol=atol,
@@ -448,6 +471,24 @@ def _segment(
             turns.extend((float(t), float(xe[0]))
                          for t, xe in zip(sol.t_events[0], sol.y_events[0], strict=True))
         return sol.y
+    return _stick_slip_segment(x, u_lags, ul, s, t_eval, (method, rtol, atol), turns)
+
+
+def _input_path(u_lags: np.ndarray, slope: np.ndarray | None) -> Any:
+    """The input lags at time ``t`` into the sample: held, or moving at ``slope``."""
+    def ul(t: float) -> np.ndarray:
+        return u_lags if slope is None else u_lags + t * slope
+
+    return ul
+
+
+def _stick_slip_segment(
+    x: np.ndarray, u_lags: np.ndarray, ul: Any, s: _Spec, t_eval: np.ndarray,
+    solver: tuple[str, float, float], turns: list[tuple[float, float]] | None,
+) -> np.ndarray:
+    """:func:`_segment` with exact Coulomb friction: one integration per stick or slide
+    phase, each ended by its switching event (:func:`_switch_event`)."""
+    method, rtol, atol = solver
     out = np.empty((x.size, t_eval.size))
     out[:, 0] = x
     done, t0, mode = 1, 0.0, _initial_mode(x, u_lags, s)
@@ -457,19 +498,9 @@ def _segment(
     for _ in range(10000):
         if done == t_eval.size:
             return out
-        if mode == 0:
-            def event(t: float, xx: np.ndarray) -> float:
-                push, level = _push_and_level(xx, ul(t), s)
-                return abs(push) - level
-            event.direction = 1.0  # type: ignore[attr-defined]
-        else:
-            def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
-                return d * xx[1]
-            event.direction = -1.0  # type: ignore[attr-defined]
-        event.terminal = True  # type: ignore[attr-defined]
-        te = t_eval[done:]
         sol = solve_ivp(lambda t, xx, m=mode: _xdot(xx, ul(t), s, m), (t0, t_eval[-1]), x,
-                        method=method, t_eval=te, rtol=rtol, atol=atol, events=event)
+                        method=method, t_eval=t_eval[done:], rtol=rtol, atol=atol,
+                        events=_switch_event(mode, ul, s))
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
         k = len(sol.t)  # (an empty t_eval tail comes back as a list)
@@ -481,18 +512,40 @@ def _segment(
         t0, x = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
         if turns is not None:  # a stop (omega = 0) or a breakaway from rest
             turns.append((t0, float(x[0])))
-        if mode == 0:
-            push, _ = _push_and_level(x, ul(t0), s)
-            mode = 1 if push > 0 else -1
-        else:
-            x[1] = 0.0
-            push, level = _push_and_level(x, ul(t0), s)
-            mode = 0 if abs(push) <= level else (1 if push > 0 else -1)
+        mode = _mode_after_switch(mode, x, ul(t0), s)
         if t_eval[-1] - t0 <= 1e-12 * max(1.0, t_eval[-1]):
             # The event fell on the end of the segment: its state is the last sample's.
             out[:, done:] = x[:, None]
             return out
     raise RuntimeError("too many stick-slip switches in one held sample segment")
+
+
+def _switch_event(mode: int, ul: Any, s: _Spec) -> Any:
+    """The terminal event that ends a phase: breakaway while stuck (``mode = 0``: the
+    push reaches the static level), the stop while sliding in direction ``mode``."""
+    if mode == 0:
+        def event(t: float, xx: np.ndarray) -> float:
+            push, level = _push_and_level(xx, ul(t), s)
+            return abs(push) - level
+        event.direction = 1.0  # type: ignore[attr-defined]
+    else:
+        def event(_t: float, xx: np.ndarray, d: int = mode) -> float:
+            return d * xx[1]
+        event.direction = -1.0  # type: ignore[attr-defined]
+    event.terminal = True  # type: ignore[attr-defined]
+    return event
+
+
+def _mode_after_switch(mode: int, x: np.ndarray, u_lags: np.ndarray, s: _Spec) -> int:
+    """The phase after a switch at state ``x``: sliding in the push's direction after a
+    breakaway; after a stop (``x``'s velocity set to exactly 0 in place) stuck if the push
+    is within the static level, else sliding back."""
+    if mode == 0:
+        push, _ = _push_and_level(x, u_lags, s)
+        return 1 if push > 0 else -1
+    x[1] = 0.0
+    push, level = _push_and_level(x, u_lags, s)
+    return 0 if abs(push) <= level else (1 if push > 0 else -1)
 
 
 def _y(x: np.ndarray, s: _Spec) -> float:
@@ -625,6 +678,156 @@ def _lags(u_lags: Sequence[float] | np.ndarray | float, n_lags: int) -> np.ndarr
 # --- simulation ----------------------------------------------------------------------------
 
 
+#: Integrators of :func:`scipy.integrate.solve_ivp` by name.
+SOLVE_IVP_METHODS: tuple[str, ...] = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How the reference is integrated (:func:`simulate_reference`, :func:`reference_record`).
+
+    Every field is also a keyword of both functions (``rtol=1e-8``), overriding the
+    options they are given.
+
+    Attributes
+    ----------
+    method : str
+        Integrator of :func:`~scipy.integrate.solve_ivp` (:data:`SOLVE_IVP_METHODS`):
+        ``"LSODA"`` switches to a stiff method where needed; ``"Radau"`` for stiff sets;
+        ``"DOP853"`` for smooth, non-stiff ones.
+    rtol, atol : float
+        Tolerances of :func:`~scipy.integrate.solve_ivp` (> 0).
+    stick_band : float
+        Velocity [rad/s] below which exact Coulomb friction may stick (``smooth=False``),
+        ``>= 0``.
+    """
+
+    method: str = "LSODA"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    stick_band: float = 1e-6
+
+    def validate(self) -> SolverOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            Naming the setting and what is wrong with it.
+        """
+        if self.method not in SOLVE_IVP_METHODS:
+            raise ValueError(f"method must be one of {', '.join(SOLVE_IVP_METHODS)} "
+                                 f"(scipy's solve_ivp), got {self.method!r}")
+        for name in ("rtol", "atol"):
+            _check_number(name, getattr(self, name), "> 0", lambda v: v > 0)
+        _check_number("stick_band", self.stick_band, ">= 0", lambda v: v >= 0)
+        return self
+
+
+def _check_number(name: str, value: Any, what: str, ok: Any) -> None:
+    """``value`` a finite number for which ``ok`` holds, else an error naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not math.isfinite(value) or not ok(value):
+        raise ValueError(f"{name} must be a finite number {what}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """How :func:`reference_record` makes a record: its excitation, its sensor, its solver.
+
+    Every field (and every field of :class:`SolverOptions`) is also a keyword of
+    :func:`reference_record`, overriding the options it is given.
+
+    Attributes
+    ----------
+    amplitude : float
+        Largest current [mA] of the default excitation (> 0).
+    levels : int
+        Number of levels of the default excitation (>= 1).
+    angle_limit_deg : float
+        Half range [deg] the linear angle estimate may reach before the input is scaled.
+    quantization : float, optional
+        Encoder resolution [deg] (a 12-bit encoder: ``360 / 4096``).
+    noise_ar : float
+        Coefficient ``a`` of first-order autoregressive (coloured) sensor noise,
+        ``n[k] = a n[k-1] + sqrt(1 - a^2) noise_deg w[k]`` with white ``w`` and a
+        stationary start; 0 (default): white noise. ``|a| < 1``.
+    drift_deg : float
+        A slow sensor drift [deg]: the output moves by this much, linearly in time,
+        over the record (0: none).
+    solver : SolverOptions
+        How the plant is integrated.
+    """
+
+    amplitude: float = 1.0
+    levels: int = 4
+    angle_limit_deg: float = 80.0
+    quantization: float | None = None
+    noise_ar: float = 0.0
+    drift_deg: float = 0.0
+    solver: SolverOptions = SolverOptions()
+
+    def validate(self) -> RecordOptions:
+        """Check every setting; returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            Naming the setting and what is wrong with it.
+        """
+        _check_number("amplitude", self.amplitude, "> 0", lambda v: v > 0)
+        if isinstance(self.levels, bool) or not isinstance(self.levels, int | np.integer) \
+                or self.levels < 1:
+            raise ValueError(f"levels must be an integer >= 1, got {self.levels!r}")
+        _check_number("angle_limit_deg", self.angle_limit_deg, "> 0", lambda v: v > 0)
+        if self.quantization is not None:
+            _check_number("quantization", self.quantization, ">= 0", lambda v: v >= 0)
+        _check_number("noise_ar", self.noise_ar, "in (-1, 1)", lambda v: abs(v) < 1)
+        _check_number("drift_deg", self.drift_deg, "", lambda v: True)
+        if not isinstance(self.solver, SolverOptions):
+            raise ValueError(f"solver must be a SolverOptions, got {self.solver!r}")
+        self.solver.validate()
+        return self
+
+
+def _with_overrides(options: Any, overrides: Mapping[str, Any], what: str) -> Any:
+    """``options`` (a frozen dataclass) with ``overrides`` of its fields applied.
+
+    (:func:`hhra_phys.options.with_overrides` does this for the package; the reference
+    imports nothing of the package but the data container and the excitation signals.)
+    """
+    names = {f.name for f in fields(options)}
+    bad = sorted(set(overrides) - names)
+    if bad:
+        raise ValueError(f"unknown {what} setting(s) {', '.join(bad)}; settings: "
+                         f"{', '.join(sorted(names))}")
+    return replace(options, **overrides)
+
+
+def _solver_options(solver: SolverOptions | None, settings: Mapping[str, Any]) -> SolverOptions:
+    """``solver`` (default: the defaults) with ``settings`` applied, validated."""
+    return _with_overrides(solver if solver is not None else SolverOptions(), settings,
+                           "solver").validate()
+
+
+def _record_options(options: RecordOptions | None, settings: Mapping[str, Any]
+                    ) -> RecordOptions:
+    """``options`` with ``settings`` (its fields and :class:`SolverOptions`'s) applied."""
+    base = options if options is not None else RecordOptions()
+    solver_names = {f.name for f in fields(SolverOptions)}
+    record_names = {f.name for f in fields(RecordOptions)}
+    unknown = sorted(set(settings) - solver_names - record_names)
+    if unknown:
+        raise ValueError(f"unknown reference record setting(s) {', '.join(unknown)}; "
+                             f"settings: {', '.join(sorted(record_names | solver_names))}")
+    solver = {k: v for k, v in settings.items() if k in solver_names}
+    own = {k: v for k, v in settings.items() if k not in solver_names}
+    if solver:
+        own["solver"] = _solver_options(own.get("solver", base.solver), solver)
+    return _with_overrides(base, own, "reference record").validate()
+
+
+
 def simulate_reference(
     u: Sequence[float] | np.ndarray,
     fs: float,
@@ -636,12 +839,10 @@ def simulate_reference(
     effects: Mapping[str, Mapping[str, float]] | None = None,
     x0: Sequence[float] | np.ndarray | None = None,
     smooth: bool = True,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    method: str = "LSODA",
-    stick_band: float = 1e-6,
     states: bool = False,
     intersample: str = "zoh",
+    solver: SolverOptions | None = None,
+    **solver_settings: Any,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Simulate the sampled system with an exact zero-order (or first-order) hold.
 
@@ -663,19 +864,20 @@ def simulate_reference(
         Sample rate [Hz].
     params : mapping
         Parameters by name (see :func:`reference_rhs`).
-    valve, output, spool_lag, effects, smooth, stick_band
+    valve, output, spool_lag, effects, smooth
         As in :func:`reference_rhs`.
     x0 : array, shape (nx,), optional
         Initial state (default: all zero, at rest).
-    rtol, atol : float
-        Tolerances of :func:`~scipy.integrate.solve_ivp`.
-    method : str
-        Integrator (``"LSODA"`` switches to a stiff method where needed; ``"Radau"``
-        for stiff sets; ``"DOP853"`` for smooth, non-stiff ones).
     states : bool
         Also return the state at every sample.
     intersample : {"zoh", "foh"}
         What the input does between samples: held, or linear to the next sample.
+    solver : SolverOptions, optional
+        The integrator, its tolerances and exact friction's stick band (default
+        :class:`SolverOptions`'s: LSODA, ``rtol=1e-10``, ``atol=1e-12``).
+    **solver_settings
+        Any field of :class:`SolverOptions` (``method``, ``rtol``, ``atol``,
+        ``stick_band``), overriding ``solver``.
 
     Returns
     -------
@@ -686,9 +888,12 @@ def simulate_reference(
 
     Raises
     ------
+    ValueError
+        A bad solver setting, naming it.
     RuntimeError
         When the integrator fails.
     """
+    so = _solver_options(solver, solver_settings)
     u = np.asarray(u, dtype=float).ravel()
     if u.size < 1 or not np.isfinite(u).all():
         raise ValueError("u must be a non-empty finite 1-D array")
@@ -697,7 +902,7 @@ def simulate_reference(
     if intersample not in ("zoh", "foh"):
         raise ValueError(f"intersample must be 'zoh' or 'foh', got {intersample!r}")
     dt = 1.0 / fs
-    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, stick_band)
+    s = _spec(params, valve, output, spool_lag, effects, dt, smooth, so.stick_band)
     nl = s.n_lags
     padded = np.concatenate([np.full(nl, u[0]), u])
     # Row k: u[k], u[k-1], ..., u[k-nl].
@@ -727,7 +932,7 @@ def simulate_reference(
         t_eval = np.arange(b - a + 1) * dt
         seg: list[tuple[float, float]] | None = [] if play_after else None
         try:
-            Y = _segment(xc, ul, core, t_eval, method, rtol, atol, seg,
+            Y = _segment(xc, ul, core, t_eval, so.method, so.rtol, so.atol, seg,
                          slope=slopes[a] if slopes[a].any() else None)
         except RuntimeError as exc:
             raise RuntimeError(f"at sample {a}: {exc}") from exc
@@ -792,17 +997,10 @@ def reference_record(
     valve: str = "orifice",
     spool_lag: bool = False,
     u: Sequence[float] | np.ndarray | None = None,
-    amplitude: float = 1.0,
-    levels: int = 4,
-    angle_limit_deg: float = 80.0,
-    quantization: float | None = None,
-    noise_ar: float = 0.0,
-    drift_deg: float = 0.0,
     smooth: bool = True,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    method: str = "LSODA",
     intersample: str = "zoh",
+    options: RecordOptions | None = None,
+    **settings: Any,
 ) -> Dataset:
     """A simulated rig record generated by the reference implementation.
 
@@ -836,22 +1034,16 @@ def reference_record(
         Spool lag (then ``params`` needs ``tau_v``).
     u : array, optional
         Valve current [mA] instead of the default excitation.
-    amplitude, levels : float, int
-        Largest current [mA] and number of levels of the excitation.
-    angle_limit_deg : float
-        Half range [deg] the linear angle estimate may reach before the input is scaled.
-    quantization : float, optional
-        Encoder resolution [deg] (a 12-bit encoder: ``360 / 4096``).
-    noise_ar : float
-        Coefficient ``a`` of first-order autoregressive (coloured) sensor noise,
-        ``n[k] = a n[k-1] + sqrt(1 - a^2) noise_deg w[k]`` with white ``w`` and a
-        stationary start; 0 (default): white noise. ``|a| < 1``.
-    drift_deg : float
-        A slow sensor drift [deg]: the output moves by this much, linearly in time,
-        over the record (0: none).
-    smooth, rtol, atol, method, intersample
+    smooth, intersample
         As in :func:`simulate_reference`; the record carries ``intersample`` (what its
         input did between samples).
+    options : RecordOptions, optional
+        The excitation, the sensor and the solver (default :class:`RecordOptions`'s).
+    **settings
+        Any field of :class:`RecordOptions` (``amplitude``, ``levels``,
+        ``angle_limit_deg``, ``quantization``, ``noise_ar``, ``drift_deg``) or of
+        :class:`SolverOptions` (``method``, ``rtol``, ``atol``, ``stick_band``), overriding
+        ``options``.
 
     Returns
     -------
@@ -862,51 +1054,31 @@ def reference_record(
         (every parameter by name), ``effects`` (names), ``x0`` (by state name), and
         ``truth``: everything :func:`simulate_reference` needs to reproduce the
         noise-free output (``params``, ``effects`` with settings, ``valve``,
-        ``spool_lag``, ``smooth``, ``x0``, ``integrator``). No
-        ``physical`` entry: the reference works in groups only.
+        ``spool_lag``, ``smooth``, ``x0``, ``integrator``: the :class:`SolverOptions`).
+        No ``physical`` entry: the reference works in groups only.
+
+    Raises
+    ------
+    ValueError
+        A bad setting (or a negative ``noise_deg``), naming it.
     """
+    o = _record_options(options, settings)
     if not (math.isfinite(noise_deg) and noise_deg >= 0):
         raise ValueError(f"noise_deg must be >= 0, got {noise_deg}")
-    if not (math.isfinite(noise_ar) and abs(noise_ar) < 1):
-        raise ValueError(f"noise_ar must lie in (-1, 1), got {noise_ar}")
-    if not math.isfinite(drift_deg):
-        raise ValueError(f"drift_deg must be finite, got {drift_deg}")
-    if quantization is not None and not (math.isfinite(quantization) and quantization >= 0):
-        raise ValueError(f"quantization must be >= 0, got {quantization}")
     p = dict(REFERENCE_GROUPS)
     if valve == "orifice":
         p.pop("g_kp")
     p.update({k: float(v) for k, v in (params or {}).items()})
     rng = np.random.default_rng(seed)
     gain = velocity_gain(p, valve)
-    if u is None:
-        n = samples(duration, fs)
-        periods = max(1, int(round(duration / 20.0)))
-        u = irregular_steps(n, levels=levels, amplitude=amplitude, n_periods=periods, seed=rng)
-        est = np.degrees(np.cumsum(u) / fs * gain)
-        half = 0.5 * float(est.max() - est.min())
-        if half > angle_limit_deg:
-            u = u * (angle_limit_deg / half)
+    u = _excitation(duration, fs, gain, rng, o) if u is None else u
     u = np.asarray(u, dtype=float)
-    est = np.degrees(np.cumsum(u) / fs * gain)
-    est -= est[0]
     names = reference_state_names(spool_lag=spool_lag, effects=effects)
     x0 = np.zeros(len(names))
-    x0[0] = -math.radians(0.5 * float(est.max() + est.min()))
+    x0[0] = _centred_angle(u, fs, gain)
     y_true = simulate_reference(u, fs, p, valve=valve, spool_lag=spool_lag, effects=effects,
-                                x0=x0, smooth=smooth, rtol=rtol, atol=atol, method=method,
-                                intersample=intersample)
-    w = noise_deg * rng.standard_normal(u.size)
-    if noise_ar:
-        # Stationary AR(1) with the standard deviation noise_deg: first sample at the
-        # stationary spread, then innovations scaled by sqrt(1 - a^2).
-        w[1:] *= math.sqrt(1.0 - noise_ar ** 2)
-        w = sps.lfilter([1.0], [1.0, -noise_ar], w)
-    y = y_true + w
-    if drift_deg:
-        y = y + drift_deg * np.arange(u.size) / max(u.size - 1, 1)
-    if quantization:
-        y = np.round(y / quantization) * quantization
+                                x0=x0, smooth=smooth, intersample=intersample, solver=o.solver)
+    y = _sensor(y_true, noise_deg, rng, o)
     eff = {k: dict(v) for k, v in (effects or {}).items()}
     true_params = dict(p)
     for vals in eff.values():
@@ -915,9 +1087,9 @@ def reference_record(
         "generator": "reference",
         "seed": seed,
         "noise_deg": noise_deg,
-        "noise_ar": noise_ar,
-        "drift_deg": drift_deg,
-        "quantization_deg": quantization,
+        "noise_ar": o.noise_ar,
+        "drift_deg": o.drift_deg,
+        "quantization_deg": o.quantization,
         "valve": valve,
         "intersample": intersample,
         "true_params": true_params,
@@ -930,13 +1102,49 @@ def reference_record(
             "spool_lag": spool_lag,
             "smooth": smooth,
             "x0": x0.tolist(),
-            "integrator": {"method": method, "rtol": rtol, "atol": atol},
+            "integrator": {f.name: getattr(o.solver, f.name) for f in fields(SolverOptions)},
         },
     }
     return Dataset.from_arrays(
         u, y, fs=fs, metadata=meta, name=f"reference-seed{seed}",
         input_name="current", input_unit="mA", output_name="angle", output_unit="deg",
     )
+
+
+def _excitation(duration: float, fs: float, gain: float, rng: np.random.Generator,
+                o: RecordOptions) -> np.ndarray:
+    """The default input: irregular steps, scaled down if the linear estimate of the angle
+    (``gain`` [rad/s per mA]) would span more than ``2 * angle_limit_deg``."""
+    n = samples(duration, fs)
+    periods = max(1, int(round(duration / 20.0)))
+    u = irregular_steps(n, levels=o.levels, amplitude=o.amplitude, n_periods=periods, seed=rng)
+    est = np.degrees(np.cumsum(u) / fs * gain)
+    half = 0.5 * float(est.max() - est.min())
+    return u * (o.angle_limit_deg / half) if half > o.angle_limit_deg else u
+
+
+def _centred_angle(u: np.ndarray, fs: float, gain: float) -> float:
+    """Initial angle [rad] that centres the linear estimate's stroke on 0."""
+    est = np.degrees(np.cumsum(u) / fs * gain)
+    est -= est[0]
+    return -math.radians(0.5 * float(est.max() + est.min()))
+
+
+def _sensor(y_true: np.ndarray, noise_deg: float, rng: np.random.Generator,
+            o: RecordOptions) -> np.ndarray:
+    """The measured angle: noise (white or AR(1)), drift and quantisation added."""
+    w = noise_deg * rng.standard_normal(y_true.size)
+    if o.noise_ar:
+        # Stationary AR(1) with the standard deviation noise_deg: first sample at the
+        # stationary spread, then innovations scaled by sqrt(1 - a^2).
+        w[1:] *= math.sqrt(1.0 - o.noise_ar ** 2)
+        w = sps.lfilter([1.0], [1.0, -o.noise_ar], w)
+    y = y_true + w
+    if o.drift_deg:
+        y = y + o.drift_deg * np.arange(y.size) / max(y.size - 1, 1)
+    if o.quantization:
+        y = np.round(y / o.quantization) * o.quantization
+    return y
 
 
 _ALL_EFFECT_PARAMS = ({k for v in _EFFECT_PARAMS.values() for k in v}

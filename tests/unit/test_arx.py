@@ -280,3 +280,43 @@ def test_metaheuristic_fit_is_reproducible_and_converges(method: str):
     assert fit.convergence[-1] == pytest.approx(fit.info["best_itae"])
     assert 0 <= fit.noi <= 60 and fit.nfev == fit.convergence_nfev[-1]
     np.testing.assert_allclose(fit.model.theta, truth.theta, atol=0.05)
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_metaheuristic_options_object_and_keywords_give_one_fit(seed: int):
+    truth = arx.ARXModel([-0.7], [0.4], nk=1)
+    u = np.repeat(np.random.default_rng(seed).choice([-1.0, 1.0], size=20), 8)
+    y = truth.simulate(u)
+    opts = arx.MetaheuristicOptions(method="pso", na=1, nb=1, pop_size=10, max_iter=6,
+                                    seed=seed, optimizer_options={"w": 0.5})
+    a = arx.fit_metaheuristic(u, y, options=opts)
+    b = arx.fit_metaheuristic(u, y, method="pso", na=1, nb=1, pop_size=10, max_iter=6,
+                              seed=seed, options={"w": 0.5})  # a dict: the optimiser's own
+    c = arx.fit_metaheuristic(u, y, options=opts, seed=seed + 1)  # a keyword overrides
+    np.testing.assert_array_equal(a.model.theta, b.model.theta)
+    assert a.info["options"]["w"] == 0.5 and a.method == "pso" and c.info["seed"] == seed + 1
+    h = arx.HybridOptions(na=1, nb=1, pop_size=6, max_iter=3, seed=seed, zeta_s=0.4)
+    np.testing.assert_array_equal(arx.fit_ffrls_hgwo(u, y, options=h).model.theta,
+                                  arx.fit_ffrls_hgwo(u, y, na=1, nb=1, pop_size=6, max_iter=3,
+                                                     seed=seed, zeta_s=0.4).model.theta)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"method": "cmaes"}, "method: expected one of hgwo, gwo, pso, de"),
+    ({"pop_size": 0}, "pop_size must be an integer >= 1"),
+    ({"bounds": (1.0, -1.0)}, "bounds must be"),
+    ({"max_pole_radius": -1.0}, "max_pole_radius"),
+    ({"popsize": 5}, "unknown fit_metaheuristic setting.*popsize"),
+])
+def test_metaheuristic_bad_settings_are_named_before_any_work(kwargs, match):
+    u = np.ones(20)
+    with pytest.raises(ParameterError, match=match):
+        arx.fit_metaheuristic(u, u, **kwargs)
+
+
+def test_hybrid_bad_settings_are_named():
+    u = np.ones(20)
+    with pytest.raises(ParameterError, match="zeta_s"):
+        arx.fit_ffrls_hgwo(u, u, zeta_s=0.0)
+    with pytest.raises(ParameterError, match="unknown fit_ffrls_hgwo setting.*bounds"):
+        arx.fit_ffrls_hgwo(u, u, bounds=(-1, 1))  # the hybrid's box is eq. 29's

@@ -4,12 +4,26 @@ from __future__ import annotations
 
 import json
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from hhra_phys.errors import ParameterError
-from hhra_phys.optim import DE, GWO, HGWO, METHODS, PSO, Box, make_optimiser, minimize, noi
+from hhra_phys.optim import (
+    DE,
+    GWO,
+    HGWO,
+    LABELS,
+    METHODS,
+    PSO,
+    Box,
+    MinimizeOptions,
+    PSOOptions,
+    make_optimiser,
+    minimize,
+    noi,
+)
 from hhra_phys.optim.core import distinct_indices
 from hhra_phys.optim.gwo import best_distinct, gwo_a
 from hhra_phys.optim.hgwo import tent_map_unit
@@ -430,6 +444,58 @@ def test_pso_inertia_schedule():
     assert pso.inertia(0) == pytest.approx(0.9)
     assert pso.inertia(10) == pytest.approx(0.4)
     assert PSO(BOX5, 5).inertia(7) == 0.8
+
+
+def test_pso_options_object_and_keywords_agree():
+    opts = PSOOptions(w_start=0.9, w_end=0.4, c1=1.5, vmax=[1.0, 2.0])
+    a, b = PSO([(0, 1)] * 2, 5, max_iter=11, options=opts), PSO(
+        [(0, 1)] * 2, 5, max_iter=11, w_start=0.9, w_end=0.4, c1=1.5, vmax=[1.0, 2.0])
+    assert a.inertia(10) == b.inertia(10) == pytest.approx(0.4) and a.c1 == b.c1 == 1.5
+    np.testing.assert_array_equal(a.vmax, [1.0, 2.0])
+    assert PSO([(0, 1)] * 2, 5, options=opts, c1=0.5).c1 == 0.5  # a keyword overrides
+    with pytest.raises(ParameterError, match="vmax: expected a number or 2 numbers"):
+        PSO([(0, 1)] * 2, 5, vmax=[1.0, 2.0, 3.0])
+    with pytest.raises(ParameterError, match="unknown PSO setting.*bogus"):
+        PSO([(0, 1)] * 2, 5, bogus=1.0)
+    with pytest.raises(ParameterError, match="c2"):
+        PSOOptions(c2=-1.0).validate()
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_minimize_options_object_positional_and_keywords_give_one_run(seed: int):
+    """The same settings as an options object, positional or keyword arguments, or a mix
+    (keywords over the object) run the same search."""
+    want = minimize(shifted_sphere, BOX5, "pso", 8, 12, seed, True, options={"w": 0.6},
+                    max_nfev=90)
+    opts = MinimizeOptions(method="pso", pop_size=8, max_iter=12, seed=seed, vectorized=True,
+                           method_options={"w": 0.6}, max_nfev=90)
+    for res in (
+        minimize(shifted_sphere, BOX5, options=opts),
+        minimize(shifted_sphere, BOX5, method="pso", pop_size=8, max_iter=12, seed=seed,
+                 vectorized=True, options={"w": 0.6}, max_nfev=90),
+        minimize(shifted_sphere, BOX5, "gwo", options=replace(opts, pop_size=3,
+                                                              method_options=None), pop_size=8),
+        minimize(shifted_sphere, BOX5, options=MinimizeOptions(), method="pso", pop_size=8,
+                 max_iter=12, seed=seed, vectorized=True, method_options={"w": 0.6},
+                 max_nfev=90),
+    ):
+        if res.method == "gwo":  # the positional method and pop_size override the object's
+            assert res.nfev == 88 and res.population.shape == (8, 5)
+            continue
+        np.testing.assert_array_equal(res.x, want.x)
+        assert res.nfev == want.nfev == 88 and res.method == "pso"
+
+
+def test_minimize_options_name_the_bad_setting():
+    with pytest.raises(ParameterError, match="unknown minimize setting.*popsize"):
+        minimize(shifted_sphere, BOX5, popsize=3)
+    with pytest.raises(ParameterError, match=f"method: expected one of {', '.join(METHODS)}"):
+        MinimizeOptions(method="cmaes").validate()
+    with pytest.raises(ParameterError, match="pop_size: must be >= 4"):
+        MinimizeOptions(pop_size=3).validate()  # H-GWO's smallest population
+    with pytest.raises(ParameterError, match="options: expected a MinimizeOptions"):
+        minimize(shifted_sphere, BOX5, options=[1, 2])
+    assert LABELS["hgwo"] == "H-GWO" and set(LABELS) == set(METHODS)
 
 
 def test_history_records_diversity_and_best_positions():

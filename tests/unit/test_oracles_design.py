@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from hhra_phys.design import InformationModel, criterion_value, design_input
+from hhra_phys.design import DesignOptions, InformationModel, criterion_value, design_input
+from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.models.cylinder import LinearCylinderModel, cylinder_input, simulate_cylinder
 
@@ -88,3 +89,32 @@ def test_default_input_limit_is_the_largest_magnitude(fitted) -> None:
                      families=("aprbs",), seed=1, output_limit=200.0)
     assert d.limits["max_input"] == pytest.approx(6.0)
     assert np.max(np.abs(d.u)) <= 6.0 + 1e-12
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_design_options_object_and_keywords_give_one_design(fitted, seed: int) -> None:
+    res, _ = fitted
+    ref = cylinder_input(3.0, seed=seed)  # sets the default max_input only
+    kw = {"candidates": 2, "local_steps": 3, "draws": 0, "families": ["aprbs", "free"],
+          "seed": seed, "output_limit": 200.0, "split": 0.5}
+    a = design_input(res, 3.0, reference_input=ref, **kw)
+    b = design_input(res, 3.0, reference_input=ref, options=DesignOptions(**{
+        **kw, "families": ("aprbs", "free"), "seed": seed + 1}), seed=seed)
+    np.testing.assert_array_equal(a.u, b.u)
+    assert a.value == b.value and a.evaluations == b.evaluations
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"criterion": "x"}, "criterion must be one of d, a, e"),
+    ({"families": ("steps", "chirp")}, "families must be among"),
+    ({"families": ()}, "families must be among"),
+    ({"split": 1.5}, "split must be a fraction"),
+    ({"output_limit": float("nan")}, "output_limit must be a finite number > 0"),
+    ({"min_hold": None}, "min_hold must be a finite number > 0"),
+    ({"fs": 0.0}, "fs must be a finite number > 0"),
+    ({"candidates": -1}, "candidates must be an integer >= 0"),
+    ({"draw": 2}, "unknown design setting.*draw"),
+])
+def test_design_settings_are_named_before_any_simulation(kwargs, match) -> None:
+    with pytest.raises(ParameterError, match=match):
+        DesignOptions.of(**kwargs)

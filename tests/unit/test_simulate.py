@@ -8,7 +8,7 @@ import pytest
 from hhra_phys import HHRAModel, Simulator
 from hhra_phys.errors import ParameterError
 from hhra_phys.models.hhra.rig import default_input
-from hhra_phys.simulate import STATUS_DIVERGED, STATUS_OK, STATUS_UNSTABLE
+from hhra_phys.simulate import STATUS_DIVERGED, STATUS_OK, STATUS_UNSTABLE, CodeOptions
 
 
 @pytest.fixture(scope="module")
@@ -117,3 +117,33 @@ def test_spool_lag_model_simulates(setup):
     sim = Simulator(model, fs=250.0)
     y = sim.simulate(u, model.nominal())
     assert np.max(np.abs(y - sim.reference(u, model.nominal()))) < 5e-3
+
+
+@pytest.mark.parametrize("layout", [{"block": 7, "chunk": 90}, {"lanes": 2, "threads": 1}])
+def test_code_options_object_and_keywords_build_one_simulator(setup, layout):
+    """The code layout as a CodeOptions or as keywords (which override it) is the same
+    simulator; neither changes the numbers."""
+    model, sim, u = setup
+    a = Simulator(model, fs=250.0, code=CodeOptions(**layout), backend="casadi")
+    b = Simulator(model, fs=250.0, backend="casadi", **layout)
+    c = Simulator(model, fs=250.0, code=CodeOptions(block=3, lanes=1), backend="casadi",
+                  **{"block": 10, "lanes": 4, **layout})
+    for other in (b, c):
+        assert (other.block, other.lanes, other.chunk, other.threads) == (
+            a.block, a.lanes, a.chunk, a.threads)
+    assert a.code == CodeOptions(**layout)
+    np.testing.assert_allclose(a.simulate(u[:400], model.nominal()),
+                               sim.simulate(u[:400], model.nominal()), rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"threads": 0}, "threads must be a positive integer"),
+    ({"chunk": 2.5}, "chunk must be a positive integer"),
+    ({"simd": 6}, "simd must be a power of two"),
+    ({"simd": "wide"}, "simd must be 'auto'"),
+    ({"blocks": 3}, "unknown simulator code setting.*blocks"),
+    ({"method": "euler"}, "method must be 'auto' or one of"),
+])
+def test_simulator_settings_are_named_before_any_work(kwargs, match):
+    with pytest.raises(ParameterError, match=match):
+        Simulator(HHRAModel(), fs=250.0, **kwargs)
