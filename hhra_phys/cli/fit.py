@@ -31,7 +31,6 @@ from hhra_phys.cli._guards import (
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
-from hhra_phys.outputs import jsonable
 
 
 def register(subparsers: Any) -> None:
@@ -151,18 +150,10 @@ def run(args: argparse.Namespace) -> int:
         res.warnings.extend(data_warnings)
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
-        say(res.summary())
-        for rec in res.records:
-            parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
-                     for key, label in (("est", "estimation"), ("val", "validation"))
-                     if rec[key]]
-            say(f"record {rec['name']}: {', '.join(parts)}")
-        for st in res.stages:
-            say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
-                  f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
+        print_result(res, say)
         with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
             if args.json == STDOUT:
-                print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
+                print(json.dumps(res.to_json(), indent=1), flush=True)
             elif args.json:
                 print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
             if res.status == "diverged":
@@ -180,6 +171,20 @@ def run(args: argparse.Namespace) -> int:
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
     return 0
+
+
+def print_result(res: Any, say: Any) -> None:
+    """The fit summary: parameters and derived quantities with their intervals
+    (:meth:`~hhra_phys.result.FitResult.summary`), each record's errors, the stages."""
+    say(res.summary())
+    for rec in res.records:
+        parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
+                 for key, label in (("est", "estimation"), ("val", "validation"))
+                 if rec[key]]
+        say(f"record {rec['name']}: {', '.join(parts)}")
+    for st in res.stages:
+        say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
+            f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
 
 
 def _num(x: float | None, spec: str = ".6g") -> str:
