@@ -136,7 +136,6 @@ def run(args: argparse.Namespace) -> int:
             target, val_arg = data, (validation[0] if validation else None)
         else:  # several records, or one record with several validation records
             target, val_arg = records, validation
-        several = isinstance(target, list)
         with executor(args.workers, args.dask) as ex:
             results = fit_many(
                 [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
@@ -152,24 +151,31 @@ def run(args: argparse.Namespace) -> int:
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
         print_result(res, say)
         with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
-            if args.json == STDOUT:
-                print(json.dumps(res.to_json(), indent=1), flush=True)
-            elif args.json:
-                print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-            if res.status == "diverged":
-                print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
-                      "stay finite with the fitted values); "
-                      + ("the result marked diverged is in the JSON; " if args.json else "")
-                      + "check the units of the record and the --fix values", file=sys.stderr)
-                return 1
-            if args.plot:
-                plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                        args.overwrite)
-                           if several or validation else
-                           plot_result(res, data, args.plot, args.split, args.overwrite))
-                say(f"wrote {plotted}")
+            return _write(args, res, records, validation, say)
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
+
+
+def _write(args: argparse.Namespace, res: Any, records: list[Any],
+           validation: list[Any] | None, say: Any) -> int:
+    """Write the JSON (:meth:`~hhra_phys.result.FitResult.to_json`) and the figure; 1 for a
+    diverged fit (its JSON is still written, no figure), else 0."""
+    if args.json == STDOUT:
+        print(json.dumps(res.to_json(), indent=1), flush=True)
+    elif args.json:
+        print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+    if res.status == "diverged":
+        print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+              "stay finite with the fitted values); "
+              + ("the result marked diverged is in the JSON; " if args.json else "")
+              + "check the units of the record and the --fix values", file=sys.stderr)
+        return 1
+    if args.plot:
+        plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                args.overwrite)
+                   if len(records) > 1 or validation else
+                   plot_result(res, records[0], args.plot, args.split, args.overwrite))
+        say(f"wrote {plotted}")
     return 0
 
 
