@@ -784,7 +784,9 @@ class FitResult:
             values = {n: float(params[n]["value"]) for n in model.params.names}
             free = list(d["free"])
         except KeyError as exc:
-            raise DataError(f"{source}: fit result without {exc}") from None
+            raise DataError(f"{source}: not a complete hhra-phys fit result (no {exc}); "
+                            "give the JSON a fit wrote (FitResult.save, 'hhra-phys fit "
+                            "--json')") from None
         cov = d.get("covariance")
         return cls(
             model_spec=d["model"],
