@@ -131,3 +131,20 @@ def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tm
     assert cli["chosen"] == d["chosen"] and set(cli["fits"]["final"]["derived"]) == {
         "a", "b", "c", "kv"}
     assert math.isfinite(cli["fits"]["final"]["derived"]["kv"]["ci95"][0])
+
+
+@pytest.mark.parametrize(("name", "box"), [("g_leak", (20.0, 40.0)), ("g_torque", (20.0, 60.0))])
+def test_a_parameter_held_at_an_edge_is_at_edge_and_so_are_its_derived(name, box):
+    """A user's box that excludes the truth (the rig's g_leak ~ 8, g_torque ~ 180): the
+    fit ends at its edge, the estimate and every derived quantity using it say so."""
+    res = fit(_record(5), seed=5, bounds={name: box}, **SMALL)
+    assert res.estimates[name].status == "at-edge"
+    assert res.params[name]["status"] == "at-edge" and res.params[name]["free"]
+    edge = {n for n, e in res.estimates.items() if e.status == "at-edge"}
+    groups = {"b": {"g_damping", "g_leak"}, "c": {"g_damping", "g_leak", "g_torque",
+                                                  "g_compress"}, "kv": {"g_torque", "g_valve"}}
+    assert res.derived["a"].status == "fixed"
+    for k, uses in groups.items():  # the fit may push another group to an edge as well
+        assert res.derived[k].status == ("at-edge" if uses & edge else "free"), k
+    back = FitResult.from_json(res.to_json())
+    assert back.estimates[name].status == "at-edge" and back.derived["c"].status == "at-edge"
