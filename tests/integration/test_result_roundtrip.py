@@ -127,6 +127,13 @@ def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tm
     back = LoopResult.from_json(json.loads(json.dumps(d, allow_nan=False)))
     assert back.to_json() == d
     assert back.final.derived == res.final.derived and back.chosen == ["valve_deadzone"]
+    from hhra_phys.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="data="):
+        back.report(tmp_path / "py" / "back.md")  # a result read back keeps no records
+    text = back.report(tmp_path / "py" / "back.md", data=data).read_text()
+    assert "## Accepted effects" in text and "### valve_deadzone" in text
+    assert "## Evidence of the first round" not in text  # the diagnoses were not saved
     cli = json.loads((tmp_path / "cli" / "d.json").read_text())
     assert cli["chosen"] == d["chosen"] and set(cli["fits"]["final"]["derived"]) == {
         "a", "b", "c", "kv"}
