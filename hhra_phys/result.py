@@ -423,7 +423,9 @@ def _unresolved(eigval: np.ndarray, eigvec: np.ndarray) -> np.ndarray:
     """Parameters with a share of at least ``WEAK_SHARE`` in a too-weak direction."""
     out = np.zeros(eigval.size, dtype=bool)
     for k in range(eigval.size):
-        if eigval[-1] / max(eigval[k], np.finfo(float).tiny) <= IDENTIFIABILITY_COND:
+        with np.errstate(over="ignore"):  # an exactly singular direction: condition inf
+            cond = eigval[-1] / max(eigval[k], np.finfo(float).tiny)
+        if cond <= IDENTIFIABILITY_COND:
             break
         out |= np.abs(eigvec[:, k]) >= WEAK_SHARE
     return out
