@@ -58,7 +58,13 @@ from hhra_phys.refine import (
     refine_ipopt,
     refine_nlopt,
 )
-from hhra_phys.result import FitResult, uncertainty, weak_directions
+from hhra_phys.result import (
+    FitResult,
+    derived_estimates,
+    physical_covariance,
+    uncertainty,
+    weak_directions,
+)
 
 __all__ = [
     "FitOptions",
@@ -775,92 +781,159 @@ def _int_or_none(x: Any) -> int | None:
         return None
 
 
-def _intervals(
-    problem: Any, z: np.ndarray, intervals: str
-) -> tuple[dict[str, tuple[float, float]], dict[str, float], np.ndarray, list[str],
-           dict[str, Any]]:
-    """95 % intervals, standard deviations, correlation, warnings and interval info at ``z``.
+@dataclass
+class Intervals:
+    """The uncertainty of a fit at its optimum (:func:`_intervals`).
+
+    Attributes
+    ----------
+    ci95 : dict of str to (float, float)
+        95 % interval of each free parameter, physical units.
+    std : dict of str to float
+        Standard deviation in fitting coordinates.
+    correlation : ndarray, shape (n_free, n_free)
+    covariance : ndarray, shape (n_free, n_free)
+        Linearised covariance in physical units (the delta method's input).
+    warnings : list of str
+    info : dict
+        :attr:`~hhra_phys.result.FitResult.intervals` (method, undetermined, weak
+        directions, coloured noise, ``at_edge``: free parameters at a box edge by side).
+    """
+
+    ci95: dict[str, tuple[float, float]]
+    std: dict[str, float]
+    correlation: np.ndarray
+    covariance: np.ndarray
+    warnings: list[str]
+    info: dict[str, Any]
+
+
+@dataclass
+class SearchRecord:
+    """How a fit's optimum was found: its stages, the global search's history, its seed."""
+
+    stages: list[Stage]
+    history: list[float]
+    seed: int | None
+
+
+def _intervals(problem: Any, z: np.ndarray, intervals: str) -> Intervals:
+    """95 % intervals, standard deviations, correlation, covariance, warnings and
+    interval info at ``z``.
 
     Works for a one-record :class:`Problem` and a stacked
     :class:`~hhra_phys.multi.MultiProblem` alike (intervals from all records).
+    ``intervals`` is ``"linear"`` (Gauss-Newton) or ``"profile"`` (profile likelihood).
     """
     # Uncertainty from the exact residual Jacobian at the optimum.
     r, J = CompiledLeastSquares(problem)(z)
     cov, corr, warnings = uncertainty(J, r, problem.free_names)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    ci95, std = _linear_intervals(problem, z, sd)
+    info: dict[str, Any] = {"method": "linear"}
+    diverged = not (np.all(np.isfinite(r)) and np.all(np.isfinite(J)))
+    if intervals == "profile" and diverged:
+        warnings.append("profile intervals skipped: the fit diverged")
+    elif intervals == "profile":
+        info = _profile(problem, z, ci95, warnings)
+    undetermined = [n for i, n in enumerate(problem.free_names) if not np.isfinite(sd[i])]
+    if undetermined:
+        info["undetermined"] = undetermined
+    if not diverged:
+        _coloured(r, info, warnings)
+    weak = weak_directions(J, list(problem.free_names))
+    if weak:
+        # Which parameters trade off, and why their intervals are missing.
+        info["weak_directions"] = weak
+        info["reasons"] = {
+            name: next(d["reason"] for d in weak if name in d["params"])
+            for name in undetermined if any(name in d["params"] for d in weak)}
+    edges = _edge_warnings(problem, z, sd, warnings)
+    if edges:
+        info["at_edge"] = edges
+    return Intervals(ci95, std, corr, physical_covariance(cov, _slopes(problem, z)),
+                     warnings, info)
+
+
+def _linear_intervals(problem: Any, z: np.ndarray, sd: np.ndarray
+                      ) -> tuple[dict[str, tuple[float, float]], dict[str, float]]:
+    """``z +- 1.96 sd`` mapped to physical units (NaN where ``sd`` is not finite)."""
     ci95: dict[str, tuple[float, float]] = {}
     std: dict[str, float] = {}
-    undetermined: list[str] = []
     for i, name in enumerate(problem.free_names):
         if not np.isfinite(sd[i]):
             ci95[name] = (float("nan"), float("nan"))
-            undetermined.append(name)
         else:
             lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
             ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
         std[name] = float(sd[i])
-    diverged = not (np.all(np.isfinite(r)) and np.all(np.isfinite(J)))
-    interval_info: dict[str, Any] = {"method": "linear"}
-    if intervals == "profile" and diverged:
-        warnings.append("profile intervals skipped: the fit diverged")
-    elif intervals == "profile":
-        t0 = time.perf_counter()
-        profiles = profile_intervals(problem, z)
-        interval_info = {
-            "method": "profile",
-            "linear": {n: list(v) for n, v in ci95.items()},
-            "open_ends": {n: list(p.open_ends) for n, p in profiles.items()},
-            "solves": sum(p.n_solves for p in profiles.values()),
-            "seconds": time.perf_counter() - t0,
-        }
-        first = next(iter(profiles.values()), None)
-        if first is not None and first.moved:
-            interval_info["polished_ssr"] = first.ssr_min
-            warnings.append(
-                "the fit did not end at the least-squares minimum (no or unconverged "
-                "refinement): the profile intervals are centred on a polished optimum "
-                f"(sum of squares {first.ssr_min:.6g}), not on the reported values"
-            )
-        for name, prof in profiles.items():
-            ci95[name] = prof.interval
-            if prof.lower_minimum:
-                warnings.append(
-                    f"{name}: its profile found a lower sum of squares than the optimum "
-                    "(another minimum exists), so the profile intervals are not reliable"
-                )
-            for side, is_open in zip(("lower", "upper"), prof.open_ends, strict=True):
-                if is_open:
-                    warnings.append(
-                        f"{name}: the profile stays below the 95 % threshold up to the {side} "
-                        "end of the search box, so the interval is open there"
-                    )
-    if undetermined:
-        interval_info["undetermined"] = undetermined
-    if not diverged:
-        colour = interval_factor(r)
-        if colour["factor"] > COLOURED_FACTOR:
-            # Intervals stay the white-noise ones; the user is told by how much they
-            # understate a slowly varying sensitivity's uncertainty.
-            interval_info["coloured_noise"] = colour
-            warnings.append(
-                f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
-                f"{colour['c']:+.2f}): the linearised intervals assume white residuals and "
-                f"are up to {colour['factor']:.1f}x too narrow")
-    weak = weak_directions(J, list(problem.free_names))
-    if weak:
-        # Which parameters trade off, and why their intervals are missing.
-        interval_info["weak_directions"] = weak
-        interval_info["reasons"] = {
-            name: next(d["reason"] for d in weak if name in d["params"])
-            for name in undetermined if any(name in d["params"] for d in weak)}
+    return ci95, std
 
+
+def _slopes(problem: Any, z: np.ndarray) -> np.ndarray:
+    """``d theta_i / d z_i`` at ``z``: ``ln(10) theta`` for log-scaled parameters, the
+    scale (the map at ``z = 1``, exact as it is linear) for the others."""
+    log = np.array([p.scale == "log" for p in problem.free_params], dtype=bool)
+    return np.where(log, np.log(10.0) * problem.from_z(z), problem.from_z(np.ones(len(z))))
+
+
+def _profile(problem: Any, z: np.ndarray, ci95: dict[str, tuple[float, float]],
+             warnings: list[str]) -> dict[str, Any]:
+    """Profile-likelihood intervals into ``ci95`` (the linear ones kept in the info)."""
+    t0 = time.perf_counter()
+    profiles = profile_intervals(problem, z)
+    info: dict[str, Any] = {
+        "method": "profile",
+        "linear": {n: list(v) for n, v in ci95.items()},
+        "open_ends": {n: list(p.open_ends) for n, p in profiles.items()},
+        "solves": sum(p.n_solves for p in profiles.values()),
+        "seconds": time.perf_counter() - t0,
+    }
+    first = next(iter(profiles.values()), None)
+    if first is not None and first.moved:
+        info["polished_ssr"] = first.ssr_min
+        warnings.append(
+            "the fit did not end at the least-squares minimum (no or unconverged "
+            "refinement): the profile intervals are centred on a polished optimum "
+            f"(sum of squares {first.ssr_min:.6g}), not on the reported values"
+        )
+    for name, prof in profiles.items():
+        ci95[name] = prof.interval
+        if prof.lower_minimum:
+            warnings.append(
+                f"{name}: its profile found a lower sum of squares than the optimum "
+                "(another minimum exists), so the profile intervals are not reliable"
+            )
+        warnings += [
+            f"{name}: the profile stays below the 95 % threshold up to the {side} "
+            "end of the search box, so the interval is open there"
+            for side, is_open in zip(("lower", "upper"), prof.open_ends, strict=True)
+            if is_open]
+    return info
+
+
+def _coloured(r: np.ndarray, info: dict[str, Any], warnings: list[str]) -> None:
+    """Say by how much white-noise intervals understate a coloured residual's."""
+    colour = interval_factor(r)
+    if colour["factor"] > COLOURED_FACTOR:
+        # Intervals stay the white-noise ones; the user is told by how much they
+        # understate a slowly varying sensitivity's uncertainty.
+        info["coloured_noise"] = colour
+        warnings.append(
+            f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
+            f"{colour['c']:+.2f}): the linearised intervals assume white residuals and "
+            f"are up to {colour['factor']:.1f}x too narrow")
+
+
+def _edge_warnings(problem: Any, z: np.ndarray, sd: np.ndarray,
+                   warnings: list[str]) -> dict[str, str]:
+    """Warnings on parameters at a box edge or spanning decades; ``{name: side}`` at edges."""
     edges = dict(at_edges(problem, z))
     for i, name in enumerate(problem.free_names):
         if i in edges:
-            side = edges[i]
             warnings.append(
-                f"{name} ended at its {side} bound: the data push it out of the box, so its value "
-                "and interval are not meaningful (widen the bound or fix it)"
+                f"{name} ended at its {edges[i]} bound: the data push it out of the box, so its "
+                "value and interval are not meaningful (widen the bound or fix it)"
             )
         elif problem.free_params[i].scale == "log" and np.isfinite(sd[i]) and sd[i] > 0.5:
             decades = 2 * 1.96 * sd[i]
@@ -868,7 +941,7 @@ def _intervals(
                 f"{name} is poorly determined by these data: its 95 % interval spans "
                 f"{decades:.3g} decades"
             )
-    return ci95, std, corr, warnings, interval_info
+    return {problem.free_names[i]: side for i, side in edges.items()}
 
 
 def _result(
@@ -893,7 +966,8 @@ def _result(
     values_free = problem.from_z(z)
     P = problem.full(values_free)
     values = model.params.as_dict(P)
-    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
+    unc = _intervals(problem, z, intervals)
+    warnings = unc.warnings
     X0 = problem.initial_states(values_free)[0]
     x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
     y_est = problem.simulate_values(values_free)
@@ -926,55 +1000,63 @@ def _result(
             f"{problem.sim.substeps} substeps: the fit is biased by the discretisation")
     settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
                         "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
-    return assemble_result(problem, values, x0, metrics,
-                           (ci95, std, corr, warnings, interval_info), stages, history,
-                           settings, seed, datasheet, data.metadata,
+    return assemble_result(problem, values, x0, metrics, unc,
+                           SearchRecord(stages, history, seed), settings,
+                           datasheet=datasheet, metadata=data.metadata,
                            status="diverged" if diverged else "ok")
 
 
 def assemble_result(problem: Any, values: dict[str, float], x0: dict[str, float],
-                    metrics: dict[str, Any], interval_parts: tuple[Any, ...],
-                    stages: list[Stage], history: list[float], settings: dict[str, Any],
-                    seed: int | None, datasheet: Any | None, metadata: Any, *,
-                    status: str = "ok",
+                    metrics: dict[str, Any], unc: Intervals, search: SearchRecord,
+                    settings: dict[str, Any], *, datasheet: Any | None = None,
+                    metadata: Any = None, status: str = "ok",
                     records: list[dict[str, Any]] | None = None) -> FitResult:
     """The :class:`~hhra_phys.result.FitResult` of a fit: one place for the
     single-record fit and the several-record fit (:mod:`hhra_phys.multi`).
 
     ``values`` are the model's parameters by name, ``x0`` the (first) record's
-    initial state by state name, ``interval_parts`` the ``(ci95, std, correlation,
-    warnings, info)`` of :func:`_intervals` (its warnings list, with the caller's
-    added, becomes the result's). The physical view is derived from ``values`` and
-    ``datasheet``/``metadata``; its note joins the warnings.
+    initial state by state name, ``unc`` the :func:`_intervals` at the optimum (its
+    warnings list, with the caller's added, becomes the result's), ``search`` the
+    stages, history and seed. The physical view is derived from ``values`` and
+    ``datasheet``/``metadata``; its note joins the warnings. The model's derived
+    quantities get their delta-method intervals (:func:`~hhra_phys.result.derived_estimates`).
     """
     model = problem.model
-    ci95, std, corr, warns, interval_info = interval_parts
+    warns = unc.warnings
     units = {p.name: p.unit for p in model.params}
     units.update({p.name: p.unit for p in problem.free_params})
     physical, why = model.physical_view(values, datasheet, metadata)
     if why:
         warns.append(why)
+    # A several-record fit's first record's own parameters stand for the model's.
+    free = [base if k == 1 and base in values else n
+            for n, (base, k) in ((n, split_record_name(n)) for n in problem.free_names)]
+    derived = derived_estimates(model.derived_quantities(), values, free, unc.covariance,
+                                at_edge=[free[problem.free_names.index(n)]
+                                         for n in unc.info.get("at_edge", {})])
     return FitResult(
         model_spec=model.to_json(),
         values=values,
         free=problem.free_names,
         units=units,
-        ci95=ci95,
-        std=std,
-        correlation=corr,
+        ci95=unc.ci95,
+        std=unc.std,
+        correlation=unc.correlation,
         warnings=warns,
         metrics=metrics,
-        stages=[s.to_json() for s in stages],
-        history=history,
+        stages=[s.to_json() for s in search.stages],
+        history=search.history,
         tf=model.tf_coefficients_of(values),
         x0=x0,
         settings=settings,
-        seed=seed,
+        seed=search.seed,
         physical=physical,
-        intervals=interval_info,
+        intervals=unc.info,
         problem=problem,
         status=status,
         records=list(records or []),
+        covariance=unc.covariance,
+        derived=derived,
     )
 
 
@@ -1129,7 +1211,7 @@ def records_result(
     """
     model = problem.model
     v = problem.from_z(z)
-    ci95, std, corr, warnings, interval_info = _intervals(problem, z, intervals)
+    unc = _intervals(problem, z, intervals)
     records: list[dict[str, Any]] = []
     est_y, est_sim, val_y, val_sim = [], [], [], []
     for k, (pr, part) in enumerate(zip(problem.records, val_parts, strict=True)):
@@ -1170,9 +1252,9 @@ def records_result(
     settings["data"] = [_describe(pr.data) for pr in problem.records]
     settings["validation"] = [_describe(ds) for ds in whole_val]
     settings["seconds"] = time.perf_counter() - t_start
-    return assemble_result(problem, values, records[0]["x0"], metrics,
-                           (ci95, std, corr, warnings, interval_info), stages, history,
-                           settings, seed, datasheet, first.data.metadata, records=records)
+    return assemble_result(problem, values, records[0]["x0"], metrics, unc,
+                           SearchRecord(stages, history, seed), settings,
+                           datasheet=datasheet, metadata=first.data.metadata, records=records)
 
 
 def fit_stacked(

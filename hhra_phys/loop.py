@@ -46,7 +46,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -106,7 +106,11 @@ POLISH_ITER = 60
 
 @dataclass
 class LoopResult:
-    """Outcome of :func:`augment`."""
+    """Outcome of :func:`augment`.
+
+    :meth:`to_json` is the diagnose JSON (and :meth:`from_json` reads it back);
+    :meth:`report` writes the Markdown report and its figures.
+    """
 
     base: FitResult
     final: FitResult
@@ -121,11 +125,39 @@ class LoopResult:
     #: Scores on the test part, which chose nothing: ``{"base": {...}, "final": {...}}``
     #: (empty dictionaries with ``test=0``).
     test_scores: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: The record(s) the loop ran on (:func:`augment`'s ``data``), for :meth:`report`'s
+    #: figures; ``None`` for a result read with :meth:`from_json`. Not saved.
+    data: Any = field(default=None, repr=False, compare=False)
+    #: The diagnoses' JSON summaries of a result read with :meth:`from_json` (the live
+    #: :class:`~hhra_phys.diagnose.Diagnosis` objects, with their arrays, are not saved).
+    saved_diagnoses: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
     def test(self) -> dict[str, float]:
         """The final model's scores on the untouched test part (``rmse``, ``vaf``, ...)."""
         return dict(self.test_scores.get("final", {}))
+
+    def report(self, path: str | Any, data: Any = None, overwrite: bool = False) -> Any:
+        """Write the Markdown report and its residual figures (``hhra-phys diagnose
+        --report``'s; :func:`hhra_phys.report.loop_report`).
+
+        Parameters
+        ----------
+        path : str or path-like
+            The report (``.md``); figures ``<stem>_before.png``, ``<stem>_after.png``
+            and, when discovery built terms, ``<stem>_discovery.png`` go beside it.
+        data : Dataset or sequence of Dataset, optional
+            The loop's record(s) (default: the ones :func:`augment` kept).
+        overwrite : bool
+            Replace existing files.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        from hhra_phys.report import loop_report
+
+        return loop_report(self, path, data=data, overwrite=overwrite)
 
     def to_json(self) -> dict[str, Any]:
         """The diagnose JSON.
@@ -133,7 +165,10 @@ class LoopResult:
         ``base`` and ``final`` hold ``est`` (estimation), ``val`` (the selection part,
         which chose the effects; the key keeps its old name) and ``test`` (the
         untouched test part) scores; ``test`` at top level is the final model's test
-        score, ``steps``, ``chosen``, ``skipped`` as before.
+        score, ``steps``, ``chosen``, ``skipped`` as before. ``fits`` holds the base
+        and final fits whole (:meth:`FitResult.to_json <hhra_phys.result.FitResult.to_json>`,
+        with the derived quantities), ``test_scores`` and ``loop_warnings`` what
+        :meth:`from_json` needs besides.
         """
         def part(res: FitResult, key: str) -> dict[str, Any]:
             out = {k: {m: res.metrics[k].get(m) for m in METRIC_KEYS}
@@ -155,6 +190,7 @@ class LoopResult:
         # its intervals were had (the directions the data cannot determine, with why).
         final["warnings"] = list(self.final.warnings)
         final["intervals"] = self.final.intervals
+        saved = self.saved_diagnoses
         return jsonable({
             "base": part(self.base, "base"),
             "test": ({m: self.test_scores["final"].get(m) for m in METRIC_KEYS}
@@ -162,14 +198,63 @@ class LoopResult:
             "steps": [s.to_json() for s in self.steps],
             "chosen": list(self.chosen),
             "final": final,
-            "diagnosis_before": self.diagnoses[0].to_json() if self.diagnoses else None,
+            "diagnosis_before": (self.diagnoses[0].to_json() if self.diagnoses
+                                 else saved.get("diagnosis_before")),
             "diagnosis_after": (self.final_diagnosis.to_json()
-                                if self.final_diagnosis is not None else None),
+                                if self.final_diagnosis is not None
+                                else saved.get("diagnosis_after")),
             "warnings": self.warnings + [w for w in self.final.warnings
                                          if w not in self.warnings],
             "skipped": dict(self.skipped),
             "settings": self.settings,
+            "fits": {"base": self.base.to_json(), "final": self.final.to_json()},
+            "test_scores": self.test_scores,
+            "loop_warnings": list(self.warnings),
         })
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any], source: str = "diagnose result") -> LoopResult:
+        """The result of :meth:`to_json`'s dictionary.
+
+        The fits, steps, choices, settings and scores come back; the diagnoses only as
+        their JSON summaries (:attr:`saved_diagnoses`), so :meth:`report` of a read
+        result has no evidence section and no figures.
+
+        Raises
+        ------
+        ParameterError
+            A dictionary without the whole fits (written before ``fits`` was kept).
+        """
+        if not isinstance(d.get("fits"), Mapping):
+            raise ParameterError(f"{source}: no 'fits' (a diagnose JSON written before the "
+                                 "fits were kept cannot be read back)")
+        return cls(
+            base=FitResult.from_json(d["fits"]["base"], source=f"{source} base fit"),
+            final=FitResult.from_json(d["fits"]["final"], source=f"{source} final fit"),
+            steps=[_step_from_json(s) for s in d.get("steps", [])],
+            chosen=list(d.get("chosen", [])),
+            diagnoses=[], final_diagnosis=None,
+            settings=dict(d.get("settings", {})),
+            warnings=list(d.get("loop_warnings", [])),
+            skipped=dict(d.get("skipped", {})),
+            test_scores={k: dict(v) for k, v in (d.get("test_scores") or {}).items()},
+            saved_diagnoses={k: d[k] for k in ("diagnosis_before", "diagnosis_after")
+                             if d.get(k) is not None},
+        )
+
+
+def _step_from_json(d: Mapping[str, Any]) -> Step:
+    """A :class:`Step` (or discovered one) of :meth:`Step.to_json`'s dictionary."""
+    own = {f.name for f in fields(Step)}
+    kw = {k: v for k, v in d.items() if k in own}
+    kw["ci95"] = {n: [math.nan if c is None else c for c in v]
+                  for n, v in (d.get("ci95") or {}).items()}
+    for k in ("criterion", "criterion_before", "val_rmse_before"):  # null: NaN when written
+        kw[k] = math.nan if kw.get(k) is None else kw[k]
+    if not d.get("discovered"):
+        return Step(**kw)
+    extra = ("expression", "uses", "method", "screening", "extrapolated")
+    return DiscoveredStep(**kw, **{k: d[k] for k in extra if k in d})
 
 
 @dataclass(frozen=True)
@@ -1093,7 +1178,9 @@ def augment(
     Ljung-Box, each with its own noise level).
     """
     opts = LoopOptions.of(options, **settings)
-    return _Loop(data, model, opts, validation, base, executor, progress).run()
+    res = _Loop(data, model, opts, validation, base, executor, progress).run()
+    res.data = data  # for LoopResult.report's figures
+    return res
 
 
 class _Loop:

@@ -32,8 +32,8 @@ Example: a user's two-tank process::
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
-from dataclasses import fields
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
 from typing import Any
 
 import casadi as ca
@@ -53,7 +53,35 @@ from hhra_phys.parts import (
     register_part,
 )
 
-__all__ = ["Model", "register_part", "MODEL_TYPES"]
+__all__ = ["DerivedQuantity", "Model", "register_part", "MODEL_TYPES"]
+
+@dataclass(frozen=True)
+class DerivedQuantity:
+    """A quantity a model derives from its parameters (a transfer-function coefficient,
+    a natural frequency), reported with a 95 % interval by the fit.
+
+    Attributes
+    ----------
+    unit : str
+        Its unit.
+    function : callable
+        ``function(values) -> value`` with ``values`` the model's parameters by name. It
+        must use only arithmetic and CasADi-compatible functions (``+ - * / **``,
+        ``casadi.sqrt``, ...): the fit calls it with CasADi symbols for the free
+        parameters to get its exact gradient (the delta method,
+        :func:`hhra_phys.result.derived_estimates`).
+    description : str
+        What it is, in words.
+    positive : bool
+        The quantity is positive by construction: its interval is taken on its
+        logarithm (asymmetric, never crossing zero, as the log-scaled parameters').
+    """
+
+    unit: str
+    function: Callable[[Mapping[str, Any]], Any]
+    description: str = ""
+    positive: bool = False
+
 
 #: Factor of 10 around a new nominal value for log-scaled bounds (:meth:`Model.with_nominal`).
 GROUP_SPAN = 10.0
@@ -238,6 +266,14 @@ class Model:
 
     def tf_coefficients_of(self, values: Mapping[str, float]) -> dict[str, float]:
         """A transfer function of the model from fitted values, if it defines one (else ``{}``)."""
+        return {}
+
+    def derived_quantities(self) -> dict[str, DerivedQuantity]:
+        """Quantities derived from the parameters that a fit reports with intervals.
+
+        The generic model declares none (``{}``); a model overrides this (the HHRA:
+        the paper's transfer-function coefficients ``a``, ``b``, ``c``, ``kv``).
+        """
         return {}
 
     def physical_view(

@@ -197,22 +197,16 @@ def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
     """
     if obj is None or isinstance(obj, str):
         return obj
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, complex | np.complexfloating):
-        return [jsonable(obj.real), jsonable(obj.imag)]
+    if isinstance(obj, _SCALARS):
+        return _scalar(obj)
     if isinstance(obj, Mapping):
         return {_key(k): jsonable(v, default=default) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    elif isinstance(obj, set | frozenset):
+        obj = sorted(obj)
     if isinstance(obj, list | tuple):
         return [jsonable(v, default=default) for v in obj]
-    if isinstance(obj, set | frozenset):
-        return [jsonable(v, default=default) for v in sorted(obj)]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist(), default=default)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return jsonable(dataclasses.asdict(obj), default=default)
     if isinstance(obj, os.PathLike):
@@ -220,6 +214,20 @@ def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:
     if default is not None:
         return jsonable(default(obj))
     raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+
+_SCALARS = (bool, np.bool_, int, np.integer, float, np.floating, complex, np.complexfloating)
+
+
+def _scalar(obj: Any) -> Any:
+    """A number as a plain JSON number (``None`` for NaN and infinities)."""
+    if isinstance(obj, bool | np.bool_):  # before int: bool is an int
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    return [_scalar(float(obj.real)), _scalar(float(obj.imag))]
 
 
 def _key(key: Any) -> str:

@@ -13,25 +13,43 @@ cannot tell them apart, and the pseudo-inverse's finite variance along such a
 direction would only reflect its cut-off, not the data. :func:`weak_directions`
 lists those directions; :func:`redundant` refuses a candidate whose new parameters
 only move along one with a parameter the model already had.
+
+Typed estimates. :attr:`FitResult.estimates` gives every parameter as an
+:class:`Estimate` (value, unit, 95 % interval, status ``free``/``fixed``/``at-edge``);
+:attr:`FitResult.derived` the quantities the model derives from its parameters
+(:meth:`~hhra_phys.model.Model.derived_quantities`, the HHRA's ``a``, ``b``, ``c``,
+``kv``) with intervals by the delta method (:func:`derived_estimates`): the exact
+gradient of the quantity (CasADi) times the covariance of the free parameters,
+:attr:`FitResult.covariance`.
+
+Serialising. :meth:`FitResult.to_json` / :meth:`FitResult.from_json` are the one pair
+that turns a result into the fit JSON and back; :meth:`FitResult.save`,
+:meth:`FitResult.load`, the CLI and the loop's result
+(:meth:`hhra_phys.loop.LoopResult.to_json`) go through them.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import casadi as ca
 import numpy as np
 
 from hhra_phys.errors import DataError
-from hhra_phys.model import Model
+from hhra_phys.model import DerivedQuantity, Model
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.simulate import Simulator
 
 __all__ = [
+    "Estimate",
     "FitResult",
+    "derived_estimates",
     "redundant",
     "uncertainty",
     "weak_directions",
@@ -45,6 +63,173 @@ CORRELATION_LIMIT = 0.999
 #: Share of a weak direction (its unit eigenvector's component) from which a
 #: parameter counts as involved in it.
 WEAK_SHARE = 0.3
+#: Two-sided 95 % quantile of the normal distribution (the intervals' half-width in
+#: standard deviations).
+Z95 = 1.96
+
+Status = Literal["free", "fixed", "at-edge"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One estimated (or held) quantity of a fit.
+
+    Attributes
+    ----------
+    value : float
+        The value, in ``unit``.
+    unit : str
+        Its unit.
+    ci95 : (float, float) or None
+        95 % confidence interval (``None`` for a fixed quantity; ``(nan, nan)`` when the
+        data do not determine it).
+    status : {"free", "fixed", "at-edge"}
+        ``"fixed"``: held, not fitted (a derived quantity: it depends on no free
+        parameter); ``"at-edge"``: fitted, but it ended at an edge of its box (for a
+        derived quantity: one of the free parameters it depends on did), so the
+        value and interval are not meaningful; ``"free"``: fitted.
+    std : float or None
+        Standard deviation in ``unit`` (linearised; ``None`` when not computed).
+    description : str
+        What it is (derived quantities).
+    """
+
+    value: float
+    unit: str = ""
+    ci95: tuple[float, float] | None = None
+    status: Status = "free"
+    std: float | None = None
+    description: str = ""
+
+    @property
+    def free(self) -> bool:
+        """Fitted (``"free"`` or ``"at-edge"``), not held."""
+        return self.status != "fixed"
+
+    @property
+    def determined(self) -> bool:
+        """Has a finite interval."""
+        return self.ci95 is not None and all(math.isfinite(c) for c in self.ci95)
+
+    def to_json(self) -> dict[str, Any]:
+        """``value``, ``unit``, ``ci95`` (``None`` for fixed, ``[null, null]``
+        undetermined), ``free``, ``status``, and ``std``/``description`` when set."""
+        out: dict[str, Any] = {"value": self.value, "unit": self.unit,
+                               "ci95": list(self.ci95) if self.ci95 is not None else None,
+                               "free": self.free, "status": self.status}
+        if self.std is not None:
+            out["std"] = self.std
+        if self.description:
+            out["description"] = self.description
+        return out
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> Estimate:
+        """The estimate of :meth:`to_json` (``null`` numbers read as NaN)."""
+        ci = d.get("ci95")
+        status = d.get("status") or ("free" if d.get("free", True) else "fixed")
+        std = d.get("std")
+        return cls(value=_num(d["value"]), unit=d.get("unit", ""),
+                   ci95=None if ci is None else (_num(ci[0]), _num(ci[1])),
+                   status=status, std=None if "std" not in d else _num(std),
+                   description=d.get("description", ""))
+
+
+def derived_estimates(
+    quantities: Mapping[str, DerivedQuantity],
+    values: Mapping[str, float],
+    free: Sequence[str],
+    covariance: np.ndarray | None,
+    at_edge: Sequence[str] = (),
+) -> dict[str, Estimate]:
+    """Values and 95 % intervals of derived quantities by the delta method.
+
+    Each quantity ``g(theta)`` is built once with CasADi symbols for the free
+    parameters (every other parameter at its value), its exact gradient ``dg`` taken
+    by automatic differentiation, and its variance is ``dg C dg^T`` with ``C`` the
+    covariance of the free parameters (physical units). The delta method is invariant
+    to the fitting coordinates to first order, so the log-scaled groups need no
+    special care. A quantity declared ``positive`` gets its interval on its logarithm,
+    ``g exp(+-1.96 sd/g)``; the others ``g +- 1.96 sd``.
+
+    Parameters
+    ----------
+    quantities : mapping of str to DerivedQuantity
+        What to derive (:meth:`~hhra_phys.model.Model.derived_quantities`).
+    values : mapping of str to float
+        Every parameter the quantities use, by name.
+    free : sequence of str
+        Names of the free parameters, in the order of ``covariance``; names that are
+        not keys of ``values`` (initial states, another record's parameters) are
+        skipped.
+    covariance : ndarray, shape (len(free), len(free)), or None
+        Covariance of the free parameters, physical units (``inf``/``nan`` where the
+        data do not determine them). ``None``: no intervals.
+    at_edge : sequence of str
+        Free parameters that ended at a box edge (their quantities are ``"at-edge"``).
+
+    Returns
+    -------
+    dict of str to Estimate
+        A quantity that uses an undetermined parameter has interval ``(nan, nan)``;
+        one that uses no free parameter is ``"fixed"``; one that cannot be
+        evaluated (a parameter missing) is left out.
+    """
+    idx = [i for i, n in enumerate(free) if n in values]
+    names = [free[i] for i in idx]
+    sym = ca.SX.sym("theta", len(names))
+    env: dict[str, Any] = dict(values)
+    env.update({n: sym[k] for k, n in enumerate(names)})
+    point = np.array([float(values[n]) for n in names])
+    cov = (np.asarray(covariance, dtype=float)[np.ix_(idx, idx)] if covariance is not None
+           else None)
+    out: dict[str, Estimate] = {}
+    for key, q in quantities.items():
+        try:
+            expr = ca.SX(q.function(env))
+        except (KeyError, TypeError):
+            continue
+        fn = ca.Function("g", [sym], [expr, ca.jacobian(expr, sym)])
+        val, grad = (np.asarray(a, dtype=float).ravel() for a in fn(point))
+        out[key] = _delta(q, float(val[0]), grad, cov,
+                          [names[k] for k in np.flatnonzero(grad)], at_edge)
+    return out
+
+
+def _delta(q: DerivedQuantity, value: float, grad: np.ndarray, cov: np.ndarray | None,
+           uses: list[str], at_edge: Sequence[str]) -> Estimate:
+    """The :class:`Estimate` of one derived quantity from its gradient."""
+    if not uses:
+        return Estimate(value, q.unit, None, "fixed", None, q.description)
+    status: Status = "at-edge" if any(n in at_edge for n in uses) else "free"
+    if cov is None:
+        return Estimate(value, q.unit, None, status, None, q.description)
+    used = np.flatnonzero(grad)
+    sub = cov[np.ix_(used, used)]
+    if not np.all(np.isfinite(sub)):  # a parameter the data do not determine
+        return Estimate(value, q.unit, (math.nan, math.nan), status, math.inf, q.description)
+    sd = float(math.sqrt(max(float(grad[used] @ sub @ grad[used]), 0.0)))
+    if q.positive and value > 0:
+        rel = sd / value
+        ci = (value * math.exp(-Z95 * rel), value * math.exp(Z95 * rel))
+    else:
+        ci = (value - Z95 * sd, value + Z95 * sd)
+    return Estimate(value, q.unit, ci, status, sd, q.description)
+
+
+def physical_covariance(cov_z: np.ndarray, slopes: np.ndarray) -> np.ndarray:
+    """Covariance in physical units from the fitting coordinates' (``D cov_z D``).
+
+    Parameters
+    ----------
+    cov_z : ndarray, shape (n, n)
+        Covariance of the fitting coordinates (:func:`uncertainty`).
+    slopes : ndarray, shape (n,)
+        ``d theta_i / d z_i`` at the optimum (the coordinate maps are elementwise).
+    """
+    d = np.asarray(slopes, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(cov_z, dtype=float) * np.outer(d, d)
 
 
 def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
@@ -139,6 +324,7 @@ def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str
                     f"{', '.join(b)}): {d['reason']}")
     return None
 
+FORMAT_NAME = "hhra-phys fit result"
 FORMAT_VERSION = 1
 
 
@@ -166,19 +352,18 @@ def uncertainty(
     warnings : list of str
     """
     n_obs, n = J.shape
-    dof = max(n_obs - n, 1)
-    warnings: list[str] = []
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         # A diverged simulation: no curvature to read, every interval is undetermined.
-        warnings.append("the residual or its Jacobian is not finite at the result (the "
-                        "simulation diverges there): confidence intervals are undetermined")
         cov = np.full((n, n), np.nan)
         np.fill_diagonal(cov, np.inf)
-        return cov, np.eye(n), warnings
-    s2 = float(r @ r) / dof
+        return cov, np.eye(n), [
+            "the residual or its Jacobian is not finite at the result (the simulation "
+            "diverges there): confidence intervals are undetermined"]
+    s2 = float(r @ r) / max(n_obs - n, 1)
     info = J.T @ J
     scale = np.sqrt(np.diag(info))
-    dead = np.array([not (np.isfinite(scale[i]) and scale[i] > 0) for i in range(n)], dtype=bool)
+    dead = ~(np.isfinite(scale) & (scale > 0))
+    warnings: list[str] = []
     if dead.any():
         warnings.append(
             f"parameters {', '.join(names[i] for i in np.flatnonzero(dead))} do not affect the "
@@ -189,43 +374,27 @@ def uncertainty(
     eigval, eigvec = np.linalg.eigh(normed)
     with np.errstate(over="ignore"):  # an exactly singular matrix: condition inf
         cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
-    if cond > IDENTIFIABILITY_COND or dead.any():
-        if cond > IDENTIFIABILITY_COND and not dead.all():
-            weak = np.abs(eigvec[:, 0])
-            involved = [names[i] for i in np.argsort(-weak) if weak[i] > 0.3]
-            warnings.append(
-                f"information matrix near singular (condition {cond:.2e}): "
-                f"{', '.join(involved)} are not identifiable separately from these data"
-            )
-        cov_n = np.linalg.pinv(normed, rcond=1e-12)
-    else:
-        try:
-            cov_n = np.linalg.inv(normed)
-        except np.linalg.LinAlgError:  # exactly singular although well scaled
-            cov_n = np.linalg.pinv(normed, rcond=1e-12)
-    # Parameters along a direction the data cannot determine: the pseudo-inverse
-    # gives them a finite variance set by its cut-off, not by the data. Their
-    # correlations are kept from it (they say which parameters trade off), their
-    # variances become infinite (no interval).
-    unresolved = np.zeros(n, dtype=bool)
-    if cond > IDENTIFIABILITY_COND and not dead.all():
-        for k in range(n):
-            if eigval[-1] / max(eigval[k], np.finfo(float).tiny) <= IDENTIFIABILITY_COND:
-                break
-            unresolved |= np.abs(eigvec[:, k]) >= WEAK_SHARE
-        unresolved &= ~dead
-    cov = s2 * cov_n / np.outer(scale, scale)
+    weak = cond > IDENTIFIABILITY_COND and not dead.all()
+    if weak:
+        w = np.abs(eigvec[:, 0])
+        involved = [names[i] for i in np.argsort(-w) if w[i] > 0.3]
+        warnings.append(
+            f"information matrix near singular (condition {cond:.2e}): "
+            f"{', '.join(involved)} are not identifiable separately from these data"
+        )
+    cov = s2 * _inverse(normed, singular=cond > IDENTIFIABILITY_COND or dead.any()) / np.outer(
+        scale, scale)
     # A parameter the output does not see has no variance to report: infinite, so its
     # interval is marked undetermined rather than given the pseudo-inverse's zero.
     cov[dead, :] = np.nan
     cov[:, dead] = np.nan
     cov[dead, dead] = np.inf
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
-    corr = np.where(np.isfinite(np.outer(sd, sd)), corr, 0.0)
-    corr = np.where(np.isfinite(corr), corr, 0.0)
-    np.fill_diagonal(corr, 1.0)
+    corr = _correlation(cov)
+    # Parameters along a direction the data cannot determine: the pseudo-inverse
+    # gives them a finite variance set by its cut-off, not by the data. Their
+    # correlations are kept from it (they say which parameters trade off), their
+    # variances become infinite (no interval).
+    unresolved = _unresolved(eigval, eigvec) & ~dead if weak else np.zeros(n, dtype=bool)
     if unresolved.any():
         cov[unresolved, unresolved] = np.inf
         warnings.append(
@@ -233,14 +402,44 @@ def uncertainty(
             "interval, the data do not determine them (a direction of the information "
             "matrix with condition above "
             f"{IDENTIFIABILITY_COND:.0e}; see the warning above)")
-    for i in range(n):
-        for j in range(i + 1, n):
-            if abs(corr[i, j]) > CORRELATION_LIMIT:
-                warnings.append(
-                    f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.4f}: "
-                    "the data hardly separate them"
-                )
+    warnings += [f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.4f}: "
+                 "the data hardly separate them"
+                 for i in range(n) for j in range(i + 1, n)
+                 if abs(corr[i, j]) > CORRELATION_LIMIT]
     return cov, corr, warnings
+
+
+def _inverse(normed: np.ndarray, singular: bool) -> np.ndarray:
+    """Inverse of the scaled information matrix (pseudo-inverse when singular)."""
+    if not singular:
+        try:
+            return np.linalg.inv(normed)
+        except np.linalg.LinAlgError:  # exactly singular although well scaled
+            pass
+    return np.linalg.pinv(normed, rcond=1e-12)
+
+
+def _unresolved(eigval: np.ndarray, eigvec: np.ndarray) -> np.ndarray:
+    """Parameters with a share of at least ``WEAK_SHARE`` in a too-weak direction."""
+    out = np.zeros(eigval.size, dtype=bool)
+    for k in range(eigval.size):
+        with np.errstate(over="ignore"):  # an exactly singular direction: condition inf
+            cond = eigval[-1] / max(eigval[k], np.finfo(float).tiny)
+        if cond <= IDENTIFIABILITY_COND:
+            break
+        out |= np.abs(eigvec[:, k]) >= WEAK_SHARE
+    return out
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    """Correlation matrix of ``cov`` (0 where a variance is not finite)."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.where(np.isfinite(np.outer(sd, sd)), corr, 0.0)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return corr
 
 
 @dataclass
@@ -303,6 +502,16 @@ class FitResult:
         ``"diverged"`` when the simulation with the fitted parameters does not stay
         finite on the estimation record: the values are where the search stopped, the
         metrics are not finite and the result must not be used (a warning says why).
+    records : list of dict
+        Per record of a several-record fit (see :func:`hhra_phys.fit.records_result`).
+    covariance : ndarray or None
+        Linearised covariance of the free parameters in physical units, in the order
+        of :attr:`free` (``inf`` on the diagonal of parameters the data do not
+        determine); ``None`` for a result saved before it was kept.
+    derived : dict of str to Estimate
+        The model's derived quantities (:meth:`~hhra_phys.model.Model.derived_quantities`;
+        the HHRA's transfer-function coefficients ``a``, ``b``, ``c``, ``kv``) with 95 %
+        intervals by the delta method (:func:`derived_estimates`).
     """
 
     model_spec: dict[str, Any]
@@ -326,6 +535,8 @@ class FitResult:
     problem: Any = field(default=None, repr=False, compare=False)
     status: str = "ok"
     records: list[dict[str, Any]] = field(default_factory=list)
+    covariance: np.ndarray | None = field(default=None, repr=False)
+    derived: dict[str, Estimate] = field(default_factory=dict)
 
     # -- reuse ------------------------------------------------------------------------
     @property
@@ -428,21 +639,40 @@ class FitResult:
         return sim.simulate(data.u, p, x0=x0)
 
     @property
-    def params(self) -> dict[str, dict[str, Any]]:
-        """``{name: {"value", "unit", "ci95", "free"}}`` for every parameter."""
+    def estimates(self) -> dict[str, Estimate]:
+        """Every parameter as an :class:`Estimate`: the model's (free and fixed), then the
+        fitted initial-state and per-record parameters."""
+        edges = self.intervals.get("at_edge", {})
+        names = list(self.values) + [n for n in self.free if n not in self.values]
+        sd = self._physical_std()
         out = {}
-        for name, value in self.values.items():
-            ci = self.ci95.get(name)
-            out[name] = {
-                "value": value,
-                "unit": self.units.get(name, ""),
-                "ci95": list(ci) if ci is not None else None,
-                "free": name in self.free,
-            }
-        for name in self.free:
-            if name not in out:  # initial-state and per-record parameters
-                out[name] = {"value": self.x0_param(name), "unit": self.units.get(name, ""),
-                             "ci95": list(self.ci95[name]), "free": True}
+        for name in names:
+            value = self.values[name] if name in self.values else self.x0_param(name)
+            unit = self.units.get(name, "")
+            if name not in self.free:
+                out[name] = Estimate(value, unit, None, "fixed")
+                continue
+            ci = self.ci95.get(name, (math.nan, math.nan))
+            out[name] = Estimate(value, unit, (float(ci[0]), float(ci[1])),
+                                 "at-edge" if name in edges else "free", sd.get(name))
+        return out
+
+    def _physical_std(self) -> dict[str, float]:
+        if self.covariance is None or np.shape(self.covariance) != (len(self.free),) * 2:
+            return {}
+        var = np.diag(np.asarray(self.covariance, dtype=float))
+        return {n: float(math.sqrt(v)) if v >= 0 else math.nan
+                for n, v in zip(self.free, var, strict=True)}
+
+    @property
+    def params(self) -> dict[str, dict[str, Any]]:
+        """``{name: {"value", "unit", "ci95", "free", "status"}}`` for every parameter
+        (the fit JSON's ``params``; :attr:`estimates` as dictionaries)."""
+        out = {}
+        for name, est in self.estimates.items():
+            out[name] = {"value": est.value, "unit": est.unit,
+                         "ci95": list(est.ci95) if est.ci95 is not None else None,
+                         "free": est.free, "status": est.status}
         return out
 
     def x0_param(self, name: str) -> float:
@@ -473,6 +703,7 @@ class FitResult:
             ci_text = "fixed" if not ci else (
                 f"[{ci[0]:.6g}, {ci[1]:.6g}]" if _finite(ci) else "undetermined")
             lines.append(f"{name:<12} {info['value']:>13.6g} {info['unit']:<10} {ci_text:>29}")
+        lines += self._derived_lines()
         for part in ("est", "val"):
             m = self.metrics.get(part) or {}
             if m:
@@ -487,14 +718,33 @@ class FitResult:
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
+    def _derived_lines(self) -> list[str]:
+        """The summary's rows of derived quantities (delta-method intervals)."""
+        if not self.derived:
+            return []
+        lines = [f"{'derived':<12} {'value':>13} {'unit':<10} {'95 % CI (delta method)':>29}"]
+        for name, est in self.derived.items():
+            ci = est.ci95
+            ci_text = ("fixed" if ci is None else
+                       f"[{ci[0]:.6g}, {ci[1]:.6g}]" if est.determined else "undetermined")
+            lines.append(f"{name:<12} {est.value:>13.6g} {est.unit:<10} {ci_text:>29}")
+        return lines
+
     # -- persistence --------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
-        """JSON-able dictionary (the layout the CLI writes)."""
-        return {
-            "format": "hhra-phys fit result",
+        """The fit JSON (strict JSON types, NaN and infinities as ``null``).
+
+        Its keys are kept across versions (outside checks use ``params`` -> ``value``,
+        ``ci95``, ``free``); ``derived`` holds the derived quantities
+        (:attr:`derived`), ``covariance`` the free parameters' (:attr:`covariance`).
+        :meth:`from_json` reads it back.
+        """
+        return jsonable({
+            "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
             "status": self.status,
             "params": self.params,
+            "derived": {k: v.to_json() for k, v in self.derived.items()},
             "tf": self.tf,
             "est": self.metrics.get("est", {}),
             "val": self.metrics.get("val", {}),
@@ -503,6 +753,8 @@ class FitResult:
             "free": self.free,
             "std_fit_coordinates": self.std,
             "correlation": np.asarray(self.correlation).tolist(),
+            "covariance": (None if self.covariance is None
+                           else np.asarray(self.covariance).tolist()),
             "warnings": self.warnings,
             "history": self.history,
             "x0": self.x0,
@@ -512,35 +764,38 @@ class FitResult:
             "created": self.created,
             "intervals": self.intervals,
             **({"records": self.records} if self.records else {}),
-        }
-
-    def save(self, path: str | Path, overwrite: bool = False) -> Path:
-        """Write the result as JSON; an existing file is kept unless ``overwrite``."""
-        p = check_output_path(path, overwrite=overwrite, what="fit result")
-        atomic_write_text(p, json.dumps(jsonable(self.to_json()), indent=1))
-        return p
+        })
 
     @classmethod
-    def load(cls, path: str | Path) -> FitResult:
-        """Read a result written by :meth:`save`; the model is rebuilt from it."""
-        p = Path(path)
-        if not p.exists():
-            raise DataError(f"{p}: no such fit result file")
+    def from_json(cls, d: Mapping[str, Any], source: str = "fit result") -> FitResult:
+        """The result of :meth:`to_json`'s dictionary; the model is rebuilt from it.
+
+        ``null`` numbers (NaN, infinities) come back as NaN. ``source`` names the
+        input in errors.
+
+        Raises
+        ------
+        DataError
+            Not a fit result (no ``format``), or a key it needs is missing.
+        """
+        if d.get("format") != FORMAT_NAME:
+            raise DataError(f"{source}: not an hhra-phys fit result (missing 'format')")
         try:
-            d = json.loads(p.read_text())
-        except json.JSONDecodeError as exc:
-            raise DataError(f"{p}: not a JSON fit result ({exc})") from None
-        if d.get("format") != "hhra-phys fit result":
-            raise DataError(f"{p}: not an hhra-phys fit result (missing 'format')")
-        params = d["params"]
-        model = Model.from_json(d["model"])
-        values = {n: float(params[n]["value"]) for n in model.params.names}
+            params = d["params"]
+            model = Model.from_json(d["model"])
+            values = {n: float(params[n]["value"]) for n in model.params.names}
+            free = list(d["free"])
+        except KeyError as exc:
+            raise DataError(f"{source}: not a complete hhra-phys fit result (no {exc}); "
+                            "give the JSON a fit wrote (FitResult.save, 'hhra-phys fit "
+                            "--json')") from None
+        cov = d.get("covariance")
         return cls(
             model_spec=d["model"],
             values=values,
-            free=list(d["free"]),
+            free=free,
             units={n: v["unit"] for n, v in params.items()},
-            ci95={n: tuple(np.nan if c is None else c for c in v["ci95"])
+            ci95={n: (_num(v["ci95"][0]), _num(v["ci95"][1]))
                   for n, v in params.items() if v.get("ci95")},
             std=d.get("std_fit_coordinates", {}),
             correlation=np.array(d.get("correlation", [])),
@@ -557,7 +812,37 @@ class FitResult:
             intervals=d.get("intervals", {"method": "linear"}),
             status=d.get("status", "ok"),
             records=list(d.get("records", [])),
+            covariance=None if cov is None else np.array(
+                [[_num(c) for c in row] for row in cov], dtype=float).reshape(
+                    len(free), len(free)),
+            derived={k: Estimate.from_json(v) for k, v in (d.get("derived") or {}).items()},
         )
+
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the result as JSON (:meth:`to_json`); an existing file is kept unless
+        ``overwrite``."""
+        p = check_output_path(path, overwrite=overwrite, what="fit result")
+        atomic_write_text(p, json.dumps(self.to_json(), indent=1))
+        return p
+
+    @classmethod
+    def load(cls, path: str | Path) -> FitResult:
+        """Read a result written by :meth:`save` (:meth:`from_json`); the model is rebuilt."""
+        p = Path(path)
+        if not p.exists():
+            raise DataError(f"{p}: no such fit result file")
+        try:
+            d = json.loads(p.read_text())
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{p}: not a JSON fit result ({exc})") from None
+        if not isinstance(d, dict):
+            raise DataError(f"{p}: not an hhra-phys fit result (missing 'format')")
+        return cls.from_json(d, source=str(p))
+
+
+def _num(x: Any) -> float:
+    """A JSON number; ``null`` (NaN or an infinity when written) as NaN."""
+    return math.nan if x is None else float(x)
 
 
 def _finite(values: Any) -> bool:

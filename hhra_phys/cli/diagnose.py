@@ -31,7 +31,7 @@ from hhra_phys.cli._guards import (
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
-from hhra_phys.outputs import atomic_write_text, jsonable
+from hhra_phys.outputs import atomic_write_text
 
 
 def register(subparsers: Any) -> None:
@@ -103,15 +103,9 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the loop and write the outputs; 0 on success, 2 on a usage error, 1 otherwise."""
-    from hhra_phys.cli._common import parse_names
-    from hhra_phys.loop import augment
+    from hhra_phys.report import figure_paths
 
-    figs: list[str | None] = []
-    if args.report:
-        stem = Path(args.report).with_suffix("")
-        figs = [f"{stem}_before.png", f"{stem}_after.png"]
-        if not args.no_discover:
-            figs.append(f"{stem}_discovery.png")
+    figs = figure_paths(args.report, discover=not args.no_discover) if args.report else []
     try:
         check_arguments(args, {"--json": args.json, "--report": args.report,
                                **{f"--report's figure {Path(f).name}": f for f in figs}})
@@ -120,78 +114,87 @@ def run(args: argparse.Namespace) -> int:
         if isinstance(args.split, float) and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
-        added = user_effects(args.effects_from)
-        if added:
-            print(f"registered effects: {', '.join(added)}", file=sys.stderr)
-        records, validation, data_warnings = _records(args)
-        data = records[0]
-        if args.split is not None:
-            args.split = split_fraction(args.split, [len(d) for d in records])
-        model, bounds = model_for(args, data)
-        check_effects_build(model, data, added)
-        for other in records[1:] + (validation or []):  # the widest automatic box of all
-            for k, (lo, hi) in model_for(args, other)[1].items():
-                if k in bounds:
-                    bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
-        split = args.split if args.split is not None else 0.5
-        several = len(records) > 1 or validation is not None
-        what = (f"{len(records)} records ({sum(len(d) for d in records)} samples" if several
-                else f"{data.name or data.source or 'record'} ({len(data)} samples")
-        print(f"diagnosing {what}, split {split})", file=sys.stderr)
-        with executor(args.workers, args.dask) as ex:
-            res = augment(
-                records if several else data, model, validation=validation, split=split,
-                test=args.test,
-                candidates=[] if args.effects == "none" else parse_names(args.effects),
-                max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
-                max_iter=args.iters, seed=args.seed, margin=args.margin,
-                noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
-                progress=lambda s: print(s, file=sys.stderr, flush=True),
-                discover=not args.no_discover, discover_kw={"method": args.discover_method},
-                backward=not args.no_backward,
-            )
-        res.warnings.extend(data_warnings)
-        for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
-            if "failed" in str(why) or "does not assemble" in str(why):
-                print(f"warning: candidate {name} was dropped: {why}", file=sys.stderr)
+        res = _augment(args)
         out = res.to_json()
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
-        for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
-            print(f"warning: {w}", file=sys.stderr)
-        say(f"chosen: {', '.join(res.chosen) or 'none'}")
-        for part in ("est", "val", "test"):
-            b, f = out["base"].get(part, {}), out["final"].get(part, {})
-            if not f:
-                continue
-            say(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
-                  f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
-        for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
-                          strict=True):
-            say(f"record {rf['name']}: " + ", ".join(
-                f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
-                for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
+        _print_summary(res, out, say)
         with all_or_nothing([args.json, args.report, *figs]):  # Ctrl-C: none of them stays
             if args.json == STDOUT:
-                print(json.dumps(jsonable(out), indent=2), flush=True)
+                print(json.dumps(out, indent=2), flush=True)
             elif args.json:
-                atomic_write_text(args.json, json.dumps(jsonable(out), indent=2))
+                atomic_write_text(args.json, json.dumps(out, indent=2))
                 print(f"wrote {args.json}")
             if args.report:
-                from hhra_phys.diagnose import plot_loop_residuals
-
-                paths = list(plot_loop_residuals(res, records if several else data, figs[0],
-                                                 figs[1], args.overwrite))
-                found = [s for s in res.steps if getattr(s, "residuals", None)]
-                if found:
-                    from hhra_phys.discover import plot_discovery
-
-                    paths.append(plot_discovery(found, figs[2], args.overwrite))
-                atomic_write_text(args.report, markdown_report(res, paths, args.report))
-                say(f"wrote {args.report}")
+                say(f"wrote {res.report(args.report, overwrite=args.overwrite)}")
     except (HHRAError, OSError) as exc:
         return report_error("diagnose", exc)
     return 0
+
+
+def _augment(args: argparse.Namespace) -> Any:
+    """Read the records, build the model and run :func:`~hhra_phys.loop.augment`."""
+    from hhra_phys.cli._common import parse_names
+    from hhra_phys.loop import augment
+
+    added = user_effects(args.effects_from)
+    if added:
+        print(f"registered effects: {', '.join(added)}", file=sys.stderr)
+    records, validation, data_warnings = _records(args)
+    data = records[0]
+    if args.split is not None:
+        args.split = split_fraction(args.split, [len(d) for d in records])
+    model, bounds = model_for(args, data)
+    check_effects_build(model, data, added)
+    for other in records[1:] + (validation or []):  # the widest automatic box of all
+        for k, (lo, hi) in model_for(args, other)[1].items():
+            if k in bounds:
+                bounds[k] = (min(bounds[k][0], lo), max(bounds[k][1], hi))
+    split = args.split if args.split is not None else 0.5
+    several = len(records) > 1 or validation is not None
+    what = (f"{len(records)} records ({sum(len(d) for d in records)} samples" if several
+            else f"{data.name or data.source or 'record'} ({len(data)} samples")
+    print(f"diagnosing {what}, split {split})", file=sys.stderr)
+    with executor(args.workers, args.dask) as ex:
+        res = augment(
+            records if several else data, model, validation=validation, split=split,
+            test=args.test,
+            candidates=[] if args.effects == "none" else parse_names(args.effects),
+            max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
+            max_iter=args.iters, seed=args.seed, margin=args.margin,
+            noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
+            progress=lambda s: print(s, file=sys.stderr, flush=True),
+            discover=not args.no_discover, discover_kw={"method": args.discover_method},
+            backward=not args.no_backward,
+        )
+    res.warnings.extend(data_warnings)
+    for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
+        if "failed" in str(why) or "does not assemble" in str(why):
+            print(f"warning: candidate {name} was dropped: {why}", file=sys.stderr)
+    return res
+
+
+def _print_summary(res: Any, out: dict[str, Any], say: Any) -> None:
+    """Warnings (stderr), the chosen effects, errors before -> after, per record, and the
+    final fit's derived quantities with their intervals."""
+    for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
+        print(f"warning: {w}", file=sys.stderr)
+    say(f"chosen: {', '.join(res.chosen) or 'none'}")
+    for part in ("est", "val", "test"):
+        b, f = out["base"].get(part, {}), out["final"].get(part, {})
+        if f:
+            say(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
+                f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
+    for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
+                      strict=True):
+        say(f"record {rf['name']}: " + ", ".join(
+            f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
+            for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
+    for name, est in res.final.derived.items():
+        if est.free:
+            ci = est.ci95 or (math.nan, math.nan)
+            say(f"derived {name} = {_fmt(est.value)} {est.unit}, 95 % CI "
+                f"[{_fmt(ci[0])}, {_fmt(ci[1])}]")
 
 
 def user_effects(sources: list[str] | None) -> list[str]:
@@ -265,114 +268,3 @@ def _fmt(v: Any, digits: int = 4) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "-"
     return f"{v:.{digits}g}"
-
-
-def markdown_report(res: Any, figures: list[str | None], report_path: str) -> str:
-    """The Markdown report of a :class:`~hhra_phys.loop.LoopResult`."""
-    out = res.to_json()
-    ds = res.settings["data"]
-    lines = [f"# Residual diagnosis of {ds['name'] or 'the record'}", "",
-             f"{ds['n']} samples: estimation {ds.get('n_est')}, selection {ds.get('n_sel')}, "
-             f"test {ds.get('n_test')} (the test part chooses nothing; 'val' is the selection "
-             f"part), seed {res.settings['seed']}; accept an effect when the selection RMSE "
-             f"falls by {100 * res.settings['margin']:.0f} % or more, by more than the noise "
-             f"allowance (noise_tol {res.settings.get('noise_tol')}), and "
-             f"{res.settings['criterion'].upper()} on estimation agrees. Stopped: "
-             f"{res.settings.get('stop')}.", "",
-             f"**Chosen effects:** {', '.join(res.chosen) or 'none'}", "",
-             "## Error before and after", "",
-             "| part | model | RMSE | VAF [%] | MSE | ITAE |", "|---|---|---|---|---|---|"]
-    for part in ("est", "val", "test"):
-        for label, key in (("base", "base"), ("final", "final")):
-            if part not in out[key]:
-                continue
-            m = out[key].get(part, {})
-            lines.append(f"| {part} | {label} | {_fmt(m.get('rmse'))} | {_fmt(m.get('vaf'))} | "
-                         f"{_fmt(m.get('mse'))} | {_fmt(m.get('itae'))} |")
-    if out["final"].get("records"):
-        lines += ["", "Per record (the rows above pool all records' samples):", "",
-                  "| record | part | base RMSE | final RMSE |", "|---|---|---|---|"]
-        for rb, rf in zip(out["base"]["records"], out["final"]["records"], strict=True):
-            for part in ("est", "sel", "test"):
-                if rf[part].get("rmse") is not None:
-                    lines.append(f"| {rf['name']} | {part} | {_fmt(rb[part]['rmse'])} | "
-                                 f"{_fmt(rf[part]['rmse'])} |")
-    if res.skipped.get("discovery"):
-        lines += ["", f"Discovery skipped: {res.skipped['discovery']}."]
-    lines += ["", "## Effects tried", "",
-              "| round | effect | evidence score | detectability | val RMSE before -> after | "
-              "accepted | notes |", "|---|---|---|---|---|---|---|"]
-    for s in res.steps:
-        ev = s.evidence
-        notes = "; ".join(s.notes) or ""
-        lines.append(f"| {s.round} | {s.effect} | {_fmt(ev.get('score'), 3)} | "
-                     f"{_fmt(ev.get('detectability'), 3)} | {_fmt(s.val_rmse_before)} -> "
-                     f"{_fmt(s.val.get('rmse'))} | {'yes' if s.accepted else 'no'} | "
-                     f"{s.reason}{'; ' + notes if notes else ''} |")
-    if res.diagnoses:
-        lines += ["", "## Evidence of the first round (base model)", "", "```",
-                  res.diagnoses[0].summary(), "```", ""]
-        for e in res.diagnoses[0].ranked():
-            regs = ", ".join(f"{k} r={v:.2f}" for k, v in e.regressors.items())
-            lines.append(f"- **{e.name}**: {e.signature}. Regressors: {regs or '-'}."
-                         f"{' ' + e.note if e.note else ''}")
-    lines += ["", "## Accepted effects", ""]
-    if not res.chosen:
-        lines.append("None: no candidate lowered the validation error clearly with the "
-                     "information criterion agreeing.")
-    for s in res.steps:
-        if not s.accepted:
-            continue
-        lines.append(f"### {s.effect}")
-        lines += ["", "| parameter | value | 95 % CI |", "|---|---|---|"]
-        for n in s.params:
-            v = res.final.values.get(n, s.params[n])
-            ci = res.final.ci95.get(n, (math.nan, math.nan))
-            lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
-        lines.append("")
-    if res.warnings or res.final.warnings:
-        lines += ["## Warnings", ""] + [f"- {w}" for w in res.warnings + res.final.warnings]
-    lines += discovery_section(res)
-    lines += ["", "## Residual plots", ""]
-    base = Path(report_path).parent
-    for label, p in zip(("before", "after", "before and after the discovered terms"), figures,
-                        strict=False):
-        if p:
-            rel = Path(p).resolve().relative_to(base.resolve()) if Path(p).resolve().is_relative_to(
-                base.resolve()) else Path(p)
-            lines.append(f"![residual {label}]({rel})")
-            lines.append("")
-    return "\n".join(lines) + "\n"
-
-
-def discovery_section(res: Any) -> list[str]:
-    """Markdown lines on the discovered terms tried (expression, CIs, verdict); none if off."""
-    found = [s for s in res.steps if hasattr(s, "expression")]
-    if not res.settings.get("discover", False):
-        return []
-    lines = ["", "## Discovered terms (outside the library)", ""]
-    if not found:
-        return lines + ["Discovery ran; no entry point gave a term that survived its sparse refit.",
-                        ""]
-    lines += ["| term | expression | uses | selection RMSE before -> after | accepted | notes |",
-              "|---|---|---|---|---|---|"]
-    for s in found:
-        notes = "; ".join(n for n in s.notes if "outside the range" in n)
-        lines.append(f"| {s.effect} | `{s.expression}` | {', '.join(s.uses)} | "
-                     f"{_fmt(s.val_rmse_before)} -> {_fmt(s.val.get('rmse'))} | "
-                     f"{'yes' if s.accepted else 'no'} | {s.reason}"
-                     f"{'; ' + notes if notes else ''} |")
-    for s in found:
-        lines += ["", f"### {s.effect} ({s.entry}, {s.method})", "", f"`{s.expression}`", "",
-                  "| parameter | value | 95 % CI |", "|---|---|---|"]
-        for n, v in s.params.items():
-            ci = s.ci95.get(n, (math.nan, math.nan))
-            lines.append(f"| {n} | {_fmt(v)} | [{_fmt(ci[0])}, {_fmt(ci[1])}] |")
-        # A term's notes tell its sparse refits; a resonant mode's its starts and checks.
-        label = "Refits" if "period" in (s.screening or {}) else "Sparse refits"
-        lines += ["", f"{label}: " + "; ".join(n for n in s.notes
-                                                if "outside the range" not in n)]
-    lines += ["", "Residual plots: before (base model) and after (every accepted effect and "
-              "term), and the residual just before and after each discovered term (estimation "
-              "and selection), are in the section below."]
-    return lines + [""]

@@ -31,7 +31,6 @@ from hhra_phys.cli._guards import (
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
-from hhra_phys.outputs import jsonable
 
 
 def register(subparsers: Any) -> None:
@@ -152,7 +151,6 @@ def run(args: argparse.Namespace) -> int:
             target, val_arg = data, (validation[0] if validation else None)
         else:  # several records, or one record with several validation records
             target, val_arg = records, validation
-        several = isinstance(target, list)
         with executor(args.workers, args.dask) as ex:
             results = fit_many(
                 [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
@@ -166,35 +164,48 @@ def run(args: argparse.Namespace) -> int:
         res.warnings.extend(data_warnings)
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
-        say(res.summary())
-        for rec in res.records:
-            parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
-                     for key, label in (("est", "estimation"), ("val", "validation"))
-                     if rec[key]]
-            say(f"record {rec['name']}: {', '.join(parts)}")
-        for st in res.stages:
-            say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
-                  f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
+        print_result(res, say)
         with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
-            if args.json == STDOUT:
-                print(json.dumps(jsonable(res.to_json()), indent=1), flush=True)
-            elif args.json:
-                print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
-            if res.status == "diverged":
-                print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
-                      "stay finite with the fitted values); "
-                      + ("the result marked diverged is in the JSON; " if args.json else "")
-                      + "check the units of the record and the --fix values", file=sys.stderr)
-                return 1
-            if args.plot:
-                plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                        args.overwrite)
-                           if several or validation else
-                           plot_result(res, data, args.plot, args.split, args.overwrite))
-                say(f"wrote {plotted}")
+            return _write(args, res, records, validation, say)
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
+
+
+def _write(args: argparse.Namespace, res: Any, records: list[Any],
+           validation: list[Any] | None, say: Any) -> int:
+    """Write the JSON (:meth:`~hhra_phys.result.FitResult.to_json`) and the figure; 1 for a
+    diverged fit (its JSON is still written, no figure), else 0."""
+    if args.json == STDOUT:
+        print(json.dumps(res.to_json(), indent=1), flush=True)
+    elif args.json:
+        print(f"wrote {res.save(args.json, overwrite=args.overwrite)}")
+    if res.status == "diverged":
+        print("hhra-phys fit: error: the fit diverged (the model's simulation does not "
+              "stay finite with the fitted values); "
+              + ("the result marked diverged is in the JSON; " if args.json else "")
+              + "check the units of the record and the --fix values", file=sys.stderr)
+        return 1
+    if args.plot:
+        plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                args.overwrite)
+                   if len(records) > 1 or validation else
+                   plot_result(res, records[0], args.plot, args.split, args.overwrite))
+        say(f"wrote {plotted}")
     return 0
+
+
+def print_result(res: Any, say: Any) -> None:
+    """The fit summary: parameters and derived quantities with their intervals
+    (:meth:`~hhra_phys.result.FitResult.summary`), each record's errors, the stages."""
+    say(res.summary())
+    for rec in res.records:
+        parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
+                 for key, label in (("est", "estimation"), ("val", "validation"))
+                 if rec[key]]
+        say(f"record {rec['name']}: {', '.join(parts)}")
+    for st in res.stages:
+        say(f"stage {st['name']:<16} cost {_num(st['cost_before'])} -> "
+            f"{_num(st['cost'])}, {st['nfev']} evaluations, {st['seconds']:.2f} s")
 
 
 def _num(x: float | None, spec: str = ".6g") -> str:

@@ -94,7 +94,7 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.excitation import irregular_steps, samples
-from hhra_phys.model import Model
+from hhra_phys.model import DerivedQuantity, Model
 from hhra_phys.models.hydraulics import orifice_flow, perturb_fields
 from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part, State, register_part
@@ -542,13 +542,26 @@ class LinearCylinderModel(Model):
             Parameter vector (nominal by default).
         """
         g = self.params.as_dict(self.nominal() if p is None else np.asarray(p, dtype=float))
-        leak = g["c_leak"] + g.get("c_kp", 0.0)
+        return {k: float(q.function(g)) for k, q in self.derived_quantities().items()}
+
+    def derived_quantities(self) -> dict[str, DerivedQuantity]:
+        """The transfer-function coefficients of :meth:`tf_coefficients` as functions of
+        the groups, reported by a fit with 95 % intervals (the delta method)."""
+        def leak(g: Mapping[str, Any]) -> Any:
+            return g["c_leak"] + g.get("c_kp", 0.0)
+
         return {
-            "a": 1.0,
-            "b": g["c_damping"] + leak,
-            "c": g["c_spring"] + g["c_damping"] * leak + g["c_force"] * g["c_compress"],
-            "d": g["c_spring"] * leak,
-            "kv": g["c_force"] * g["c_valve"],
+            "a": DerivedQuantity("-", lambda g: 1.0,
+                                 "s^3 coefficient of G(s), 1 by normalisation"),
+            "b": DerivedQuantity("1/s", lambda g: g["c_damping"] + leak(g),
+                                 "s^2 coefficient of G(s)", positive=True),
+            "c": DerivedQuantity("1/s^2", lambda g: g["c_spring"] + g["c_damping"] * leak(g)
+                                 + g["c_force"] * g["c_compress"], "s coefficient of G(s)",
+                                 positive=True),
+            "d": DerivedQuantity("1/s^3", lambda g: g["c_spring"] * leak(g),
+                                 "s^0 coefficient of G(s)"),
+            "kv": DerivedQuantity("m/(s^3*mA)", lambda g: g["c_force"] * g["c_valve"],
+                                  "gain of G(s) (x in m, current in mA)", positive=True),
         }
 
 

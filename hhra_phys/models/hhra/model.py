@@ -29,7 +29,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from hhra_phys.errors import ModelError, ParameterError
-from hhra_phys.model import GROUP_SPAN, Model
+from hhra_phys.model import GROUP_SPAN, DerivedQuantity, Model
 from hhra_phys.models.hhra.physical import PhysicalParameters
 from hhra_phys.models.hydraulics import orifice_flow
 from hhra_phys.parameters import Parameter
@@ -423,13 +423,27 @@ class HHRAModel(Model):
         orifice valve at zero current).
         """
         d = self.params.as_dict(self.nominal() if p is None else np.asarray(p, dtype=float))
-        kp = d.get("g_kp", 0.0)
-        leak = d["g_leak"] + kp
+        return {k: float(q.function(d)) for k, q in self.derived_quantities().items()}
+
+    def derived_quantities(self) -> dict[str, DerivedQuantity]:
+        """The paper's transfer-function coefficients ``a``, ``b``, ``c``, ``kv``
+        (:meth:`tf_coefficients`) as functions of the groups, so that a fit reports
+        them with 95 % intervals (the delta method, docs/fitting.md)."""
+        def leak(d: Mapping[str, Any]) -> Any:
+            return d["g_leak"] + d.get("g_kp", 0.0)
+
         return {
-            "a": 1.0,
-            "b": d["g_damping"] + leak,
-            "c": d["g_damping"] * leak + d["g_torque"] * d["g_compress"],
-            "kv": d["g_torque"] * d["g_valve"],
+            "a": DerivedQuantity("-", lambda d: 1.0,
+                                 "s^3 coefficient of G(s), 1 by normalisation"),
+            "b": DerivedQuantity("1/s", lambda d: d["g_damping"] + leak(d),
+                                 "s^2 coefficient of G(s) = kv/(a s^3 + b s^2 + c s)",
+                                 positive=True),
+            "c": DerivedQuantity("1/s^2", lambda d: d["g_damping"] * leak(d)
+                                 + d["g_torque"] * d["g_compress"],
+                                 "s coefficient of G(s)", positive=True),
+            "kv": DerivedQuantity("rad/(s^3*mA)", lambda d: d["g_torque"] * d["g_valve"],
+                                  "gain of G(s) (theta in rad, current in mA)",
+                                  positive=True),
         }
 
     def tf_coefficients_of(self, values: Mapping[str, float]) -> dict[str, float]:
