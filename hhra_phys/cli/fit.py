@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
         say(res.summary())
-        for rec in res.records:
+        for rec in res.records if len(res.records) > 1 else []:  # one record: the summary
             parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
                      for key, label in (("est", "estimation"), ("val", "validation"))
                      if rec[key]]

@@ -202,18 +202,18 @@ def test_bad_records_give_errors_naming_the_file(tmp_path, capsys):
 def test_a_held_per_record_parameter_keeps_each_records_value():
     """The loop holds each record's sensor zero while it searches a candidate's parameters."""
     from hhra_phys.models.hhra import HHRAModel
-    from hhra_phys.multi import MultiProblem
+    from hhra_phys.problem import Problem
 
     a, b = _short(14, 1.0), _short(15, 0.8)
     model = HHRAModel(output="pressure")
     free = [n for n in ("g_valve", "g_leak") if n in model.params.names]
-    pr = MultiProblem(model, [a, b], free=free,
+    pr = Problem(model, [a, b], free=free,
                       fixed={"p_offset_rec1": 0.1, "p_offset_rec2": -0.2, "p_gain": 2.0})
     assert [p.fixed["p_offset"] for p in pr.records] == [0.1, -0.2]
     assert all(p.fixed["p_gain"] == 2.0 for p in pr.records)
     assert "p_offset_rec1" not in pr.free_names
     with pytest.raises(Exception, match="only 2 records"):
-        MultiProblem(model, [a, b], free=free, fixed={"p_offset_rec3": 0.0})
+        Problem(model, [a, b], free=free, fixed={"p_offset_rec3": 0.0})
 
 
 @pytest.mark.parametrize(("seeds", "need_ci"), [
