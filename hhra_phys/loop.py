@@ -404,7 +404,7 @@ def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
 
 
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
-               parts: str = "both") -> tuple[dict[str, Any], bool]:
+               ) -> tuple[dict[str, Any], bool]:
     """The loop's noise-level stop: both non-test parts must be at the noise level.
 
     The selection part alone is a quarter of the record; a weak effect that it
@@ -423,9 +423,6 @@ def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
         The selection part.
     noise_tol : float
         Structural-mismatch allowance (fraction of the noise level).
-    parts : {"both", "selection"}
-        ``"both"`` (the rule above) or ``"selection"``: the earlier rule, which
-        stopped on the selection part alone (kept to measure the two side by side).
 
     Returns
     -------
@@ -433,11 +430,11 @@ def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
         :func:`selection_noise` of the selection part, with the estimation part's
         under ``"estimation"``.
     stop : bool
-        Both parts (or the selection part) at the noise level (:func:`at_noise_level`).
+        Both parts at the noise level (:func:`at_noise_level`).
     """
     level = selection_noise(problem, res, sel)
     level["estimation"] = selection_noise(problem, res, None)
-    return level, stops_at_noise(level, noise_tol, parts)
+    return level, stops_at_noise(level, noise_tol)
 
 
 @dataclass(frozen=True)
@@ -842,10 +839,6 @@ class LoopOptions:
     discover_kw : dict, optional
         Options of :class:`~hhra_phys.discover.Discovery` (``method``, ``max_terms``,
         ``entries``).
-    stop_on : {"both", "selection"}
-        Noise-level stop (:func:`noise_stop`): stop when the estimation *and*
-        selection residuals are at the noise level (default), or, the earlier rule,
-        the selection residual alone. The test part is never looked at.
     joint_search : bool
         A candidate's global search also covers the parameters of the effects
         accepted in earlier rounds, instead of holding them at the previous fit
@@ -895,7 +888,6 @@ class LoopOptions:
     background: bool = True
     discover: bool = True
     discover_kw: Mapping[str, Any] | None = None
-    stop_on: str = "both"
     joint_search: bool = False
     backward: bool = True
     intersample: bool = True
@@ -917,8 +909,6 @@ class LoopOptions:
         need(0 <= self.margin < 1, f"margin must be in [0, 1), got {self.margin}")
         need(self.noise_tol is None or self.noise_tol >= 0,
              f"noise_tol must be >= 0, got {self.noise_tol}")
-        need(self.stop_on in ("both", "selection"),
-             f"stop_on must be 'both' or 'selection', got {self.stop_on!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -951,6 +941,11 @@ class LoopOptions:
         ParameterError
             An override that is not a setting (with the settings' names), or a bad value.
         """
+        if "stop_on" in overrides:
+            raise ParameterError(
+                "stop_on was removed (its 'selection' rule stopped on the selection part "
+                "alone): the loop stops when both the estimation and the selection parts "
+                "are at the noise level (noise_stop); drop the setting")
         opts = with_overrides(options if options is not None else cls(), overrides, "loop",
                               ("candidates", "free"))
         if opts.candidates is not None:  # generic aliases (input_deadzone, ...) name the
@@ -1140,10 +1135,10 @@ class _Loop:
         remaining = [n for n in self.names if n not in self.chosen and n not in self.dropped]
         if not remaining and not self.discover:
             return "no candidates left"
-        level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol, o.stop_on)
+        level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol)
         self.levels.append(level)
         if at_noise:
-            stop = _noise_stop_text(level, o.stop_on, self.tol)
+            stop = _noise_stop_text(level, self.tol)
             say(f"round {rnd}: {stop}; stop")
             return stop
         queue, jobs, disc = self._queue(rnd, remaining)
@@ -1328,7 +1323,7 @@ class _Loop:
             "max_iter": o.max_iter, "cand_pop": o.cand_pop, "cand_iter": o.cand_iter,
             "seed": o.seed, "margin": o.margin, "noise_tol": self.tol,
             "criterion": o.criterion, "backend": o.backend, "discover": o.discover,
-            "stop_on": o.stop_on, "joint_search": o.joint_search, "backward": o.backward,
+            "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
@@ -1397,15 +1392,13 @@ def _substeps(problem: Problem) -> tuple[tuple[float, int], ...]:
     return tuple((float(fs), int(sim.substeps)) for fs, sim in problem.simulators.items())
 
 
-def _noise_stop_text(level: Mapping[str, Any], stop_on: str, noise_tol: float) -> str:
+def _noise_stop_text(level: Mapping[str, Any], noise_tol: float) -> str:
     """The stop reason of :func:`noise_stop` in words (which rule held on each part)."""
     e = level["estimation"]
     text = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
             f"{level['ratio']:.3f} x noise {level['noise']:.3g}, "
-            f"{_why_at_noise(level, noise_tol)})")
-    if stop_on == "both":
-        text += (f", estimation residual too (RMSE {e['rmse']:.4g} = {e['ratio']:.3f} x noise, "
-                 f"{_why_at_noise(e, noise_tol)})")
+            f"{_why_at_noise(level, noise_tol)}), estimation residual too (RMSE "
+            f"{e['rmse']:.4g} = {e['ratio']:.3f} x noise, {_why_at_noise(e, noise_tol)})")
     return text
 
 
