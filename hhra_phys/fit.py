@@ -431,7 +431,7 @@ def fit_and_widen(
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
+    problem : Problem
     search : callable
         ``search(problem, z_start=None, label="") -> (z, stages, history)``
         (:func:`_search_and_refine` with the fit's settings).
@@ -634,7 +634,7 @@ def widen_boxes(
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
+    problem : Problem
     z : ndarray, shape (n_free,)
         The optimum of the first search, in fitting coordinates.
     search : callable
@@ -660,33 +660,9 @@ def widen_boxes(
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
         if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
-        box: dict[str, list[float]] = {}
-        changes = []
-        gains = _release_gains(problem, z, edges)
-        for (i, side), predicted in zip(edges, gains, strict=True):
-            par = problem.free_params[i]
-            name = split_record_name(par.name)[0]
-            if name not in origin or name in box:
-                continue
-            k = 0 if side == "lower" else 1
-            edge, first = [par.lower, par.upper][k], origin[name][k]
-            # A signed parameter's side at zero is a sign (physics), not a guessed size.
-            if edge == 0 or first == 0 or edge * first < 0:
-                continue
-            if abs(np.log10(edge / first)) >= MAX_WIDEN_DECADES - 0.5:
-                continue
-            # Model error, not a group beyond its box, unless the release clearly pays:
-            # then the edge warning stays.
-            if predicted < (WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS
-                            else WIDEN_CLEAR_GAIN):
-                continue
-            before = [par.lower, par.upper]
-            new = widened_box(par, side)
-            if new is None:
-                continue
-            box[name] = list(new)
-            changes.append({"name": name, "side": side, "round": round_,
-                            "from": before, "to": list(box[name])})
+        need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN
+        box, changes = _sides_to_widen(problem, edges, _release_gains(problem, z, edges),
+                                       origin, need, round_)
         if not changes:
             break
         values = problem.from_z(z)
@@ -705,6 +681,44 @@ def widen_boxes(
         if gain < WIDEN_MIN_GAIN:
             break
     return problem, z, widened
+
+
+def _sides_to_widen(problem: Any, edges: list[tuple[int, str]], gains: list[float],
+                    origin: Mapping[str, tuple[float, float]], need: float, round_: int,
+                    ) -> tuple[dict[str, list[float]], list[dict[str, Any]]]:
+    """The boxes of one round of :func:`widen_boxes` and one record per widened side.
+
+    A side is widened when its parameter's box is a default one (``origin``), the side
+    is not a sign (at or across zero), it is less than :data:`MAX_WIDEN_DECADES` beyond
+    the default box, and letting the parameter out pays at least ``need`` (the
+    predicted relative fall of the sum of squares, ``gains``).
+    """
+    box: dict[str, list[float]] = {}
+    changes: list[dict[str, Any]] = []
+    for (i, side), predicted in zip(edges, gains, strict=True):
+        par = problem.free_params[i]
+        name = split_record_name(par.name)[0]
+        if name not in origin or name in box or not _may_widen(par, side, origin[name]):
+            continue
+        # Model error, not a group beyond its box, unless the release clearly pays:
+        # then the edge warning stays.
+        new = widened_box(par, side) if predicted >= need else None
+        if new is None:
+            continue
+        box[name] = list(new)
+        changes.append({"name": name, "side": side, "round": round_,
+                        "from": [par.lower, par.upper], "to": list(new)})
+    return box, changes
+
+
+def _may_widen(par: Any, side: str, first_box: tuple[float, float]) -> bool:
+    """Whether ``side`` of ``par``'s box may move: not a sign, not yet at the widening limit."""
+    k = 0 if side == "lower" else 1
+    edge, first = [par.lower, par.upper][k], first_box[k]
+    # A signed parameter's side at zero is a sign (physics), not a guessed size.
+    if edge == 0 or first == 0 or edge * first < 0:
+        return False
+    return bool(abs(np.log10(edge / first)) < MAX_WIDEN_DECADES - 0.5)
 
 
 def _search_and_refine(
@@ -830,8 +844,7 @@ def _intervals(
            dict[str, Any]]:
     """95 % intervals, standard deviations, correlation, warnings and interval info at ``z``.
 
-    Works for a one-record :class:`Problem` and a stacked
-    :class:`~hhra_phys.multi.MultiProblem` alike (intervals from all records).
+    For any number of records (intervals from all records together).
     """
     # Uncertainty from the exact residual Jacobian at the optimum.
     r, J = CompiledLeastSquares(problem)(z)
@@ -1064,7 +1077,7 @@ def assemble_result(problem: Any, values: dict[str, float], x0: dict[str, float]
                     status: str = "ok",
                     records: list[dict[str, Any]] | None = None) -> FitResult:
     """The :class:`~hhra_phys.result.FitResult` of a fit: one place for the
-    single-record fit and the several-record fit (:mod:`hhra_phys.multi`).
+    fit of one record or several (:class:`~hhra_phys.problem.Problem`).
 
     ``values`` are the model's parameters by name, ``x0`` the (first) record's
     initial state by state name, ``interval_parts`` the ``(ci95, std, correlation,

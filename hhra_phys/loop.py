@@ -973,8 +973,8 @@ def augment(
     data : Dataset or sequence of Dataset
         The whole record, N samples, split in time order into estimation (the
         first ``split*N``), selection (the next) and test (the last ``test*N``).
-        Several records (:mod:`hhra_phys.multi`): each is split so; every fit
-        (base and candidates) is a multi-record fit with shared parameters (an
+        Several records: each is split so; every fit (base and candidates) is
+        one :class:`~hhra_phys.problem.Problem` of all of them, with shared parameters (an
         effect's new ones too) and per-record initial states; selection and test
         scores are pooled over the records (per record in ``records`` of
         ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is

@@ -1,6 +1,7 @@
-"""A fitting problem: model + data + cost + which parameters are free, and how scaled.
+"""A fitting problem: model + records + cost + which parameters are free, and how scaled.
 
-:class:`Problem` is what optimisers and refiners see. It maps between
+:class:`Problem` is what optimisers and refiners see, for one record or several (one
+record is a set of one; each record's part is a :class:`RecordProblem`). It maps between
 
 * the model's full parameter vector ``p`` (physical units, ``model.params`` order), and
 * the *fitting coordinates* ``z`` of the free parameters only, in which the
