@@ -392,7 +392,7 @@ def nuisance_basis(problem: Problem, values: np.ndarray, yhat: np.ndarray) -> np
 
 
 def analyse(
-    problem: Problem,
+    problem: Problem | RecordProblem,
     values: np.ndarray,
     candidates: Iterable[str] | None = None,
     effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
@@ -401,9 +401,10 @@ def analyse(
 
     Parameters
     ----------
-    problem : Problem
-        The fitting problem (model and estimation records) of the fit; each record is
-        analysed alone and, with several, the evidence summed (:func:`combine_diagnoses`).
+    problem : Problem or RecordProblem
+        The fitting problem (model and estimation records) of the fit, or one record's
+        part of it; each record is analysed alone and, with several, the evidence summed
+        (:func:`combine_diagnoses`).
     values : array, shape (n_free,)
         Fitted free values (physical units), in ``problem.free_names`` order.
     candidates : iterable of str, optional
@@ -416,8 +417,9 @@ def analyse(
     -------
     Diagnosis
     """
-    return combine_diagnoses([_analyse_record(pr, vk, candidates, effect_kw)
-                              for pr, vk in problem.per_record_values(values)])
+    values = np.asarray(values, dtype=float)
+    return combine_diagnoses([_analyse_record(pr, values[idx], candidates, effect_kw)
+                              for pr, idx in problem.blocks()])
 
 
 def _analyse_record(
