@@ -1032,9 +1032,7 @@ class _Loop:
         self.say = progress or (lambda s: None)
         self.tol = NOISE_TOL if opts.noise_tol is None else float(opts.noise_tol)
         self.t0 = time.perf_counter()
-        est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
-        if isinstance(est, RecordSet):
-            data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
+        data, est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
         self.data, self.est, self.sel, self.held = data, est, sel, held
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
         if model is None:
@@ -1374,17 +1372,21 @@ def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float,
 
 def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
                 validation: Dataset | Sequence[Dataset] | None, base: FitResult | None,
-                ) -> tuple[Any, Any, Any]:
-    """Estimation, selection and test parts: :func:`split_record`, or for several records
-    (or whole validation records) :func:`~hhra_phys.multi.split_records`."""
+                ) -> tuple[Any, Any, Any, Any]:
+    """The records and their estimation, selection and test parts.
+
+    One record (a list of one alike) without validation records: the record and
+    :func:`split_record`'s parts; otherwise a :class:`~hhra_phys.multi.RecordSet` of the
+    records and :func:`~hhra_phys.multi.split_records`'s.
+    """
     records = as_records(data)
-    if isinstance(data, Dataset) and validation is None:
-        return split_record(data, split, test)
+    whole = as_records(validation) if validation is not None and len(validation) else []
+    if len(records) == 1 and not whole:
+        return (records[0], *split_record(records[0], split, test))
     if base is not None:
         raise ParameterError("base: a given base fit is for one record; with several records "
                              "(or validation records) the loop fits its own base")
-    whole = as_records(validation) if validation is not None and len(validation) else []
-    return split_records(records, split, test, whole or None)
+    return (RecordSet(records), *split_records(records, split, test, whole or None))
 
 
 def _substeps(problem: Problem) -> tuple[tuple[float, int], ...]:

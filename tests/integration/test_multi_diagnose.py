@@ -256,3 +256,18 @@ def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root
     assert sum(r["ci"][0] <= study.TRUTH <= r["ci"][1] for r in found) >= need_ci, rows
     assert all(r["width"] < min(r["alone"]) for r in found), rows
     assert all(r["test_rmse"] < 1.15 * 0.05 for r in found), rows
+
+
+def test_a_list_of_one_record_is_that_record():
+    """One record given alone or as a list of one: the same loop, the same numbers."""
+    friction = {"coulomb_friction": {"g_coulomb": 30.0}}
+    a = _short(5, 3.0, effects=friction)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        one, listed = (augment(x, seed=0, **TINY).to_json() for x in (a, [a]))
+    assert listed["chosen"] == one["chosen"]
+    for part in ("base", "final"):
+        assert listed[part]["val"] == one[part]["val"]
+        assert listed[part]["test"] == one[part]["test"]
+    assert set(listed["final"]["ci95"]) == set(one["final"]["ci95"])
+    assert not any("_rec" in n for n in one["final"]["ci95"])
