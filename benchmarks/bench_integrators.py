@@ -22,8 +22,7 @@ Measures, side by side in one run on this machine:
   (with the reference's wall time);
 * edges: dead zone (``i_dead`` 0.15 and 0.3 mA) and saturation (``i_sat`` 0.3 and
   0.5 mA) of the package (automatic method) against the reference's exact ``clip``
-  and dead band, with the default quadratic corners and with the earlier
-  square-root corners (``eps=0.01``);
+  and dead band, with the default quadratic corners;
 * cost: time per population (100 members over the record, vector code when
   available) of each method at the substeps ``Simulator(method="auto")`` chooses,
   and at equal substeps, timed alternately; for a stiff model also RK4 at 2 and 4
@@ -194,8 +193,7 @@ def _edges(u: np.ndarray) -> list[str]:
              "input levels " + ", ".join(f"{v:.3g}" for v in np.unique(np.abs(u))) + " mA"]
     for name, size in EDGES:
         row = []
-        for label, settings in (("quadratic corners (default)", {}),
-                                ("square-root corners (eps=0.01)", {"eps": 0.01})):
+        for label, settings in (("quadratic corners (default)", {}),):
             model = HHRAModel(effects=[make_effect(name, **settings)])
             values = dict(NOMINAL_GROUPS, **size)
             x0 = _x0(model)

@@ -20,7 +20,7 @@ docs/diagnosis.md).
 
     python experiments/closed_loop.py [--seeds 2 | --seeds 4,5] [--duration 8] [--out FILE.json]
         [--source reference|rig] [--sharp EFFECTS] [--sizes large|small|both] [--discover]
-        [--pairs A+B,C+D] [--max-effects 2] [--top K] [--stop-on both|selection]
+        [--pairs A+B,C+D] [--max-effects 2] [--top K]
         [--joint-search] [--no-backward]
 
 With ``--sharp``, a record hiding one of those effects is generated with every
@@ -141,8 +141,6 @@ def main() -> None:
                     help="pairs to run with --cases pairs, e.g. valve_deadzone+input_delay "
                          "(comma-separated; default: all of PAIRS)")
     ap.add_argument("--max-effects", type=int, default=2, help="the loop's max_effects")
-    ap.add_argument("--stop-on", choices=("both", "selection"), default="both",
-                    help="the loop's noise-level stop (augment's stop_on)")
     ap.add_argument("--joint-search", action=argparse.BooleanOptionalAction, default=False,
                     help="search earlier effects' parameters again in a candidate's global "
                          "search (augment's joint_search; default: held)")
@@ -176,7 +174,7 @@ def main() -> None:
         ap.error("--max-effects must be >= 1")
     out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
     loop_kw = {"max_effects": args.max_effects, "top_k": args.top, "pop_size": 20,
-               "max_iter": 30, "discover": args.discover, "stop_on": args.stop_on,
+               "max_iter": 30, "discover": args.discover,
                "joint_search": args.joint_search, "backward": args.backward}
     load_start = os.getloadavg()
     pick = {"small": [0], "large": [1], "both": [0, 1]}[args.sizes]

@@ -6,11 +6,10 @@ seeds, a reference-rig record (:func:`hhra_phys.reference.reference_record`, 8 s
 and ``clip``) is fitted with the HHRA plus that library effect (H-GWO, then IPOPT
 with exact derivatives through the integrator). Printed per seed: the fitted value,
 its linearised 95 % interval, whether the truth lies inside, the relative error and
-the validation RMSE. ``--legacy`` fits the earlier smoothing instead (backlash
-``eps_omega=0.01``, corners ``eps=0.01``), to compare the biases.
+the validation RMSE.
 
     python experiments/edge_recovery.py backlash --value 1.0 [--seeds 5] [--pop 30]
-        [--iters 40] [--duration 8] [--legacy]
+        [--iters 40] [--duration 8]
 """
 
 from __future__ import annotations
@@ -23,10 +22,8 @@ from hhra_phys.fit import fit
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.reference import reference_record
 
-#: The parameter of each effect and the legacy setting of its earlier smoothing.
+#: The parameter of each effect.
 PARAMETER = {"backlash": "play", "valve_deadzone": "i_dead", "valve_saturation": "i_sat"}
-LEGACY = {"backlash": {"eps_omega": 0.01}, "valve_deadzone": {"eps": 0.01},
-          "valve_saturation": {"eps": 0.01}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,18 +35,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pop", type=int, default=30, help="H-GWO population")
     ap.add_argument("--iters", type=int, default=40, help="H-GWO iterations")
     ap.add_argument("--duration", type=float, default=8.0, help="record length [s]")
-    ap.add_argument("--legacy", action="store_true", help="fit the earlier smoothing")
     args = ap.parse_args(argv)
     if args.value <= 0 or args.seeds < 1 or args.pop < 4 or args.iters < 1 or args.duration <= 0:
         ap.error("--value, --seeds, --pop (>= 4), --iters and --duration must be positive")
     key = PARAMETER[args.effect]
-    settings = LEGACY[args.effect] if args.legacy else {}
     inside = 0
     for seed in range(args.seeds):
         t0 = time.perf_counter()
         ds = reference_record(seed=seed, duration=args.duration, noise_deg=0.05,
                               effects={args.effect: {key: args.value}}, smooth=False)
-        model = HHRAModel(effects=[make_effect(args.effect, data=ds, **settings)])
+        model = HHRAModel(effects=[make_effect(args.effect, data=ds)])
         res = fit(ds, model, pop_size=args.pop, max_iter=args.iters, seed=seed)
         lo, hi = res.ci95[key]
         v = res.values[key]

@@ -44,7 +44,7 @@ from hhra_phys.effects import EFFECTS, Effect, Signals, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.noise import noise_level
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_path, check_output_path, jsonable
-from hhra_phys.problem import Problem
+from hhra_phys.problem import Problem, RecordProblem, as_records
 
 __all__ = [
     "EffectEvidence",
@@ -392,7 +392,7 @@ def nuisance_basis(problem: Problem, values: np.ndarray, yhat: np.ndarray) -> np
 
 
 def analyse(
-    problem: Problem,
+    problem: Problem | RecordProblem,
     values: np.ndarray,
     candidates: Iterable[str] | None = None,
     effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
@@ -401,10 +401,10 @@ def analyse(
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
-        The fitting problem (model and estimation data) of the fit; a stacked
-        problem of several records (:class:`~hhra_phys.multi.MultiProblem`) is
-        analysed record by record and the evidence summed (:func:`combine_diagnoses`).
+    problem : Problem or RecordProblem
+        The fitting problem (model and estimation records) of the fit, or one record's
+        part of it; each record is analysed alone and, with several, the evidence summed
+        (:func:`combine_diagnoses`).
     values : array, shape (n_free,)
         Fitted free values (physical units), in ``problem.free_names`` order.
     candidates : iterable of str, optional
@@ -417,10 +417,18 @@ def analyse(
     -------
     Diagnosis
     """
-    if hasattr(problem, "blocks"):  # several records
-        return combine_diagnoses([
-            analyse(pr, problem.record_values(values, k), candidates, effect_kw)
-            for k, (pr, _) in enumerate(problem.blocks())])
+    values = np.asarray(values, dtype=float)
+    return combine_diagnoses([_analyse_record(pr, values[idx], candidates, effect_kw)
+                              for pr, idx in problem.blocks()])
+
+
+def _analyse_record(
+    problem: RecordProblem,
+    values: np.ndarray,
+    candidates: Iterable[str] | None = None,
+    effect_kw: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Diagnosis:
+    """:func:`analyse` of one record's problem at its free values."""
     data = problem.data
     values = np.asarray(values, dtype=float)
     P = problem.full(values)
@@ -903,8 +911,10 @@ def plot_loop_residuals(
     """
     from hhra_phys.selection import split_record
 
-    if not isinstance(data, Dataset) or res.final.records:
+    records = as_records(data)
+    if len(records) > 1 or len(res.final.records) > 1:  # several records, or validation ones
         return _records_loop_residuals(res, data, before_path, after_path, overwrite, label)
+    data = records[0]
     split, test = float(res.settings["split"]), float(res.settings.get("test") or 0.0)
     _, _, held = split_record(data, split, test)
     # Everything after the estimation part: selection, then (if any) the test part.
@@ -932,8 +942,7 @@ def _records_loop_residuals(res: Any, data: Any, before_path: str | None,
                             after_path: str | None, overwrite: bool,
                             label: str) -> list[str | None]:
     """:func:`plot_loop_residuals` of a loop over several records (its docstring)."""
-    records = [data] if isinstance(data, Dataset) else list(data)
-    unit = records[0].output_unit if records else ""
+    unit = as_records(data)[0].output_unit
     first = res.diagnoses[0] if res.diagnoses else None
     names = " + ".join(r["name"] for r in res.final.records if r.get("n_est"))
     prefix = f"{label}: " if label else ""

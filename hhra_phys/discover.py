@@ -386,7 +386,7 @@ def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = Non
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
+    problem : Problem
         The fitted problem (model and estimation record, or records). With several records
         the candidate terms are built on all of them (one scale per variable, over every
         record), each record's columns are propagated through the model linearised at its
@@ -412,9 +412,7 @@ def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = Non
             raise ParameterError(f"unknown entry point {e!r}; entry points of this model: "
                                  f"{', '.join(allowed)}")
     values = np.asarray(values, dtype=float)
-    records = getattr(problem, "records", None)
-    blocks = ([(pr, problem.record_values(values, k)) for k, pr in enumerate(records)]
-              if records else [(problem, values)])
+    blocks = problem.per_record_values(values)
     per: list[dict[str, Any]] = []
     for pr, v in blocks:
         series, yhat = variable_series(pr, v)
@@ -1102,13 +1100,13 @@ def _record_view(problem: Any, values: np.ndarray, data: Any) -> tuple[Problem, 
                                                                        Dataset, int]:
     """The one-record problem, values and record that screening looks at.
 
-    One record: the problem itself. Several (a :class:`~hhra_phys.multi.MultiProblem`): the
+    One record: the problem itself. Several: the
     record whose estimation residual carries the most energy (where the missing physics shows
     most): a mode's grid of periods is screened there (terms are screened on every record,
     :func:`screen`); the refits that decide are fitted to every record.
     """
-    records = getattr(problem, "records", None)
-    if not records:
+    records = problem.records
+    if len(records) == 1:
         return problem, values, data, 0
     energies = []
     for k, pr in enumerate(records):
@@ -1137,7 +1135,7 @@ class Discovery:
         selection part(s)).
     cur : FitResult
         The current fit (base model plus what was accepted).
-    cur_prob : Problem or MultiProblem
+    cur_prob : Problem
         Its problem.
     cur_free : list of str
         Its free parameters.
@@ -1197,7 +1195,7 @@ class Discovery:
         self._before: tuple[np.ndarray, np.ndarray] | None = None
         self.say(f"round {round_no}: discovery, entry points by first-order score"
                  + (f" (modes screened on record {self.record_index + 1})"
-                    if getattr(cur_prob, "records", None) else "") + ": "
+                    if len(cur_prob.records) > 1 else "") + ": "
                  + ", ".join(f"{p.entry} {p.score:.2f}" for p in self._proposals))
 
     def proposals(self) -> list[Proposal]:
@@ -1207,7 +1205,7 @@ class Discovery:
     def _view(self, fitted: _Fitted) -> _Fitted:
         """``fitted`` seen on the screened record (for residuals and ranges)."""
         pr = fitted.problem
-        if not getattr(pr, "records", None):
+        if len(pr.records) == 1:
             return fitted
         res = fitted.result
         v = np.array([res.values[n] if n in res.values else res.x0_param(n)

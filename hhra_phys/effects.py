@@ -58,7 +58,6 @@ from hhra_phys.parts import (
     State,
     corner_relu,
     register_effect,
-    smooth_relu,
     smooth_sign,
 )
 
@@ -71,6 +70,15 @@ RAD2DEG = 180.0 / math.pi
 
 #: The rig's g_torque [rad/s^2]: default scale of accelerations of motion effects.
 RIG_ACCEL = 175.58
+
+
+#: Smoothing settings of earlier versions, removed, with what replaces them.
+REMOVED_SETTINGS: dict[str, str] = {
+    "eps": "the smoothing tied to the sample period; set the physical 'width' instead "
+           "(or fit_width=True where the effect offers it)",
+    "eps_omega": "the soft backlash contact; set the contact 'width' [deg] instead "
+                 "(or fit_width=True)",
+}
 
 
 def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
@@ -118,20 +126,11 @@ class CoulombFriction(Effect):
     fit_width : bool
         Fit the switching width as parameter ``v_switch`` [rad/s] (log scale,
         0.0005 to 0.5 rad/s, nominal ``width``).
-    eps : float, optional
-        Earlier versions' smoothing, kept so that saved models and scripts that
-        set it behave as before: the width is then ``eps + level*dt/2``, tied to
-        the sample period so that RK4 with 2 substeps stays stable (about ten
-        times softer than seal friction). ``None`` (default): ``width``.
-    dt : float
-        Sample period [s] (read by ``eps`` only).
     accel_scale : float
         Typical acceleration [rad/s^2] (the model's ``g_torque``); sets the bounds.
     """
 
     stribeck: bool = False
-    eps: float | None = None
-    dt: float = 0.004
     accel_scale: float = RIG_ACCEL
     viscous: bool = False
     width: float = FRICTION_WIDTH
@@ -151,11 +150,6 @@ class CoulombFriction(Effect):
         if not (isinstance(self.width, (int, float)) and math.isfinite(self.width)
                 and self.width > 0):
             raise ParameterError(f"coulomb_friction width must be > 0 rad/s, got {self.width!r}")
-        if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
-            raise ParameterError(f"coulomb_friction eps must be >= 0 rad/s, got {self.eps!r}")
-        if self.eps is not None and self.fit_width:
-            raise ParameterError("coulomb_friction: fit_width and the legacy eps exclude "
-                                 "each other")
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -179,8 +173,6 @@ class CoulombFriction(Effect):
 
     def _width(self, level: Any, p: Mapping[str, Any] | None = None) -> Any:
         """Width of the smooth sign [rad/s] for friction ``level``."""
-        if self.eps is not None:
-            return self.eps + 0.5 * self.dt * level
         if self.fit_width and p is not None:
             return p["v_switch"]
         return self.width
@@ -269,10 +261,9 @@ def _contact(z: Any) -> Any:
 
 
 class _InputCorner:
-    """Corner width of an input-stage switch: ``width*u_scale``, or the legacy ``eps``."""
+    """Corner width of an input-stage switch: ``width*u_scale``."""
 
     u_scale: float
-    eps: float | None
     width: float
 
     def _check(self) -> None:
@@ -280,12 +271,8 @@ class _InputCorner:
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ParameterError(f"{self.name} {key} must be > 0, got {v!r}")  # type: ignore[attr-defined]
-        if self.eps is not None and not (math.isfinite(self.eps) and self.eps > 0):
-            raise ParameterError(f"{self.name} eps must be > 0, got {self.eps!r}")  # type: ignore[attr-defined]
 
     def _relu(self, v: Any) -> Any:
-        if self.eps is not None:  # earlier versions' square-root corner
-            return smooth_relu(v, self.eps * self.u_scale)
         return corner_relu(v, self.width * self.u_scale)
 
 
@@ -304,14 +291,9 @@ class ValveDeadzone(_InputCorner, Effect):
     width : float
         Half width of the corners relative to ``u_scale`` (default
         :data:`CORNER_WIDTH`, 0.01).
-    eps : float, optional
-        Earlier versions' smoothing ``(v + sqrt(v^2 + (eps*u_scale)^2))/2``, kept so
-        that saved models and scripts that set it behave as before. ``None``
-        (default): the corner of ``width``.
     """
 
     u_scale: float = 1.0
-    eps: float | None = None
     width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_deadzone"
@@ -351,7 +333,6 @@ class ValveSaturation(_InputCorner, Effect):
     """
 
     u_scale: float = 1.0
-    eps: float | None = None
     width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_saturation"
@@ -582,16 +563,8 @@ class Backlash(Effect):
     speed : float
         Shaft speed [rad/s] at which :meth:`stiff_states` puts the contact (the
         stiffness check only; the dynamics do not use it).
-    eps_omega : float, optional
-        Earlier versions' smoothing, kept so that saved models and scripts that set
-        it behave as before: ``dgap/dt = omega*(1 - sigma((sgn(omega)*gap - h)/e +
-        3))`` with the logistic ``sigma``, the smooth sign ``omega/sqrt(omega^2 +
-        eps_omega^2)`` [rad/s] and ``e = 0.1*play + 0.03`` deg, a soft contact whose
-        effective play grows slowly (logarithmically) during long motions.
-        ``None`` (default): the contact of width ``width``.
     """
 
-    eps_omega: float | None = None
     width: float = BACKLASH_WIDTH
     fit_width: bool = False
     speed: float = BACKLASH_SPEED
@@ -611,11 +584,6 @@ class Backlash(Effect):
             v = getattr(self, field_name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ParameterError(f"backlash {field_name} must be > 0, got {v!r}")
-        if self.eps_omega is not None and not (math.isfinite(self.eps_omega)
-                                               and self.eps_omega > 0):
-            raise ParameterError(f"backlash eps_omega must be > 0 rad/s, got {self.eps_omega!r}")
-        if self.eps_omega is not None and self.fit_width:
-            raise ParameterError("backlash: fit_width and the legacy eps_omega exclude each other")
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -644,16 +612,11 @@ class Backlash(Effect):
     def apply(self, ctx: Context) -> None:
         w, gap = ctx.x["omega"], ctx.x["gap"]
         half = 0.5 * ctx.p["play"] / RAD2DEG
-        if self.eps_omega is not None:
-            e = (0.1 * ctx.p["play"] + 0.03) / RAD2DEG
-            x = (smooth_sign(w, self.eps_omega) * gap - half) / e + 3.0
-            rate = w * (1 - 1 / (1 + ca.exp(-x)))
-        else:
-            width = (ctx.p["w_contact"] if self.fit_width else self.width) / RAD2DEG
-            # The exact direction (max/min): a smooth sign would let the gap creep at
-            # rest and, at speeds within its width, drag it past the contact.
-            rate = (ca.fmax(w, 0) * _contact((half - gap) / width)
-                    + ca.fmin(w, 0) * _contact((half + gap) / width))
+        width = (ctx.p["w_contact"] if self.fit_width else self.width) / RAD2DEG
+        # The exact direction (max/min): a smooth sign would let the gap creep at
+        # rest and, at speeds within its width, drag it past the contact.
+        rate = (ca.fmax(w, 0) * _contact((half - gap) / width)
+                + ca.fmin(w, 0) * _contact((half + gap) / width))
         ctx.add_rate("gap", rate)
         ctx.signals["y"] = ctx.signal("y", self.name) - RAD2DEG * gap
 
@@ -682,7 +645,7 @@ class Backlash(Effect):
             raise ModelError("backlash needs the simulated velocity")
         # Half the probe play against the motion; the direction's sign smoothed over
         # 0.01 rad/s so that a velocity crossing zero between samples is not a jump.
-        return -0.25 * _smooth_np(sig.omega, self.eps_omega or 0.01)[:, None]
+        return -0.25 * _smooth_np(sig.omega, 0.01)[:, None]
 
 
 @register_effect
@@ -816,6 +779,10 @@ def make_effect(
     if values and values.get("g_torque", 0) > 0:
         auto["accel_scale"] = float(values["g_torque"])
     args = {k: v for k, v in auto.items() if k in fields}
+    removed = sorted(set(kw) & set(REMOVED_SETTINGS) - fields)
+    if removed:
+        raise ModelError(f"effect {name!r}: " + "; ".join(
+            f"{k} was removed ({REMOVED_SETTINGS[k]})" for k in removed))
     unknown = set(kw) - fields
     if unknown:
         raise ModelError(

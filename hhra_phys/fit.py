@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -41,7 +41,7 @@ from hhra_phys.interrupt import interruptible, map_stopping
 from hhra_phys.likelihood import profile_intervals
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
-from hhra_phys.multi import MultiProblem, pooled_score
+from hhra_phys.multi import pooled_score
 from hhra_phys.noise import interval_factor
 from hhra_phys.optim import minimize
 from hhra_phys.optim.registry import METHODS
@@ -50,7 +50,9 @@ from hhra_phys.parameters import split_record_name
 from hhra_phys.problem import (  # noqa: F401  (default_free, MAX_WIDEN_DECADES re-exported)
     MAX_WIDEN_DECADES,
     Problem,
+    as_records,
     default_free,
+    record_label,
 )
 from hhra_phys.refine import (
     CompiledLeastSquares,
@@ -78,9 +80,7 @@ __all__ = [
     "fit",
     "fit_many",
     "best_of",
-    "fit_records",
-    "fit_stacked",
-    "records_result",
+    "fit_problem",
 ]
 
 #: Global searches of a fit: the registered optimisers (:mod:`hhra_phys.optim.registry`) and
@@ -259,24 +259,23 @@ def fit(
     ----------
     data : Dataset or sequence of Dataset, optional
         The whole record (default: the built-in simulated rig, seed 0), or a list
-        of records fitted jointly (:mod:`hhra_phys.multi`): shared parameters,
-        per-record initial states (``x0_<state>_rec<k>``) and per-record
+        of records fitted jointly (:class:`~hhra_phys.problem.Problem`): shared
+        parameters, per-record initial states (``x0_<state>_rec<k>``) and per-record
         parameters, each record split by ``split`` unless ``validation`` is
         given; metrics per record in :attr:`FitResult.records`, pooled in
         :attr:`FitResult.metrics`.
     model : Model, optional
         Model to fit (default: :func:`default_model`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
-        sample units for records without a sample time). With the default model a
-        single record is first converted to its units (mA, deg) where it declares
+        sample units for records without a sample time). With the default model
+        the records are first converted to its units (mA, deg) where they declare
         others, and implausible ranges are warned about
         (:func:`~hhra_phys.models.hhra.defaults.prepare_record`).
     options : FitOptions, optional
         The fit's settings (default :class:`FitOptions`'s).
     validation : Dataset or sequence of Dataset, optional
-        Separate validation record(s) (then ``data`` is all estimation); with
-        several records, whole validation records have their initial state
-        estimated and the first record's per-record parameters.
+        Separate validation record(s) (then ``data`` is all estimation); they have
+        their initial state estimated and the first record's per-record parameters.
     datasheet : object, optional
         Known physical symbols for the model's physical view
         (:meth:`Model.physical_view <hhra_phys.model.Model.physical_view>`; for the
@@ -286,7 +285,8 @@ def fit(
     callback : callable, optional
         Called after every global iteration (see :func:`hhra_phys.optim.minimize`).
     problem : Problem, optional
-        A ready problem (then ``model``, ``free`` ... are taken from it).
+        A ready problem (then ``model``, ``free`` ... are taken from it; ``data``, split
+        by ``split``, gives the validation parts and the description).
     **settings
         Any field of :class:`FitOptions` (``seed=3``, ``pop_size=30``, ...), overriding
         ``options``; validated with it (:meth:`FitOptions.validate`).
@@ -305,73 +305,126 @@ def fit(
         callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
     opts = FitOptions.of(options, **settings)
-    (optimizer, refine, free, fixed, bounds, split, cost, initial_state, pop_size, max_iter,
-     seed, lam, optimizer_options, refine_options, start, progress, seed_population,
-     intervals, per_record, default_bounds, widen_bounds,
-     allow_outside_box) = (getattr(opts, f.name) for f in fields(FitOptions))
     t_start = time.perf_counter()
     if data is None:
         from hhra_phys.models.hhra.rig import simulate_rig
 
         data = simulate_rig(seed=0)
-    search = partial(_search_and_refine, optimizer=optimizer, refine=refine,
-                     pop_size=pop_size, max_iter=max_iter, seed=seed, lam=lam,
-                     options=optimizer_options, refine_options=refine_options, start=start,
-                     seed_population=seed_population, progress=progress, callback=callback)
-    if isinstance(data, (list, tuple)):
-
-        if not 0 < split <= 1:
-            raise ParameterError(f"split must be in (0, 1], got {split}")
-        if problem is None:
-            problem, val_parts, whole_val = fit_records(
-                data, model, validation, split,
-                {"cost": cost, "free": free, "fixed": fixed, "bounds": bounds,
-                 "default_bounds": default_bounds, "initial_state": initial_state,
-                 "start": start, "allow_outside_box": allow_outside_box}, per_record)
-        else:
-            val_parts, whole_val = [None] * len(problem.records), list(validation or [])
-        with interruptible():
-            problem, z, stages, history, widened = fit_and_widen(problem, search,
-                                                                 widen_bounds)
-        result = records_result(problem, z, stages, history, val_parts, whole_val,
-                                _settings(problem, optimizer, refine, pop_size, max_iter, lam,
-                                          split, time.perf_counter() - t_start),
-                                seed, datasheet, intervals, t_start)
-        _report_widening(result, widened, problem)
-        return result
-    record_notes: list[str] = []
+    records = as_records(data)
+    whole = as_records(validation) if validation is not None and len(validation) else []
+    notes: list[str] = []
     if model is None and problem is None:
-        # The default HHRA knows its units: convert the record, warn about odd ranges.
-        from hhra_phys.models.hhra.defaults import prepare_record
-
-        data, notes, warns = prepare_record(data)
-        record_notes = notes + warns
-        if validation is not None:
-            validation, notes, warns = prepare_record(validation)
-            record_notes += notes + warns
-    if validation is None:
-        if not 0 < split <= 1:
-            raise ParameterError(f"split must be in (0, 1], got {split}")
-        est, val = data.split(split) if split < 1 else (data, None)
-    else:
-        est, val = data, validation
+        records, whole, notes = _prepare_records(records, whole)
+    est, val_parts = _split_records(records, whole, opts.split)
     if problem is None:
-        if model is None:
-            model, auto_bounds = default_model(data)
-            default_bounds = {**auto_bounds, **(default_bounds or {})}
-        # The user's explicit bounds are kept as given; default boxes may be widened.
-        problem = Problem(model, est, cost=cost, free=free, fixed=fixed,  # type: ignore[arg-type]
-                          bounds=bounds, default_bounds=default_bounds,
-                          initial_state=initial_state,  # type: ignore[arg-type]
-                          start=start, allow_outside_box=allow_outside_box)
+        problem = _build_problem(est, model, opts)
+    return fit_problem(problem, val_parts, whole, opts, datasheet=datasheet,
+                       callback=callback, records=records, notes=notes, t_start=t_start)
+
+
+def _prepare_records(records: list[Dataset], whole: list[Dataset]
+                     ) -> tuple[list[Dataset], list[Dataset], list[str]]:
+    """The default HHRA knows its units: convert the records, warn about odd ranges."""
+    from hhra_phys.models.hhra.defaults import prepare_record
+
+    notes: list[str] = []
+    out: tuple[list[Dataset], list[Dataset]] = ([], [])
+    for given, prepared in zip((records, whole), out, strict=True):
+        for ds in given:
+            new, converted, warns = prepare_record(ds)
+            prepared.append(new)
+            notes += converted + warns
+    return out[0], out[1], notes
+
+
+def _split_records(records: list[Dataset], whole: list[Dataset], split: float
+                   ) -> tuple[list[Dataset], list[Dataset | None]]:
+    """Each record's estimation part and held-out part (``None``: whole validation records
+    are given, or ``split`` is 1)."""
+    if whole or split >= 1:
+        return records, [None] * len(records)
+    pairs = [ds.split(split) for ds in records]
+    return [p[0] for p in pairs], [p[1] for p in pairs]
+
+
+def _build_problem(est: list[Dataset], model: Model | None, opts: FitOptions) -> Problem:
+    """The fit's problem on the estimation parts.
+
+    Without a model, the default model's automatic boxes of the records (the widest of
+    each) join the default boxes; the user's explicit ``bounds`` are kept as given,
+    default boxes may be widened.
+    """
+    defaults = dict(opts.default_bounds or {})
+    if model is None:
+        model, auto = default_model(est[0])
+        for ds in est[1:]:
+            for name, (lo, hi) in default_model(ds)[1].items():
+                old = auto.get(name, (lo, hi))
+                auto[name] = (min(old[0], lo), max(old[1], hi))
+        defaults = {**auto, **defaults}
+    return Problem(model, est, cost=opts.cost, free=opts.free,  # type: ignore[arg-type]
+                   fixed=opts.fixed, bounds=opts.bounds, default_bounds=defaults or None,
+                   initial_state=opts.initial_state,  # type: ignore[arg-type]
+                   start=opts.start, allow_outside_box=opts.allow_outside_box,
+                   per_record=opts.per_record)
+
+
+def fit_problem(
+    problem: Problem,
+    validation: Sequence[Dataset | None] = (),
+    whole: Sequence[Dataset] = (),
+    options: FitOptions | None = None,
+    *,
+    datasheet: Any | None = None,
+    callback: Callable[[Any], bool | None] | None = None,
+    records: Sequence[Dataset] | None = None,
+    notes: Sequence[str] = (),
+    t_start: float | None = None,
+) -> FitResult:
+    """Fit a ready problem: search, refiners, box widening, accuracy check, the result.
+
+    What :func:`fit` runs after building the problem, and the diagnosis loop's fits.
+
+    Parameters
+    ----------
+    problem : Problem
+    validation : sequence of (Dataset or None)
+        Each record's held-out part, scored with that record's own values (empty or
+        ``None`` entries: none).
+    whole : sequence of Dataset
+        Whole validation records (initial state estimated on each, the first record's
+        per-record values).
+    options : FitOptions, optional
+        The search's settings (the problem's own settings are the problem's).
+    datasheet, callback
+        As for :func:`fit`.
+    records : sequence of Dataset, optional
+        The records as given (before any split), for the result's description (default:
+        the problem's).
+    notes : sequence of str
+        Warnings about the records to add to the result's.
+    t_start : float, optional
+        ``time.perf_counter()`` at the start of the fit (default: now).
+    """
+    opts = options if options is not None else FitOptions()
+    t_start = time.perf_counter() if t_start is None else t_start
+    parts = list(validation) or [None] * len(problem.records)
+    if len(parts) != len(problem.records):
+        raise ParameterError(f"{len(parts)} validation parts for {len(problem.records)} "
+                             "records (one per record, None for none)")
+    search = partial(_search_and_refine, optimizer=opts.optimizer, refine=opts.refine,
+                     pop_size=opts.pop_size, max_iter=opts.max_iter, seed=opts.seed,
+                     lam=opts.lam, options=opts.optimizer_options,
+                     refine_options=opts.refine_options, start=opts.start,
+                     seed_population=opts.seed_population, progress=opts.progress,
+                     callback=callback)
     with interruptible():
-        problem, z, stages, history, widened = fit_and_widen(problem, search, widen_bounds)
-        problem, z = _accurate_at_fit(problem, z, stages, refine, refine_options)
-    result = _result(problem, z, stages, history, val, data, optimizer, refine, pop_size,
-                     max_iter, seed, lam, split, datasheet, time.perf_counter() - t_start,
-                     intervals)
+        problem, z, stages, history, widened = fit_and_widen(problem, search, opts.widen_bounds)
+        problem, z = _accurate_at_fit(problem, z, stages, opts.refine, opts.refine_options)
+    result = _result(problem, z, (stages, history), (parts, list(whole)), opts, datasheet,
+                     list(records) if records is not None else problem.datasets, t_start)
     _report_widening(result, widened, problem)
-    result.warnings.extend(record_notes)
+    result.warnings.extend(notes)
     return result
 
 
@@ -387,7 +440,7 @@ def fit_and_widen(
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
+    problem : Problem
     search : callable
         ``search(problem, z_start=None, label="") -> (z, stages, history)``
         (:func:`_search_and_refine` with the fit's settings).
@@ -590,7 +643,7 @@ def widen_boxes(
 
     Parameters
     ----------
-    problem : Problem or MultiProblem
+    problem : Problem
     z : ndarray, shape (n_free,)
         The optimum of the first search, in fitting coordinates.
     search : callable
@@ -616,33 +669,9 @@ def widen_boxes(
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
         if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
-        box: dict[str, list[float]] = {}
-        changes = []
-        gains = _release_gains(problem, z, edges)
-        for (i, side), predicted in zip(edges, gains, strict=True):
-            par = problem.free_params[i]
-            name = split_record_name(par.name)[0]
-            if name not in origin or name in box:
-                continue
-            k = 0 if side == "lower" else 1
-            edge, first = [par.lower, par.upper][k], origin[name][k]
-            # A signed parameter's side at zero is a sign (physics), not a guessed size.
-            if edge == 0 or first == 0 or edge * first < 0:
-                continue
-            if abs(np.log10(edge / first)) >= MAX_WIDEN_DECADES - 0.5:
-                continue
-            # Model error, not a group beyond its box, unless the release clearly pays:
-            # then the edge warning stays.
-            if predicted < (WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS
-                            else WIDEN_CLEAR_GAIN):
-                continue
-            before = [par.lower, par.upper]
-            new = widened_box(par, side)
-            if new is None:
-                continue
-            box[name] = list(new)
-            changes.append({"name": name, "side": side, "round": round_,
-                            "from": before, "to": list(box[name])})
+        need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN
+        box, changes = _sides_to_widen(problem, edges, _release_gains(problem, z, edges),
+                                       origin, need, round_)
         if not changes:
             break
         values = problem.from_z(z)
@@ -661,6 +690,44 @@ def widen_boxes(
         if gain < WIDEN_MIN_GAIN:
             break
     return problem, z, widened
+
+
+def _sides_to_widen(problem: Any, edges: list[tuple[int, str]], gains: list[float],
+                    origin: Mapping[str, tuple[float, float]], need: float, round_: int,
+                    ) -> tuple[dict[str, list[float]], list[dict[str, Any]]]:
+    """The boxes of one round of :func:`widen_boxes` and one record per widened side.
+
+    A side is widened when its parameter's box is a default one (``origin``), the side
+    is not a sign (at or across zero), it is less than :data:`MAX_WIDEN_DECADES` beyond
+    the default box, and letting the parameter out pays at least ``need`` (the
+    predicted relative fall of the sum of squares, ``gains``).
+    """
+    box: dict[str, list[float]] = {}
+    changes: list[dict[str, Any]] = []
+    for (i, side), predicted in zip(edges, gains, strict=True):
+        par = problem.free_params[i]
+        name = split_record_name(par.name)[0]
+        if name not in origin or name in box or not _may_widen(par, side, origin[name]):
+            continue
+        # Model error, not a group beyond its box, unless the release clearly pays:
+        # then the edge warning stays.
+        new = widened_box(par, side) if predicted >= need else None
+        if new is None:
+            continue
+        box[name] = list(new)
+        changes.append({"name": name, "side": side, "round": round_,
+                        "from": [par.lower, par.upper], "to": list(new)})
+    return box, changes
+
+
+def _may_widen(par: Any, side: str, first_box: tuple[float, float]) -> bool:
+    """Whether ``side`` of ``par``'s box may move: not a sign, not yet at the widening limit."""
+    k = 0 if side == "lower" else 1
+    edge, first = [par.lower, par.upper][k], first_box[k]
+    # A signed parameter's side at zero is a sign (physics), not a guessed size.
+    if edge == 0 or first == 0 or edge * first < 0:
+        return False
+    return bool(abs(np.log10(edge / first)) < MAX_WIDEN_DECADES - 0.5)
 
 
 def _search_and_refine(
@@ -764,8 +831,7 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
     sim = problem.sim.accurate(problem.u, problem.full(v), tol, x0=x0)
     if sim is problem.sim or sim.substeps <= problem.sim.substeps:
         return problem, z
-    new = problem.with_boxes({})
-    new.sim = sim
+    new = problem.with_simulator(sim)
     ropts = dict(refine_options or {})
     keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
     st = refine_ipopt(new, z, **{k: val for k, val in ropts.items() if k in keys})
@@ -821,9 +887,7 @@ def _intervals(problem: Any, z: np.ndarray, intervals: str) -> Intervals:
     """95 % intervals, standard deviations, correlation, covariance, warnings and
     interval info at ``z``.
 
-    Works for a one-record :class:`Problem` and a stacked
-    :class:`~hhra_phys.multi.MultiProblem` alike (intervals from all records).
-    ``intervals`` is ``"linear"`` (Gauss-Newton) or ``"profile"`` (profile likelihood).
+    For any number of records (intervals from all records together).
     """
     # Uncertainty from the exact residual Jacobian at the optimum.
     r, J = CompiledLeastSquares(problem)(z)
@@ -947,49 +1011,38 @@ def _edge_warnings(problem: Any, z: np.ndarray, sd: np.ndarray,
 def _result(
     problem: Problem,
     z: np.ndarray,
-    stages: list[Stage],
-    history: list[float],
-    val: Dataset | None,
-    data: Dataset,
-    optimizer: str,
-    refine: Any,
-    pop_size: int,
-    max_iter: int,
-    seed: int | None,
-    lam: float,
-    split: float,
+    search: tuple[list[Stage], list[float]],
+    held_out: tuple[list[Dataset | None], list[Dataset]],
+    opts: FitOptions,
     datasheet: Any | None,
-    seconds: float,
-    intervals: str = "linear",
+    records: list[Dataset],
+    t_start: float,
 ) -> FitResult:
+    """The :class:`~hhra_phys.result.FitResult` of a fit at coordinates ``z``.
+
+    ``values``/``x0`` hold the shared parameters and the first record's own;
+    ``records`` has one entry per estimation record (``name``, ``fs``, ``n_est``,
+    ``n_val``, ``x0``, ``values`` of its per-record parameters, ``est`` and ``val``
+    metrics) and then one per whole validation record (``est`` empty); ``metrics`` are
+    the records' pooled (:func:`~hhra_phys.multi.pooled_score`).
+    """
+    stages, history = search
+    parts, whole = held_out
     model = problem.model
-    values_free = problem.from_z(z)
-    P = problem.full(values_free)
-    values = model.params.as_dict(P)
-    unc = _intervals(problem, z, intervals)
+    v = problem.from_z(z)
+    unc = _intervals(problem, z, opts.intervals)
     warnings = unc.warnings
-    X0 = problem.initial_states(values_free)[0]
-    x0 = dict(zip(model.state_names, X0.tolist(), strict=True))
-    y_est = problem.simulate_values(values_free)
-    diverged = not np.all(np.isfinite(y_est))
+    # Records are named as given (before any split), when they are the problem's.
+    names = ([record_label(ds, k) for k, ds in enumerate(records, start=1)]
+             if len(records) == len(problem.records) else problem.names)
+    entries, metrics, diverged = _record_scores(problem, v, parts, whole, names)
     if diverged:
         warnings.insert(0, "DIVERGED: the simulation with these parameters does not stay "
                         "finite on the estimation record, so the fit failed; check the units "
                         "of the input and output and the values given with --fix / fixed")
-    metrics = {"est": _score(problem.data, y_est), "val": {}}
-    if val is not None:
-        y_val = problem.simulate_values(values_free, data=val)
-        metrics["val"] = _score(val, y_val)
-        position_dependent = any(getattr(part, "position_dependent", False)
-                                 for part in problem.model.parts)
-        if position_dependent:
-            lo_e, hi_e = float(problem.data.y.min()), float(problem.data.y.max())
-            if val.y.min() < lo_e or val.y.max() > hi_e:
-                warnings.append(
-                    f"validation output leaves the estimation range [{lo_e:.3g}, {hi_e:.3g}]: "
-                    "position-dependent terms are extrapolated there"
-                )
-    settings = _settings(problem, optimizer, refine, pop_size, max_iter, lam, split, seconds)
+    warnings += _extrapolation_warnings(problem, parts, whole)
+    settings = _settings(problem, opts.optimizer, opts.refine, opts.pop_size, opts.max_iter,
+                         opts.lam, opts.split, 0.0)
     settings["integration"] = _integration(problem, z)
     err, tol = settings["integration"].get("error_at_fit"), settings["integration"].get(
         "tolerance")
@@ -998,12 +1051,99 @@ def _result(
             f"the integration error estimated at the fitted values ({err:.3g}) exceeds 10 % "
             f"of the record's noise level ({tol:.3g}) with {problem.sim.method.upper()} x "
             f"{problem.sim.substeps} substeps: the fit is biased by the discretisation")
-    settings["data"] = {"name": data.name, "source": data.source, "n": len(data),
-                        "n_est": len(problem.data), "n_val": len(val) if val is not None else 0}
-    return assemble_result(problem, values, x0, metrics, unc,
-                           SearchRecord(stages, history, seed), settings,
-                           datasheet=datasheet, metadata=data.metadata,
-                           status="diverged" if diverged else "ok")
+    settings.update(_data_settings(problem, records, parts, whole))
+    settings["seconds"] = time.perf_counter() - t_start
+    return assemble_result(problem, model.params.as_dict(problem.full(v)), entries[0]["x0"],
+                           metrics, unc, SearchRecord(stages, history, opts.seed), settings,
+                           datasheet=datasheet, metadata=records[0].metadata,
+                           status="diverged" if diverged else "ok", records=entries)
+
+
+def _record_scores(problem: Problem, v: np.ndarray, parts: list[Dataset | None],
+                   whole: list[Dataset], names: list[str],
+                   ) -> tuple[list[dict[str, Any]], dict[str, Any], bool]:
+    """Each record's scores (estimation, its held-out part), the whole validation records'
+    (first record's values), the pooled metrics, and whether a simulation diverged."""
+    model = problem.model
+    entries: list[dict[str, Any]] = []
+    est: tuple[list[Dataset], list[np.ndarray]] = ([], [])
+    val: tuple[list[Dataset], list[np.ndarray]] = ([], [])
+    for k, ((pr, vk), part) in enumerate(zip(problem.per_record_values(v), parts,
+                                             strict=True)):
+        y_est = pr.simulate_values(vk)
+        entry: dict[str, Any] = {
+            "name": names[k], "source": pr.data.source, "fs": float(pr.data.fs),
+            "n_est": len(pr.data), "n_val": len(part) if part is not None else 0,
+            "x0": dict(zip(model.state_names, pr.initial_states(vk)[0].tolist(), strict=True)),
+            "values": {n: float(pr.full(vk)[model.params.index(n)])
+                       for n in problem.per_record},
+            "est": _score(pr.data, y_est), "val": {},
+        }
+        est[0].append(pr.data)
+        est[1].append(y_est)
+        if part is not None:
+            y_val = pr.simulate_values(vk, data=part)
+            entry["val"] = _score(part, y_val)
+            val[0].append(part)
+            val[1].append(y_val)
+        entries.append(entry)
+    for ds in whole:
+        y_val = problem.simulate_values(v, data=ds)
+        entries.append({"name": ds.name or ds.source or "validation", "source": ds.source,
+                        "fs": float(ds.fs), "n_est": 0, "n_val": len(ds), "est": {},
+                        "val": _score(ds, y_val)})
+        val[0].append(ds)
+        val[1].append(y_val)
+    diverged = not all(np.all(np.isfinite(y)) for y in est[1])
+    metrics = {"est": _pooled(*est), "val": _pooled(*val) if val[0] else {}}
+    return entries, metrics, diverged
+
+
+def _pooled(records: list[Dataset], outputs: list[np.ndarray]) -> dict[str, float]:
+    """Metrics of the records together (:func:`~hhra_phys.multi.pooled_score`; one
+    record's own, :func:`_score`); ``nan`` where a simulation diverged."""
+    if len(records) == 1:
+        return _score(records[0], outputs[0])
+    if not all(np.all(np.isfinite(y)) for y in outputs):
+        return {k: float("nan") for k in ("mse", "rmse", "vaf", "itae", "fit", "max_abs")}
+    return pooled_score(records, outputs)
+
+
+def _extrapolation_warnings(problem: Problem, parts: list[Dataset | None],
+                            whole: list[Dataset]) -> list[str]:
+    """Held-out outputs outside their estimation range, for position-dependent models."""
+    if not any(getattr(part, "position_dependent", False) for part in problem.model.parts):
+        return []
+    lo_all = min(float(ds.y.min()) for ds in problem.datasets)
+    hi_all = max(float(ds.y.max()) for ds in problem.datasets)
+    pairs = [(ds.y.min(), ds.y.max(), pr.data.y.min(), pr.data.y.max())
+             for pr, ds in zip(problem.records, parts, strict=True) if ds is not None]
+    pairs += [(ds.y.min(), ds.y.max(), lo_all, hi_all) for ds in whole]
+    out = []
+    for v_lo, v_hi, e_lo, e_hi in pairs:
+        if v_lo < e_lo or v_hi > e_hi:
+            out.append(f"validation output leaves the estimation range [{float(e_lo):.3g}, "
+                       f"{float(e_hi):.3g}]: position-dependent terms are extrapolated there")
+    return out
+
+
+def _data_settings(problem: Problem, records: list[Dataset], parts: list[Dataset | None],
+                   whole: list[Dataset]) -> dict[str, Any]:
+    """The records' description in the result's settings: one record's ``data``
+    (``name``, ``source``, ``n``, ``n_est``, ``n_val``); several records' ``data``,
+    ``validation`` (one entry each) and ``per_record``."""
+    if len(problem.records) == 1:
+        held = parts[0] if parts[0] is not None else (whole[0] if whole else None)
+        return {"data": {"name": records[0].name, "source": records[0].source,
+                         "n": len(records[0]), "n_est": len(problem.data),
+                         "n_val": len(held) if held is not None else 0}}
+    return {"per_record": list(problem.per_record),
+            "data": [_describe(ds) for ds in problem.datasets],
+            "validation": [_describe(ds) for ds in whole]}
+
+
+def _describe(ds: Dataset) -> dict[str, Any]:
+    return {"name": ds.name, "source": ds.source, "n": len(ds), "fs": float(ds.fs)}
 
 
 def assemble_result(problem: Any, values: dict[str, float], x0: dict[str, float],
@@ -1012,7 +1152,7 @@ def assemble_result(problem: Any, values: dict[str, float], x0: dict[str, float]
                     metadata: Any = None, status: str = "ok",
                     records: list[dict[str, Any]] | None = None) -> FitResult:
     """The :class:`~hhra_phys.result.FitResult` of a fit: one place for the
-    single-record fit and the several-record fit (:mod:`hhra_phys.multi`).
+    fit of one record or several (:class:`~hhra_phys.problem.Problem`).
 
     ``values`` are the model's parameters by name, ``x0`` the (first) record's
     initial state by state name, ``unc`` the :func:`_intervals` at the optimum (its
@@ -1134,154 +1274,3 @@ def best_of(results: Sequence[FitResult]) -> FitResult:
     if not results:
         raise ParameterError("best_of needs at least one result")
     return min(results, key=lambda r: r.metrics["est"].get("rmse", np.inf))
-
-
-# --- several records ------------------------------------------------------------------
-
-
-def fit_records(
-    records: Sequence[Dataset],
-    model: Model | None,
-    validation: Sequence[Dataset] | Dataset | None,
-    split: float,
-    problem_kwargs: Mapping[str, Any],
-    per_record: Sequence[str] | None = None,
-) -> tuple[MultiProblem, list[Dataset | None], list[Dataset]]:
-    """Build the stacked problem of a multi-record fit (used by :func:`hhra_phys.fit.fit`).
-
-    Returns the problem, the validation part of each estimation record (``None``
-    without a split) and the whole validation records; the search and the result
-    are :func:`~hhra_phys.fit.fit`'s. Without a model, the default model's
-    automatic bounds are merged over the records (the widest of each).
-    """
-    records = list(records)
-    for ds in records:
-        if not isinstance(ds, Dataset):
-            raise ParameterError(f"fit() takes Dataset records, got {type(ds).__name__}")
-    whole_val = ([validation] if isinstance(validation, Dataset)
-                 else list(validation or []))
-    if whole_val or split >= 1:
-        est, val_parts = records, [None] * len(records)
-    else:
-        if not 0 < split < 1:
-            raise ParameterError(f"split must be in (0, 1], got {split}")
-        pairs = [ds.split(split) for ds in records]
-        est, val_parts = [p[0] for p in pairs], [p[1] for p in pairs]
-    kw = dict(problem_kwargs)
-    bounds = kw.pop("bounds", None)
-    defaults = dict(kw.pop("default_bounds", None) or {})
-    if model is None:
-        model, auto = default_model(records[0])
-        for ds in records[1:]:
-            for name, (lo, hi) in default_model(ds)[1].items():
-                old = auto.get(name, (lo, hi))
-                auto[name] = (min(old[0], lo), max(old[1], hi))
-        defaults = {**auto, **defaults}
-    names = [ds.name or ds.source or f"record {k}" for k, ds in enumerate(records, start=1)]
-    # Automatic and default boxes may be widened by the fit, the user's ``bounds`` not.
-    problem = MultiProblem(model, est, bounds=bounds, default_bounds=defaults,
-                           per_record=per_record, names=names, **kw)
-    return problem, val_parts, whole_val
-
-
-def _describe(ds: Dataset) -> dict[str, Any]:
-    return {"name": ds.name, "source": ds.source, "n": len(ds), "fs": float(ds.fs)}
-
-
-def records_result(
-    problem: MultiProblem,
-    z: np.ndarray,
-    stages: list[Any],
-    history: list[float],
-    val_parts: Sequence[Dataset | None],
-    whole_val: Sequence[Dataset],
-    settings: dict[str, Any],
-    seed: int | None,
-    datasheet: Any | None,
-    intervals: str,
-    t_start: float,
-) -> Any:
-    """The :class:`~hhra_phys.result.FitResult` of a multi-record fit at coordinates ``z``.
-
-    ``values``/``x0`` hold the shared parameters and the first record's own;
-    ``records`` one entry per estimation record (``name``, ``fs``, ``n_est``,
-    ``n_val``, ``x0``, ``values`` of its per-record parameters, ``est`` and
-    ``val`` metrics) and then one per whole validation record (``est`` empty);
-    ``metrics`` the pooled ``est`` and ``val`` (:func:`pooled_score`).
-    """
-    model = problem.model
-    v = problem.from_z(z)
-    unc = _intervals(problem, z, intervals)
-    records: list[dict[str, Any]] = []
-    est_y, est_sim, val_y, val_sim = [], [], [], []
-    for k, (pr, part) in enumerate(zip(problem.records, val_parts, strict=True)):
-        vk = problem.record_values(v, k)
-        x0 = pr.initial_states(vk)[0]
-        y_est = pr.simulate_values(vk)
-        entry: dict[str, Any] = {
-            "name": problem.names[k], "source": pr.data.source, "fs": float(pr.data.fs),
-            "n_est": len(pr.data), "n_val": len(part) if part is not None else 0,
-            "x0": dict(zip(model.state_names, x0.tolist(), strict=True)),
-            "values": {n: float(pr.full(vk)[model.params.index(n)])
-                       for n in problem.per_record},
-            "est": {kk: float(vv) for kk, vv in score(pr.data.y, y_est, pr.data.t).items()},
-            "val": {},
-        }
-        est_y.append(pr.data)
-        est_sim.append(y_est)
-        if part is not None:
-            y_val = pr.simulate_values(vk, data=part)
-            entry["val"] = {kk: float(vv) for kk, vv in score(part.y, y_val, part.t).items()}
-            val_y.append(part)
-            val_sim.append(y_val)
-        records.append(entry)
-    first = problem.records[0]
-    v0 = problem.record_values(v, 0)
-    for ds in whole_val:
-        y_val = first.simulate_values(v0, data=ds)
-        records.append({"name": ds.name or ds.source or "validation", "source": ds.source,
-                        "fs": float(ds.fs), "n_est": 0, "n_val": len(ds), "est": {},
-                        "val": {kk: float(vv) for kk, vv in score(ds.y, y_val, ds.t).items()}})
-        val_y.append(ds)
-        val_sim.append(y_val)
-    metrics = {"est": pooled_score(est_y, est_sim),
-               "val": pooled_score(val_y, val_sim) if val_y else {}}
-    values = model.params.as_dict(first.full(v0))
-    settings = dict(settings)
-    settings["per_record"] = list(problem.per_record)
-    settings["data"] = [_describe(pr.data) for pr in problem.records]
-    settings["validation"] = [_describe(ds) for ds in whole_val]
-    settings["seconds"] = time.perf_counter() - t_start
-    return assemble_result(problem, values, records[0]["x0"], metrics, unc,
-                           SearchRecord(stages, history, seed), settings,
-                           datasheet=datasheet, metadata=first.data.metadata, records=records)
-
-
-def fit_stacked(
-    problem: MultiProblem,
-    selection: Sequence[Dataset],
-    *,
-    optimizer: str = "hgwo",
-    refine: str = "ipopt",
-    pop_size: int = 100,
-    max_iter: int = 200,
-    seed: int | None = 0,
-    seed_population: bool = False,
-    refine_options: Mapping[str, Any] | None = None,
-    split: float = 0.5,
-) -> Any:
-    """Fit a ready :class:`MultiProblem` and score each record's own held-out part.
-
-    :func:`hhra_phys.fit.fit`'s search and refiners and :func:`records_result`,
-    with ``selection[k]`` the part held out of estimation record ``k`` (scored
-    with that record's own per-record parameters; ``val`` of its entry and,
-    pooled, of ``metrics``). The diagnosis loop's fits of several records.
-    """
-    t0 = time.perf_counter()
-    z, stages, history = _search_and_refine(
-        problem, optimizer, refine, pop_size, max_iter, seed, 1.0, None, refine_options,
-        None, seed_population, False, None)
-    settings = _settings(problem, optimizer, refine, pop_size, max_iter, 1.0, split,
-                         time.perf_counter() - t0)
-    return records_result(problem, z, stages, history, list(selection), [], settings, seed,
-                          None, "linear", t0)

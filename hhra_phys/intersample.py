@@ -230,9 +230,9 @@ def refit_with_hold(result: FitResult, problem: Problem, selection: Dataset | No
     """
     from hhra_phys.fit import fit
 
-    if not isinstance(problem, Problem):
+    if len(problem.records) > 1:
         raise ParameterError("refit_with_hold takes the one-record Problem of the current fit "
-                             f"(got {type(problem).__name__})")
+                             f"(got one of {len(problem.records)} records)")
     est = problem.data
     kind = kind or other_hold(est.intersample)
     if kind not in INTERSAMPLE:

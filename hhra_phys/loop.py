@@ -57,22 +57,15 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import MAX_WIDEN_DECADES, at_edges, fit, fit_stacked, widened_box
+from hhra_phys.fit import MAX_WIDEN_DECADES, FitOptions, at_edges, fit_problem, widened_box
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
-from hhra_phys.multi import (
-    MultiProblem,
-    RecordSet,
-    per_record_params,
-    pooled_score,
-    record_name,
-    split_record_name,
-    split_records,
-)
+from hhra_phys.multi import RecordSet, pooled_score, split_records
 from hhra_phys.options import with_overrides
 from hhra_phys.outputs import jsonable
-from hhra_phys.problem import Problem, default_free
+from hhra_phys.parameters import record_name, split_record_name
+from hhra_phys.problem import Problem, as_records, default_free, per_record_params
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -269,8 +262,8 @@ class _Settings:
     seed: int
     ipopt_iter: int
     initial_state: str
-    #: Substeps of the base simulator; with several records ``((fs, substeps), ...)``.
-    substeps: int | tuple[tuple[float, int], ...] | None
+    #: Substeps of the base simulators, ``((fs, substeps), ...)`` (one per sample rate).
+    substeps: tuple[tuple[float, int], ...] | None
     split: float
     criterion: str
     #: Default boxes (widened like the model's when a group ends at an edge).
@@ -283,90 +276,68 @@ class _Settings:
 CANDIDATE_BLOCK = 2
 
 
-def _simulator(cfg: _Settings, model: Model) -> Simulator | dict[float, Simulator]:
-    """The simulator of a candidate (or accepted) model: base substeps, a short block.
-
-    With several records (:mod:`hhra_phys.multi`) one per sample rate, ``{fs: Simulator}``.
-    """
-    if isinstance(cfg.est, RecordSet):
-        subs = dict(cfg.substeps or ())  # type: ignore[arg-type]
-        return {fs: Simulator(model, fs=fs, backend=cfg.backend, substeps=subs.get(fs, "auto"),
-                              block=CANDIDATE_BLOCK)
-                for fs in dict.fromkeys(float(ds.fs) for ds in cfg.est)}
-    return Simulator(model, fs=cfg.est.fs, backend=cfg.backend,
-                     substeps=cfg.substeps or "auto", block=CANDIDATE_BLOCK)
+def _simulator(cfg: _Settings, model: Model) -> dict[float, Simulator]:
+    """The simulators of a candidate (or accepted) model, ``{fs: Simulator}`` (one per
+    sample rate of the records): base substeps, a short block."""
+    subs = dict(cfg.substeps or ())
+    return {fs: Simulator(model, fs=fs, backend=cfg.backend, substeps=subs.get(fs, "auto"),
+                          block=CANDIDATE_BLOCK)
+            for fs in dict.fromkeys(float(ds.fs) for ds in as_records(cfg.est))}
 
 
 def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[str, float],
              start: Mapping[str, float], x0: Mapping[str, float] | None = None,
-             simulator: Simulator | None = None) -> Problem:
-    """A problem on the estimation part (warm-started at ``start`` and ``x0``).
+             simulator: Simulator | Mapping[float, Simulator] | None = None) -> Problem:
+    """A problem on the estimation part(s) (warm-started at ``start`` and ``x0``).
 
     Candidates keep the base model's substeps: "auto" would size them at the
     effect's nominal (a stiff friction sign can ask for 8x more) and the
     simulator's stability check already rejects candidates too stiff for them.
-    One simulator serves every problem of one model (its compiled code is per
-    model structure, not per free set). With several records it is a stacked
-    :class:`~hhra_phys.multi.MultiProblem` (:func:`_records_problem`).
-    """
-    if isinstance(cfg.est, RecordSet):
-        return _records_problem(cfg, model, free, fixed, start, simulator)
-    sim = simulator or _simulator(cfg, model)
-    bnd = {k: v for k, v in cfg.bounds.items() if k in free}
-    st = {k: v for k, v in start.items() if k in model.params and k not in fixed}
-    if cfg.initial_state == "fit":
-        for state in model.fitted_states:  # warm start of the fitted initial state too
-            if x0 and state in x0:
-                st[f"x0_{state}"] = float(x0[state])
-    dflt = {k: v for k, v in cfg.default_bounds.items() if k in free and k not in bnd}
-    return Problem(model, cfg.est, free=list(free), fixed=dict(fixed), bounds=bnd,
-                   initial_state=cfg.initial_state, simulator=sim,  # type: ignore[arg-type]
-                   start=st, allow_outside_box=True,  # fixed values come from the loop's fits
-                   default_bounds=dflt or None)
-
-
-def _records_problem(cfg: _Settings, model: Model, free: Sequence[str],
-                     fixed: Mapping[str, float], start: Mapping[str, float],
-                     simulator: Any = None) -> MultiProblem:
-    """:func:`_problem` for several records: shared parameters, per-record initial states.
+    One simulator per sample rate serves every problem of one model (its compiled
+    code is per model structure, not per free set).
 
     ``start`` may hold per-record values (``x0_theta_rec2``, ``p_offset_rec2``, from
     :func:`_values`); a per-record parameter held in ``fixed`` is held at each record's
     own value. ``simulator`` is ``{fs: Simulator}``, or one simulator (the base fit's,
     default block) beside which the other rates get the same kind.
     """
+    records = as_records(cfg.est)
     if simulator is None:
         sims = _simulator(cfg, model)
-    elif isinstance(simulator, dict):
-        sims = simulator
+    elif isinstance(simulator, Mapping):
+        sims = dict(simulator)
     else:
         sims = {float(simulator.fs): simulator}
-        for ds in cfg.est:
+        for ds in records:
             sims.setdefault(float(ds.fs), Simulator(model, fs=ds.fs, backend=cfg.backend))
     own = set(per_record_params(model))
     held: dict[str, float] = {}
     for name, value in fixed.items():
         if name in own:  # each record keeps its own value
             held.update({record_name(name, k): float(start.get(record_name(name, k), value))
-                         for k in range(1, len(cfg.est) + 1)})
+                         for k in range(1, len(records) + 1)})
         else:
             held[name] = float(value)
     st = {k: v for k, v in start.items()
           if (k in model.params or split_record_name(k)[1] is not None)
           and k not in held and split_record_name(k)[0] not in fixed}
+    if cfg.initial_state == "fit":
+        for state in model.fitted_states:  # warm start of the fitted initial state too
+            if x0 and state in x0:
+                st.setdefault(f"x0_{state}", float(x0[state]))
     bnd = {k: v for k, v in cfg.bounds.items() if k in free}
     dflt = {k: v for k, v in cfg.default_bounds.items() if k in free and k not in bnd}
-    return MultiProblem(model, list(cfg.est), free=list(free), fixed=held, bounds=bnd,
-                        initial_state=cfg.initial_state, start=st, simulators=sims,
-                        names=cfg.data.names, default_bounds=dflt or None,
-                        allow_outside_box=True)
+    return Problem(model, records, free=list(free), fixed=held, bounds=bnd,
+                   initial_state=cfg.initial_state, start=st,  # type: ignore[arg-type]
+                   simulator=sims, default_bounds=dflt or None,
+                   allow_outside_box=True)  # fixed values come from the loop's fits
 
 
 def _values(res: FitResult) -> dict[str, float]:
     """A fit's values to warm-start the next: the model's, and each record's own.
 
     One record: :attr:`FitResult.values`. Several: also ``<name>_rec<k>`` of every
-    per-record free parameter and initial state (:mod:`hhra_phys.multi`).
+    per-record free parameter and initial state.
     """
     out = dict(res.values)
     if res.records:
@@ -378,68 +349,52 @@ def _values(res: FitResult) -> dict[str, float]:
 def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
          refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None) -> FitResult:
     # A warm start seeds the first population with the problem's start values
-    # (the previous fit); the base fit is not seeded.
-    if isinstance(problem, MultiProblem):  # several records: each scored on its selection
-        return fit_stacked(problem, cfg.sel, optimizer=optimizer, refine=refine,
-                           pop_size=pop, max_iter=iters, seed=cfg.seed, seed_population=warm,
-                           refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter},
-                           split=cfg.split)
-    return fit(cfg.data, problem=problem, validation=cfg.sel, split=cfg.split,
-               optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
-               seed=cfg.seed, seed_population=warm,
-               refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter})
+    # (the previous fit); the base fit is not seeded. Each record is scored on its
+    # own selection part.
+    opts = FitOptions(optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
+                      seed=cfg.seed, seed_population=warm, split=cfg.split,
+                      refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter})
+    return fit_problem(problem, as_records(cfg.sel), options=opts,
+                       records=as_records(cfg.data))
 
 
-def _base_fit(cfg: _Settings, problem: Problem | MultiProblem, pop: int, iters: int
-              ) -> FitResult:
+def _base_fit(cfg: _Settings, problem: Problem, pop: int, iters: int) -> FitResult:
     """The base fit: a plain fit (H-GWO ``pop`` x ``iters`` + IPOPT at its own limit)."""
-    if isinstance(problem, MultiProblem):
-        return fit_stacked(problem, cfg.sel, pop_size=pop, max_iter=iters, seed=cfg.seed,
-                           split=cfg.split)
-    return fit(cfg.data, problem=problem, validation=cfg.sel, split=cfg.split,
-               optimizer="hgwo", pop_size=pop, max_iter=iters, seed=cfg.seed,
-               seed_population=False)
+    opts = FitOptions(optimizer="hgwo", pop_size=pop, max_iter=iters, seed=cfg.seed,
+                      seed_population=False, split=cfg.split)
+    return fit_problem(problem, as_records(cfg.sel), options=opts,
+                       records=as_records(cfg.data))
 
 
 def _test_score(problem: Problem, res: FitResult, test: Dataset | None) -> dict[str, float]:
     """Free-run scores on the test part (initial state re-estimated on it, as for selection).
 
-    Several records: pooled, and each record's written into ``res.records`` (``"test"``).
+    Pooled over the records; with several records each one's is written into
+    ``res.records`` (``"test"``). Each record's test part is simulated with its own
+    per-record values; whole validation records (``test.whole``) with the first
+    record's, as :func:`~hhra_phys.fit.fit` scores them, and are appended to
+    ``res.records`` (``n_est`` 0) with their name.
     """
     if test is None:
         return {}
-    if isinstance(problem, MultiProblem):
-        return _records_test_score(problem, res, test)
-    y = problem.simulate_values(_free_values(problem, res), data=test)
-    return {k: float(v) for k, v in score(test.y, y, test.t).items()}
-
-
-def _records_test_score(problem: MultiProblem, res: FitResult,
-                        test: Sequence[Dataset]) -> dict[str, float]:
-    """Test scores of several records: pooled; per record in ``res.records[k]["test"]``.
-
-    Each record's test part is simulated with its own per-record values; whole
-    validation records (``test.whole``) with the first record's, as
-    :func:`~hhra_phys.fit.records_result` scores them, and are appended to
-    ``res.records`` (``n_est`` 0) with their name.
-    """
+    whole = bool(getattr(test, "whole", False))
+    parts = as_records(test)
     v = _free_values(problem, res)
-    entries = [dict(r) for r in res.records if r.get("n_est")]
-    ys = []
-    for k, ds in enumerate(test):
-        own = 0 if getattr(test, "whole", False) else k
-        y = problem.records[own].simulate_values(problem.record_values(v, own), data=ds)
-        ys.append(y)
-        sc = {kk: float(vv) for kk, vv in score(ds.y, y, ds.t).items()}
-        if getattr(test, "whole", False):
-            entries.append({"name": test.names[k], "source": ds.source, "fs": float(ds.fs),
-                            "n_est": 0, "n_val": 0, "n_test": ds.n, "est": {}, "val": {},
-                            "test": sc})
-        else:
-            entries[k]["test"] = sc
-            entries[k]["n_test"] = ds.n
-    res.records = entries
-    return pooled_score(list(test), ys)
+    ys = ([problem.simulate_values(v, data=ds) for ds in parts] if whole
+          else problem.simulate_parts(v, parts))
+    if res.records:  # several records: each one's test scores beside its others
+        entries = [dict(r) for r in res.records if r.get("n_est")]
+        for k, (ds, y) in enumerate(zip(parts, ys, strict=True)):
+            sc = {kk: float(vv) for kk, vv in score(ds.y, y, ds.t).items()}
+            if whole:
+                entries.append({"name": test.names[k], "source": ds.source,
+                                "fs": float(ds.fs), "n_est": 0, "n_val": 0, "n_test": ds.n,
+                                "est": {}, "val": {}, "test": sc})
+            else:
+                entries[k]["test"] = sc
+                entries[k]["n_test"] = ds.n
+        res.records = entries
+    return pooled_score(parts, ys)
 
 
 def _free_values(problem: Problem, res: FitResult) -> np.ndarray:
@@ -466,71 +421,42 @@ def _unidentified(res: FitResult, names: Sequence[str], model: Model) -> list[st
     return out
 
 
-def _output_range(problem: Problem, values: np.ndarray, data: Dataset) -> tuple[float, float]:
-    """Range of the simulated output on ``data`` (free run), output units.
-
-    Several records: ``data`` is a :class:`~hhra_phys.multi.RecordSet` of parts of
-    them (each simulated with its record's own values), or their estimation parts.
-    """
-    if isinstance(problem, MultiProblem):
-        if not isinstance(data, RecordSet):
-            y = problem.simulate_values(values)
-        else:
-            y = np.concatenate([pr.simulate_values(problem.record_values(values, k), data=ds)
-                                for k, (pr, ds) in enumerate(zip(problem.records, data,
-                                                                 strict=True))])
-        return float(np.nanmin(y)), float(np.nanmax(y))
-    y = problem.simulate_values(values, data=data if data is not problem.data else None)
+def _output_range(problem: Problem, values: np.ndarray, data: Any) -> tuple[float, float]:
+    """Range of the simulated output (free run), output units: on the estimation records
+    (``data`` None), or on parts of them (``data``, one per record, each simulated with
+    its record's own values)."""
+    parts = None if data is None else as_records(data)
+    y = np.concatenate(problem.simulate_parts(values, parts))
     return float(np.nanmin(y)), float(np.nanmax(y))
 
 
-def selection_noise(problem: Problem, res: FitResult, sel: Dataset | None) -> dict[str, Any]:
+def selection_noise(problem: Problem, res: FitResult, sel: Any) -> dict[str, Any]:
     """Where a part's residual stands against the noise.
 
     Parameters
     ----------
     problem : Problem
-        The fitted model's problem (on the estimation part).
+        The fitted model's problem (on the estimation part of each record).
     res : FitResult
         Its fit.
-    sel : Dataset or None
-        The part to look at: the selection part (free run, initial state
-        re-estimated on it), or ``None`` for the estimation part itself (the
-        fit's residual, fitted initial state).
+    sel : Dataset or RecordSet or None
+        The part to look at, one per record (a :class:`~hhra_phys.data.Dataset` for
+        one record, a :class:`~hhra_phys.multi.RecordSet` for several): the selection
+        parts (free run, initial state re-estimated on each), or ``None`` for the
+        estimation parts themselves (the fit's residual, fitted initial states).
 
     Returns
     -------
     dict
-        ``rmse`` (RMSE of the part, output units), ``noise`` (its white-noise level,
-        :func:`~hhra_phys.diagnose.noise_level`), ``ratio`` (``rmse/noise``),
-        ``ljung_box_p`` and ``white`` (``p > 0.05``) of the residual.
-        Several records (``problem`` a :class:`~hhra_phys.multi.MultiProblem`, ``sel``
-        a :class:`~hhra_phys.multi.RecordSet` or ``None``): RMSE over all samples of
-        the parts, the noise level the records' levels pooled by sample count, and
-        one Ljung-Box test of the records together (statistics and degrees of
-        freedom summed, records independent).
+        ``rmse`` (RMSE over all samples of the parts, output units), ``noise`` (their
+        white-noise level, :func:`~hhra_phys.diagnose.noise_level`; the records' levels
+        pooled by sample count), ``ratio`` (``rmse/noise``), ``ljung_box_p`` and
+        ``white`` (``p > 0.05``) of the residual (with several records one Ljung-Box
+        test of them together: statistics and degrees of freedom summed, records
+        independent).
     """
-    if isinstance(problem, MultiProblem):
-        return _records_noise(problem, res, sel)
-    y = problem.simulate_values(_free_values(problem, res), data=sel)
-    r = (problem.data if sel is None else sel).y - y
-    if not np.isfinite(r).all():
-        return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
-                "white": False}
-    sigma = noise_level(r, ((problem.data if sel is None else sel).u, y))
-    rmse = float(np.sqrt(np.mean(r ** 2)))
-    w = whiteness(r)
-    return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
-            "ljung_box_p": float(w["ljung_box_p"]), "white": bool(w["white"])}
-
-
-def _records_noise(problem: MultiProblem, res: FitResult,
-                   sel: Sequence[Dataset] | None) -> dict[str, float | bool]:
-    """:func:`selection_noise` of several records (its docstring)."""
-    v = _free_values(problem, res)
-    parts = [None] * len(problem.records) if sel is None else list(sel)
-    ys = [pr.simulate_values(problem.record_values(v, k), data=ds)
-          for k, (pr, ds) in enumerate(zip(problem.records, parts, strict=True))]
+    parts = [None] * len(problem.records) if sel is None else as_records(sel)
+    ys = problem.simulate_parts(_free_values(problem, res), parts)
     datas = [pr.data if ds is None else ds
              for pr, ds in zip(problem.records, parts, strict=True)]
     rs = [d.y - yk for d, yk in zip(datas, ys, strict=True)]
@@ -538,13 +464,18 @@ def _records_noise(problem: MultiProblem, res: FitResult,
     if not np.isfinite(r).all():
         return {"rmse": math.inf, "noise": math.nan, "ratio": math.inf, "ljung_box_p": 0.0,
                 "white": False}
-    sigma = float(np.sqrt(sum(rk.size * noise_level(rk, (d.u, yk)) ** 2
-                              for rk, d, yk in zip(rs, datas, ys, strict=True)) / r.size))
-    rmse = float(np.sqrt(np.mean(r ** 2)))
+    sigmas = [noise_level(rk, (d.u, yk)) for rk, d, yk in zip(rs, datas, ys, strict=True)]
     tests = [whiteness(rk) for rk in rs]
-    p = float(chi2.sf(sum(w["ljung_box_q"] for w in tests), sum(w["lags"] for w in tests)))
+    if len(rs) == 1:  # a pool of one is that record's own
+        sigma, p, white = sigmas[0], float(tests[0]["ljung_box_p"]), bool(tests[0]["white"])
+    else:
+        sigma = float(np.sqrt(sum(rk.size * s ** 2 for rk, s in zip(rs, sigmas, strict=True))
+                              / r.size))
+        p = float(chi2.sf(sum(w["ljung_box_q"] for w in tests), sum(w["lags"] for w in tests)))
+        white = p > 0.05
+    rmse = float(np.sqrt(np.mean(r ** 2)))
     return {"rmse": rmse, "noise": sigma, "ratio": rmse / sigma if sigma > 0 else math.inf,
-            "ljung_box_p": p, "white": p > 0.05}
+            "ljung_box_p": p, "white": white}
 
 
 def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
@@ -558,7 +489,7 @@ def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
 
 
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
-               parts: str = "both") -> tuple[dict[str, Any], bool]:
+               ) -> tuple[dict[str, Any], bool]:
     """The loop's noise-level stop: both non-test parts must be at the noise level.
 
     The selection part alone is a quarter of the record; a weak effect that it
@@ -577,9 +508,6 @@ def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
         The selection part.
     noise_tol : float
         Structural-mismatch allowance (fraction of the noise level).
-    parts : {"both", "selection"}
-        ``"both"`` (the rule above) or ``"selection"``: the earlier rule, which
-        stopped on the selection part alone (kept to measure the two side by side).
 
     Returns
     -------
@@ -587,11 +515,11 @@ def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
         :func:`selection_noise` of the selection part, with the estimation part's
         under ``"estimation"``.
     stop : bool
-        Both parts (or the selection part) at the noise level (:func:`at_noise_level`).
+        Both parts at the noise level (:func:`at_noise_level`).
     """
     level = selection_noise(problem, res, sel)
     level["estimation"] = selection_noise(problem, res, None)
-    return level, stops_at_noise(level, noise_tol, parts)
+    return level, stops_at_noise(level, noise_tol)
 
 
 @dataclass(frozen=True)
@@ -801,9 +729,8 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
 
     try:
         sims = _simulator(cfg, model)
-        for sim in (sims.values() if isinstance(sims, dict) else [sims]):
-            est = next(ds for ds in (cfg.est if isinstance(cfg.est, RecordSet) else [cfg.est])
-                       if float(ds.fs) == float(sim.fs))
+        for sim in sims.values():
+            est = next(ds for ds in as_records(cfg.est) if float(ds.fs) == float(sim.fs))
             n = min(est.n, sim.chunk)
             u, p = est.u[:n], model.nominal()
             with np.errstate(all="ignore"):
@@ -997,10 +924,6 @@ class LoopOptions:
     discover_kw : dict, optional
         Options of :class:`~hhra_phys.discover.Discovery` (``method``, ``max_terms``,
         ``entries``).
-    stop_on : {"both", "selection"}
-        Noise-level stop (:func:`noise_stop`): stop when the estimation *and*
-        selection residuals are at the noise level (default), or, the earlier rule,
-        the selection residual alone. The test part is never looked at.
     joint_search : bool
         A candidate's global search also covers the parameters of the effects
         accepted in earlier rounds, instead of holding them at the previous fit
@@ -1050,7 +973,6 @@ class LoopOptions:
     background: bool = True
     discover: bool = True
     discover_kw: Mapping[str, Any] | None = None
-    stop_on: str = "both"
     joint_search: bool = False
     backward: bool = True
     intersample: bool = True
@@ -1072,8 +994,6 @@ class LoopOptions:
         need(0 <= self.margin < 1, f"margin must be in [0, 1), got {self.margin}")
         need(self.noise_tol is None or self.noise_tol >= 0,
              f"noise_tol must be >= 0, got {self.noise_tol}")
-        need(self.stop_on in ("both", "selection"),
-             f"stop_on must be 'both' or 'selection', got {self.stop_on!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -1106,6 +1026,11 @@ class LoopOptions:
         ParameterError
             An override that is not a setting (with the settings' names), or a bad value.
         """
+        if "stop_on" in overrides:
+            raise ParameterError(
+                "stop_on was removed (its 'selection' rule stopped on the selection part "
+                "alone): the loop stops when both the estimation and the selection parts "
+                "are at the noise level (noise_stop); drop the setting")
         opts = with_overrides(options if options is not None else cls(), overrides, "loop",
                               ("candidates", "free"))
         if opts.candidates is not None:  # generic aliases (input_deadzone, ...) name the
@@ -1133,8 +1058,8 @@ def augment(
     data : Dataset or sequence of Dataset
         The whole record, N samples, split in time order into estimation (the
         first ``split*N``), selection (the next) and test (the last ``test*N``).
-        Several records (:mod:`hhra_phys.multi`): each is split so; every fit
-        (base and candidates) is a multi-record fit with shared parameters (an
+        Several records: each is split so; every fit (base and candidates) is
+        one :class:`~hhra_phys.problem.Problem` of all of them, with shared parameters (an
         effect's new ones too) and per-record initial states; selection and test
         scores are pooled over the records (per record in ``records`` of
         ``base``/``final`` in :meth:`LoopResult.to_json`) and the evidence is
@@ -1194,9 +1119,7 @@ class _Loop:
         self.say = progress or (lambda s: None)
         self.tol = NOISE_TOL if opts.noise_tol is None else float(opts.noise_tol)
         self.t0 = time.perf_counter()
-        est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
-        if isinstance(est, RecordSet):
-            data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
+        data, est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
         self.data, self.est, self.sel, self.held = data, est, sel, held
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
         if model is None:
@@ -1248,7 +1171,7 @@ class _Loop:
         if o.intersample and not isinstance(self.est, RecordSet):
             self._hold()
         self.est_range = _output_range(self.cur_prob, _free_values(self.cur_prob, self.cur),
-                                       self.cur_prob.data)
+                                       None)
 
     def _hold(self) -> None:
         """The other inter-sample behaviours, judged and chosen by the one rule."""
@@ -1297,10 +1220,10 @@ class _Loop:
         remaining = [n for n in self.names if n not in self.chosen and n not in self.dropped]
         if not remaining and not self.discover:
             return "no candidates left"
-        level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol, o.stop_on)
+        level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol)
         self.levels.append(level)
         if at_noise:
-            stop = _noise_stop_text(level, o.stop_on, self.tol)
+            stop = _noise_stop_text(level, self.tol)
             say(f"round {rnd}: {stop}; stop")
             return stop
         queue, jobs, disc = self._queue(rnd, remaining)
@@ -1485,7 +1408,7 @@ class _Loop:
             "max_iter": o.max_iter, "cand_pop": o.cand_pop, "cand_iter": o.cand_iter,
             "seed": o.seed, "margin": o.margin, "noise_tol": self.tol,
             "criterion": o.criterion, "backend": o.backend, "discover": o.discover,
-            "stop_on": o.stop_on, "joint_search": o.joint_search, "backward": o.backward,
+            "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
@@ -1536,40 +1459,35 @@ def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float,
 
 def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
                 validation: Dataset | Sequence[Dataset] | None, base: FitResult | None,
-                ) -> tuple[Any, Any, Any]:
-    """Estimation, selection and test parts: :func:`split_record`, or for several records
-    (or whole validation records) :func:`~hhra_phys.multi.split_records`."""
-    if isinstance(data, Dataset) and validation is None:
-        return split_record(data, split, test)
-    records = [data] if isinstance(data, Dataset) else list(data)
-    if not records:
-        raise ParameterError("augment needs at least one record")
-    for ds in records:
-        if not isinstance(ds, Dataset):
-            raise ParameterError(f"augment takes Dataset records, got {type(ds).__name__}")
+                ) -> tuple[Any, Any, Any, Any]:
+    """The records and their estimation, selection and test parts.
+
+    One record (a list of one alike) without validation records: the record and
+    :func:`split_record`'s parts; otherwise a :class:`~hhra_phys.multi.RecordSet` of the
+    records and :func:`~hhra_phys.multi.split_records`'s.
+    """
+    records = as_records(data)
+    whole = as_records(validation) if validation is not None and len(validation) else []
+    if len(records) == 1 and not whole:
+        return (records[0], *split_record(records[0], split, test))
     if base is not None:
         raise ParameterError("base: a given base fit is for one record; with several records "
                              "(or validation records) the loop fits its own base")
-    whole = [validation] if isinstance(validation, Dataset) else list(validation or [])
-    return split_records(records, split, test, whole or None)
+    return (RecordSet(records), *split_records(records, split, test, whole or None))
 
 
-def _substeps(problem: Problem | MultiProblem) -> int | tuple[tuple[float, int], ...]:
-    """The base fit's substeps, which candidates keep (per sample rate with several records)."""
-    if isinstance(problem, MultiProblem):
-        return tuple((float(fs), int(sim.substeps)) for fs, sim in problem.simulators.items())
-    return problem.sim.substeps
+def _substeps(problem: Problem) -> tuple[tuple[float, int], ...]:
+    """The base fit's substeps per sample rate, which candidates keep."""
+    return tuple((float(fs), int(sim.substeps)) for fs, sim in problem.simulators.items())
 
 
-def _noise_stop_text(level: Mapping[str, Any], stop_on: str, noise_tol: float) -> str:
+def _noise_stop_text(level: Mapping[str, Any], noise_tol: float) -> str:
     """The stop reason of :func:`noise_stop` in words (which rule held on each part)."""
     e = level["estimation"]
     text = (f"selection residual at the noise level (RMSE {level['rmse']:.4g} = "
             f"{level['ratio']:.3f} x noise {level['noise']:.3g}, "
-            f"{_why_at_noise(level, noise_tol)})")
-    if stop_on == "both":
-        text += (f", estimation residual too (RMSE {e['rmse']:.4g} = {e['ratio']:.3f} x noise, "
-                 f"{_why_at_noise(e, noise_tol)})")
+            f"{_why_at_noise(level, noise_tol)}), estimation residual too (RMSE "
+            f"{e['rmse']:.4g} = {e['ratio']:.3f} x noise, {_why_at_noise(e, noise_tol)})")
     return text
 
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, is_dataclass
 from typing import Any
 
 import casadi as ca
@@ -511,6 +511,12 @@ class Model:
                     f"loading; known: {', '.join(sorted(PART_TYPES))}"
                 )
             args = {k: tuple(v) if isinstance(v, list) else v for k, v in entry["args"].items()}
+            known = {f.name for f in fields(typ)} if is_dataclass(typ) else set(args)
+            if set(args) - known:
+                raise ModelError(
+                    f"saved model part {entry['type']!r} has settings this version does not "
+                    f"know: {sorted(set(args) - known)} (known: {sorted(known)}); earlier "
+                    "versions' smoothing settings (eps, eps_omega) were removed")
             parts.append(typ(**args))
         new = Model.__new__(target)
         stages = spec.get("stages")

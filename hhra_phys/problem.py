@@ -1,6 +1,7 @@
-"""A fitting problem: model + data + cost + which parameters are free, and how scaled.
+"""A fitting problem: model + records + cost + which parameters are free, and how scaled.
 
-:class:`Problem` is what optimisers and refiners see. It maps between
+:class:`Problem` is what optimisers and refiners see, for one record or several (one
+record is a set of one; each record's part is a :class:`RecordProblem`). It maps between
 
 * the model's full parameter vector ``p`` (physical units, ``model.params`` order), and
 * the *fitting coordinates* ``z`` of the free parameters only, in which the
@@ -48,16 +49,20 @@ import numpy as np
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
-from hhra_phys.parameters import Parameter
+from hhra_phys.parameters import Parameter, record_name, split_record_name
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 
 __all__ = [
     "COSTS",
     "Problem",
+    "RecordProblem",
+    "as_records",
     "default_free",
     "data_rule_function",
     "estimate_initial_state",
     "initial_guess",
+    "per_record_params",
+    "record_label",
 ]
 
 CostName = Literal["itae", "mse", "rmse", "ssr"]
@@ -116,51 +121,96 @@ def data_rule_function(model: Model, dt: float) -> ca.Function:
     return fn
 
 
-class Problem:
-    """Model + estimation data + cost + free/fixed parameters and their scaling.
+def _check_choices(cost: str, initial_state: str) -> None:
+    """The cost and the initial-state rule are known ones."""
+    if cost not in COSTS:
+        raise ParameterError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+    if initial_state not in ("data", "zero", "fit"):
+        raise ParameterError(
+            f"initial_state must be 'data', 'zero' or 'fit', got {initial_state!r}"
+        )
+
+
+def as_records(data: Dataset | Sequence[Dataset]) -> list[Dataset]:
+    """One record or several as a list of records (one record: a list of one).
+
+    Raises
+    ------
+    ParameterError
+        No record, or an item that is not a :class:`~hhra_phys.data.Dataset`.
+    """
+    records = [data] if isinstance(data, Dataset) else list(data)
+    if not records:
+        raise ParameterError("a fitting problem needs at least one record")
+    for ds in records:
+        if not isinstance(ds, Dataset):
+            raise ParameterError(f"records must be Dataset objects, got {type(ds).__name__}")
+    return records
+
+
+def record_label(ds: Dataset, k: int) -> str:
+    """A record's label in reports: its name, or its source, or ``"record <k>"`` (from 1)."""
+    return ds.name or ds.source or f"record {k}"
+
+
+def per_record_params(model: Model) -> list[str]:
+    """Model parameters estimated once per record: those its parts list in ``per_record``."""
+    out: list[str] = []
+    for part in model.parts:
+        out += [n for n in getattr(part, "per_record", ()) if n in model.params.names]
+    return out
+
+
+def _per_record_split(values: Mapping[str, float] | None, n: int, what: str
+                      ) -> tuple[dict[str, float], list[dict[str, float]]]:
+    """``{name or name_rec<k>: value}`` -> (shared values, one dict per record)."""
+    shared: dict[str, float] = {}
+    own: list[dict[str, float]] = [{} for _ in range(n)]
+    for name, value in (values or {}).items():
+        base, k = split_record_name(name)
+        if k is None:
+            shared[name] = float(value)
+        elif k > n:
+            raise ParameterError(f"{what} {name!r}: there are only {n} records")
+        else:
+            own[k - 1][base] = float(value)
+    return shared, own
+
+
+def _simulators_by_rate(simulator: Simulator | Mapping[float, Simulator] | None,
+                        records: Sequence[Dataset]) -> dict[float, Simulator]:
+    """``{fs: Simulator}`` of the simulators given (one, by rate, or none)."""
+    if simulator is None:
+        return {}
+    if isinstance(simulator, Mapping):
+        return {float(k): v for k, v in simulator.items()}
+    if not any(abs(simulator.fs - ds.fs) <= 1e-9 * ds.fs for ds in records):
+        raise DataError(f"dataset sample rate {records[0].fs} Hz differs from the "
+                        f"simulator's {simulator.fs} Hz")
+    return {float(ds.fs): simulator for ds in records
+            if abs(simulator.fs - ds.fs) <= 1e-9 * ds.fs}
+
+
+class RecordProblem:
+    """One record's part of a :class:`Problem`: model + record + cost + free parameters.
+
+    A :class:`Problem` holds one per record (:attr:`Problem.records`); it is what the
+    compiled sensitivities, the record-by-record analyses and the multiple-shooting
+    refiner see. Build a :class:`Problem` (one record or several) to fit; its
+    parameters are those of :class:`Problem`, for this record alone (its free
+    parameters are named without a record suffix).
 
     Parameters
     ----------
     model : Model
-        The model to fit (e.g. :class:`~hhra_phys.model.HHRAModel`).
     data : Dataset
-        Estimation data (use :meth:`Dataset.split` first to keep validation data).
-    cost : {"itae", "mse", "rmse", "ssr"}
-        Cost minimised by the global search: ITAE (the paper's), mean or root mean
-        squared error, or the sum of squared residuals. Local refiners always
-        minimise the (smooth) sum of squares.
-    free : sequence of str, optional
-        Names of the free parameters (default: all except the model's ``held``
-        ones, :func:`default_free`).
-    fixed : dict, optional
-        ``{name: value}``: parameters held at the given value (e.g. from a
-        datasheet). A name both free and fixed is an error.
-    bounds : dict, optional
-        ``{name: (lower, upper)}`` overriding the model's bounds (physical units): the
-        user's explicit boxes, never widened (:attr:`explicit_bounds`).
-    initial_state : {"data", "zero", "fit"}
-        How the initial state is set (module docstring).
+        The record (estimation part).
+    cost, free, fixed, bounds, initial_state, start, default_bounds, allow_outside_box
+        As for :class:`Problem`, for this record.
     simulator : Simulator, optional
-        A simulator of ``model`` at the data's sample rate to reuse (its sibling with the
-        record's inter-sample behaviour, :meth:`Simulator.with_intersample`, if it differs).
-    substeps : int or "auto"
-        RK4 substeps if a simulator is built here.
-    start : dict, optional
-        Parameter values to use instead of the model's nominal values for the
-        parameters that are neither free nor fixed, and as the start of the
-        search (first population member, local refiners). ``x0_<state>`` names
-        start a fitted initial state. A start value beyond a default box (not one of
-        ``bounds``) of a log-scaled parameter widens that side by whole decades until
-        it holds the value (at most :data:`MAX_WIDEN_DECADES`; :attr:`widened`).
-    default_bounds : dict, optional
-        ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
-        boxes of a record in sample units); like the model's, and unlike ``bounds``,
-        they may be widened. Names that are not free are ignored.
-    allow_outside_box : bool
-        Accept ``fixed`` values of the right sign outside their parameter's box (the
-        CLI's ``--allow-outside-box``); otherwise such a value is an error
-        (:meth:`~hhra_phys.parameters.ParameterSet.check_values`, the check of
-        ``--fix``). Notes about accepted values are in :attr:`notes`.
+        A simulator of ``model`` at the record's sample rate to reuse (its sibling with
+        the record's inter-sample behaviour, :meth:`Simulator.with_intersample`, if it
+        differs); default: one built here with accuracy-chosen substeps.
 
     Attributes
     ----------
@@ -177,13 +227,8 @@ class Problem:
 
     Raises
     ------
-    ParameterError
-        Unknown or contradictory parameter names, bad bounds, a fixed value that is
-        not finite, of the wrong sign, or outside its box (without
-        ``allow_outside_box``), each naming the parameter.
-    DataError
-        Data too short for the number of free parameters, or a sample rate that
-        does not match the simulator.
+    ParameterError, DataError
+        As :class:`Problem`.
     """
 
     def __init__(
@@ -196,29 +241,40 @@ class Problem:
         bounds: Mapping[str, tuple[float, float]] | None = None,
         initial_state: Literal["data", "zero", "fit"] = "data",
         simulator: Simulator | None = None,
-        substeps: int | str = "auto",
         start: Mapping[str, float] | None = None,
         default_bounds: Mapping[str, tuple[float, float]] | None = None,
         allow_outside_box: bool = False,
     ) -> None:
-        if cost not in COSTS:
-            raise ParameterError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
-        if initial_state not in ("data", "zero", "fit"):
-            raise ParameterError(
-                f"initial_state must be 'data', 'zero' or 'fit', got {initial_state!r}"
-            )
+        _check_choices(cost, initial_state)
         self.model = model
         self.data = data
         self.cost = cost
         self.initial_state = initial_state
+        start = dict(start or {})
+        free = self._set_values(free, fixed, start, allow_outside_box)
+        params = self._model_params(free, bounds, default_bounds, start)
+        self._dt = 1.0 / data.fs
+        params += self._initial_state_params(start)
+        self.free_params = params
+        self.free_names = [p.name for p in params]
+        self._model_free = [model.params.index(p.name) for p in params
+                            if not p.name.startswith("x0_")]
+        self.n_free = len(params)
+        self._check_size()
+        self._scale = np.array([(p.upper - p.lower) / 2 if p.scale == "linear" else 1.0
+                                for p in params])
+        self._log = np.array([p.scale == "log" for p in params])
+        self._set_simulator(simulator)
+
+    def _set_values(self, free: Sequence[str] | None, fixed: Mapping[str, float] | None,
+                    start: Mapping[str, float], allow_outside_box: bool) -> list[str]:
+        """Check the free and fixed names; set :attr:`base`, :attr:`fixed`, :attr:`notes`."""
+        model = self.model
         fixed = dict(fixed or {})
-        names = model.params.names
         # The one check of held values (also the CLI's --fix): name, sign, box.
         self.notes: list[str] = model.params.check_values(
             fixed, allow_outside_box=allow_outside_box, what="fixed")
-        if free is None:
-            free = default_free(model, fixed)
-        free = list(free)
+        free = list(default_free(model, fixed) if free is None else free)
         for name in free:
             model.params.index(name)
             if name in fixed:
@@ -226,21 +282,30 @@ class Problem:
         if len(set(free)) != len(free):
             raise ParameterError(f"free parameters listed twice: {free}")
         self.base = model.nominal()
-        x0_start = {k: float(v) for k, v in (start or {}).items() if k.startswith("x0_")}
-        for name, value in (start or {}).items():
+        for name, value in start.items():
             if not name.startswith("x0_"):
                 self.base[model.params.index(name)] = float(value)
         for name, value in fixed.items():
             self.base[model.params.index(name)] = float(value)
-        self.fixed = {n: float(self.base[model.params.index(n)]) for n in names if n not in free}
+        self.fixed = {n: float(self.base[model.params.index(n)])
+                      for n in model.params.names if n not in free}
+        return free
 
-        # Free parameters (model parameters, then initial-state parameters).
+    def _model_params(self, free: list[str], bounds: Mapping[str, tuple[float, float]] | None,
+                      default_bounds: Mapping[str, tuple[float, float]] | None,
+                      start: Mapping[str, float]) -> list[Parameter]:
+        """The free model parameters with their boxes (explicit, default, widened for a start)."""
         self.explicit_bounds: frozenset[str] = frozenset(bounds or {})
         self.default_boxes: dict[str, tuple[float, float]] = {}
         self.widened: list[dict[str, object]] = []
+        unknown = set(bounds or {}) - set(free)
+        if unknown:
+            raise ParameterError(
+                f"bounds given for parameters that are not free: {sorted(unknown)}"
+            )
         params: list[Parameter] = []
         for name in free:
-            par = model.params[name]
+            par = self.model.params[name]
             box = (bounds or {}).get(name, (default_bounds or {}).get(name))
             if box is not None:
                 lo, hi = (float(b) for b in box)
@@ -248,17 +313,20 @@ class Problem:
                 par = par.with_(lower=lo, upper=hi, nominal=nominal)
             if name not in self.explicit_bounds:
                 self.default_boxes[name] = (par.lower, par.upper)
-                if par.scale == "log" and start and name in start:  # a given start, not a
+                if par.scale == "log" and name in start:  # a given start, not a
                     # nominal off the box
                     par = self._box_for_start(par, float(start[name]))
             params.append(par)
-        unknown = set(bounds or {}) - set(free)
-        if unknown:
-            raise ParameterError(
-                f"bounds given for parameters that are not free: {sorted(unknown)}"
-            )
-        self._dt = 1.0 / data.fs
-        self._x0_states: list[str] = list(model.fitted_states) if initial_state == "fit" else []
+        return params
+
+    def _initial_state_params(self, start: Mapping[str, float]) -> list[Parameter]:
+        """The ``x0_<state>`` parameters of the ``"fit"`` rule, started at ``start`` or the
+        ``"data"`` rule's value."""
+        model = self.model
+        x0_start = {k: float(v) for k, v in start.items() if k.startswith("x0_")}
+        self._x0_states: list[str] = (list(model.fitted_states)
+                                      if self.initial_state == "fit" else [])
+        params: list[Parameter] = []
         if self._x0_states:
             guess = self._x0_from_data(self.base[None, :])[0]
             for state in self._x0_states:
@@ -277,11 +345,11 @@ class Problem:
                 f"start values {sorted(x0_start)} name initial states that are not fitted "
                 f"(fitted with initial_state='fit': {', '.join(model.fitted_states) or 'none'})"
             )
-        self.free_params = params
-        self.free_names = [p.name for p in params]
-        self._model_free = [model.params.index(p.name) for p in params
-                            if not p.name.startswith("x0_")]
-        self.n_free = len(params)
+        return params
+
+    def _check_size(self) -> None:
+        """Something to fit, and at least ten samples per free parameter."""
+        data = self.data
         if self.n_free == 0:
             raise ParameterError("no free parameters: nothing to fit")
         if len(data) < 10 * self.n_free:
@@ -289,15 +357,14 @@ class Problem:
                 f"{data.source or data.name or 'dataset'}: {len(data)} samples are too few to fit "
                 f"{self.n_free} parameters (need at least {10 * self.n_free})"
             )
-        self._scale = np.array([(p.upper - p.lower) / 2 if p.scale == "linear" else 1.0
-                                for p in params])
-        self._log = np.array([p.scale == "log" for p in params])
 
+    def _set_simulator(self, simulator: Simulator | None) -> None:
+        """The record's simulator, with accuracy-chosen substeps when it chooses them."""
+        data = self.data
         # The record says what its input did between samples; a simulator given for
         # another behaviour is swapped for its sibling (same method and substeps).
         self.sim = (simulator.with_intersample(data.intersample) if simulator is not None
-                    else Simulator(model, fs=data.fs, substeps=substeps,
-                                   intersample=data.intersample))
+                    else Simulator(self.model, fs=data.fs, intersample=data.intersample))
         if abs(self.sim.fs - data.fs) > 1e-9 * data.fs:
             raise DataError(
                 f"dataset sample rate {data.fs} Hz differs from the simulator's {self.sim.fs} Hz"
@@ -325,33 +392,6 @@ class Problem:
         self.widened.append({"name": par.name, "side": side, "round": 0, "from": [lo, hi],
                              "to": list(new), "reason": "start", "decades": decades})
         return par.with_(lower=new[0], upper=new[1])
-
-    def with_boxes(self, boxes: Mapping[str, tuple[float, float]]) -> Problem:
-        """The same problem with the default boxes of some parameters replaced (widened).
-
-        Everything else is kept: free set, fixed values, explicit bounds, initial-state
-        rule, simulator; :attr:`default_boxes` (the boxes before any widening) and
-        :attr:`widened` carry over.
-
-        Parameters
-        ----------
-        boxes : dict
-            ``{name: (lower, upper)}`` of free model parameters whose box is not explicit.
-        """
-        explicit = {p.name: (p.lower, p.upper) for p in self.free_params
-                    if p.name in self.explicit_bounds}
-        defaults = {p.name: (p.lower, p.upper) for p in self.free_params
-                    if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
-        defaults.update(boxes)
-        new = Problem(self.model, self.data, cost=self.cost,  # type: ignore[arg-type]
-                      free=[n for n in self.free_names if not n.startswith("x0_")],
-                      fixed=self.fixed, bounds=explicit, default_bounds=defaults,
-                      initial_state=self.initial_state,  # type: ignore[arg-type]
-                      simulator=self.sim, allow_outside_box=True)
-        new.default_boxes = {**new.default_boxes, **self.default_boxes}
-        new.widened = list(self.widened)
-        new.notes = list(self.notes)
-        return new
 
     # -- coordinates --------------------------------------------------------------------
     def to_z(self, values: np.ndarray) -> np.ndarray:
@@ -386,6 +426,10 @@ class Problem:
     def x0_states(self) -> list[str]:
         """States whose initial value is a free parameter ``x0_<state>`` (``"fit"`` rule)."""
         return list(self._x0_states)
+
+    def blocks(self) -> list[tuple[RecordProblem, np.ndarray]]:
+        """This record as the one block of its coordinates (:meth:`Problem.blocks`)."""
+        return [(self, np.arange(self.n_free))]
 
     def full(self, values: np.ndarray) -> np.ndarray:
         """Full model parameter vectors from free values, shape (..., n_params)."""
@@ -540,6 +584,383 @@ class Problem:
         y_sim = traj(x0, p_full, ca.DM(U))
         r = ca.vec(y_sim[: self.y.size]) - ca.DM(self.y)
         self._residual_fn = ca.Function("residual", [z], [r], ["z"], ["r"])
+        return self._residual_fn
+
+
+
+class Problem:
+    """Model + one or several estimation records + cost + free/fixed parameters and scaling.
+
+    The one fitting problem of the package: the fit, the diagnosis loop, discovery, the
+    backward step and design see only it, whatever the number of records (one record is
+    a set of one). Records are fitted together the way MATLAB's multi-experiment
+    ``nlgreyest`` or PyBOP's multi-fitting problem do:
+
+    * the model parameters are **shared** by every record (one coordinate each);
+    * every record has its own **initial state** and its own value of the model's
+      **per-record parameters** (parts list them in a ``per_record`` attribute, e.g. the
+      zero of a pressure sensor, ``p_offset``, which drifts from day to day). With
+      several records these are named ``<name>_rec<k>`` (``x0_theta_rec2``, record
+      ``k`` counted from 1); with one record they keep their plain names
+      (``x0_theta``);
+    * records may differ in length and sample rate: one compiled simulator per sample
+      rate is shared by the records at that rate.
+
+    The cost of the global search is the sum of the records' costs (one population call
+    per record); the least-squares residual of the refiners and of the uncertainty is
+    the records' residuals stacked, with the exact Jacobian assembled record by record
+    (:class:`~hhra_phys.refine.CompiledLeastSquares`, :meth:`blocks`), so intervals come
+    from all records together. Each record's part is a :class:`RecordProblem`
+    (:attr:`records`).
+
+    Parameters
+    ----------
+    model : Model
+        The model to fit (e.g. :class:`~hhra_phys.model.HHRAModel`), shared by all records.
+    data : Dataset or sequence of Dataset
+        Estimation record(s) (use :meth:`Dataset.split` first to keep validation data).
+    cost : {"itae", "mse", "rmse", "ssr"}
+        Cost minimised by the global search (each record's, summed): ITAE (the paper's),
+        mean or root mean squared error, or the sum of squared residuals. Local
+        refiners always minimise the (smooth) sum of squares.
+    free : sequence of str, optional
+        Names of the free model parameters (default: all except the model's ``held``
+        ones, :func:`default_free`); the per-record copies are made here.
+    fixed : dict, optional
+        ``{name: value}``: parameters held at the given value (e.g. from a datasheet).
+        A name both free and fixed is an error. ``<name>_rec<k>`` holds one record's
+        value of a per-record parameter (the loop holds each record's sensor zero while
+        it searches a candidate's new parameters); a plain name holds every record's.
+    bounds : dict, optional
+        ``{name: (lower, upper)}`` overriding the model's bounds (physical units): the
+        user's explicit boxes, never widened (:attr:`explicit_bounds`).
+    initial_state : {"data", "zero", "fit"}
+        How each record's initial state is set (module docstring).
+    simulator : Simulator or dict, optional
+        A simulator of ``model`` to reuse, or ``{fs: Simulator}`` by sample rate [Hz]
+        (the diagnosis loop's short-block candidate simulators); records at other rates
+        get one built with accuracy-chosen substeps. Each record uses the sibling with
+        its inter-sample behaviour (:meth:`Simulator.with_intersample`).
+    start : dict, optional
+        Parameter values to use instead of the model's nominal values for the
+        parameters that are neither free nor fixed, and as the start of the search
+        (first population member, local refiners). ``x0_<state>`` names start a fitted
+        initial state; a plain name starts every record, ``<name>_rec<k>`` one record.
+        A start value beyond a default box (not one of ``bounds``) of a log-scaled
+        parameter widens that side by whole decades until it holds the value (at most
+        :data:`MAX_WIDEN_DECADES`; :attr:`widened`).
+    default_bounds : dict, optional
+        ``{name: (lower, upper)}`` replacing the model's default boxes (e.g. the wider
+        boxes of a record in sample units); like the model's, and unlike ``bounds``,
+        they may be widened. Names that are not free are ignored.
+    allow_outside_box : bool
+        Accept ``fixed`` values of the right sign outside their parameter's box (the
+        CLI's ``--allow-outside-box``); otherwise such a value is an error
+        (:meth:`~hhra_phys.parameters.ParameterSet.check_values`, the check of
+        ``--fix``). Notes about accepted values are in :attr:`notes`.
+    per_record : sequence of str, optional
+        Free model parameters estimated once per record (default: those of
+        :func:`per_record_params` that are free).
+
+    Attributes
+    ----------
+    records : list of RecordProblem
+        Each record's part, in the order given.
+    explicit_bounds : frozenset of str
+        Free parameters whose box was given in ``bounds`` (never widened).
+    default_boxes : dict
+        ``{name: (lower, upper)}``: the default box, before any widening, of every free
+        log-scaled model parameter whose box may be widened.
+    widened : list of dict
+        Box sides widened here for a start value beyond them: ``name``, ``side``,
+        ``round`` (0), ``from``, ``to``, ``reason`` (``"start"``).
+    notes : list of str
+        Fixed values accepted outside their box.
+
+    Raises
+    ------
+    ParameterError
+        No records; unknown or contradictory parameter names, bad bounds, a fixed value
+        that is not finite, of the wrong sign, or outside its box (without
+        ``allow_outside_box``), each naming the parameter; unknown per-record names; a
+        start or fixed value for a record that does not exist.
+    DataError
+        A record too short for the number of its free parameters, or a simulator whose
+        sample rate matches no record.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        data: Dataset | Sequence[Dataset],
+        cost: CostName = "itae",
+        free: Sequence[str] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        initial_state: Literal["data", "zero", "fit"] = "data",
+        simulator: Simulator | Mapping[float, Simulator] | None = None,
+        start: Mapping[str, float] | None = None,
+        default_bounds: Mapping[str, tuple[float, float]] | None = None,
+        allow_outside_box: bool = False,
+        per_record: Sequence[str] | None = None,
+    ) -> None:
+        datasets = as_records(data)
+        _check_choices(cost, initial_state)
+        free = (list(free) if free is not None
+                else default_free(model, {split_record_name(n)[0]: 0.0 for n in fixed or {}}))
+        if per_record is None:
+            per_record = [n for n in per_record_params(model) if n in free]
+        missing = sorted(set(per_record) - set(free))
+        if missing:
+            raise ParameterError(f"per-record parameters {missing} are not free ({free})")
+        self.model = model
+        self.cost = cost
+        self.initial_state = initial_state
+        self.per_record = list(per_record)
+        self._free_model = free
+        # As given (per-record names kept), so that with_boxes rebuilds the same problem.
+        self._fixed_given = dict(fixed or {})
+        self.simulators = _simulators_by_rate(simulator, datasets)
+        shared_start, own_start = _per_record_split(start, len(datasets), "start value")
+        shared_fixed, own_fixed = _per_record_split(fixed, len(datasets), "fixed value")
+        self.records: list[RecordProblem] = []
+        for i, ds in enumerate(datasets):
+            pr = RecordProblem(model, ds, cost=cost, free=free,
+                               fixed={**shared_fixed, **own_fixed[i]} or None, bounds=bounds,
+                               initial_state=initial_state,
+                               simulator=self.simulators.get(float(ds.fs)),
+                               start={**shared_start, **own_start[i]},
+                               default_bounds=default_bounds,
+                               allow_outside_box=allow_outside_box)
+            self.simulators.setdefault(float(ds.fs), pr.sim)
+            self.records.append(pr)
+        first = self.records[0]
+        self.fixed = first.fixed
+        # Boxes are per model parameter, the same in every record.
+        self.explicit_bounds = first.explicit_bounds
+        self.default_boxes = {k: v for pr in self.records for k, v in pr.default_boxes.items()}
+        self.widened = [w for pr in self.records for w in pr.widened]
+        self.notes = list(first.notes)
+        self._stack()
+
+    def _stack(self) -> None:
+        """The stacked coordinates: the shared model parameters, then each record's own."""
+        own = set(self.per_record)
+        several = len(self.records) > 1
+        params: list[Parameter] = []
+        log: list[bool] = []
+        scale: list[float] = []
+        index_of: dict[str, int] = {}
+        self._index: list[np.ndarray] = []
+        for k, pr in enumerate(self.records, start=1):
+            idx = []
+            for j, par in enumerate(pr.free_params):
+                specific = several and (par.name in own or par.name.startswith("x0_"))
+                name = record_name(par.name, k) if specific else par.name
+                if name not in index_of:
+                    index_of[name] = len(params)
+                    params.append(par.with_(name=name) if specific else par)
+                    log.append(bool(pr._log[j]))
+                    scale.append(float(pr._scale[j]))
+                idx.append(index_of[name])
+            self._index.append(np.array(idx, dtype=int))
+        self.free_params = params
+        self.free_names = [p.name for p in params]
+        self.n_free = len(params)
+        self._log = np.array(log)
+        self._scale = np.array(scale)
+        self.y = np.concatenate([pr.y for pr in self.records])
+
+    def with_boxes(self, boxes: Mapping[str, tuple[float, float]]) -> Problem:
+        """The same problem with the default boxes of some model parameters replaced (widened).
+
+        Everything else is kept: records, free set, fixed values (also the start values
+        of parameters that are neither free nor fixed), explicit bounds, initial-state
+        rule, simulators; :attr:`default_boxes` (the boxes before any widening),
+        :attr:`widened` and :attr:`notes` carry over.
+
+        Parameters
+        ----------
+        boxes : dict
+            ``{name: (lower, upper)}`` of free model parameters whose box is not explicit
+            (a per-record parameter's box is every record's).
+        """
+        first = self.records[0]
+        explicit = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if p.name in self.explicit_bounds}
+        defaults = {p.name: (p.lower, p.upper) for p in first.free_params
+                    if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
+        defaults.update(boxes)
+        new = Problem(self.model, self.datasets, cost=self.cost, free=self._free_model,
+                      fixed={**self.fixed, **self._fixed_given}, bounds=explicit,
+                      default_bounds=defaults, initial_state=self.initial_state,
+                      simulator=self.simulators, allow_outside_box=True,
+                      per_record=self.per_record)
+        new.default_boxes = {**new.default_boxes, **self.default_boxes}
+        new.widened = list(self.widened)
+        new.notes = list(self.notes)
+        return new
+
+    def with_simulator(self, sim: Simulator) -> Problem:
+        """The same problem (:meth:`with_boxes`) with the records at ``sim``'s sample rate
+        simulated by ``sim`` (e.g. finer substeps)."""
+        new = self.with_boxes({})
+        for pr in new.records:
+            if abs(pr.data.fs - sim.fs) <= 1e-9 * sim.fs:
+                pr.sim = sim.with_intersample(pr.data.intersample)
+        new.simulators[float(sim.fs)] = sim
+        return new
+
+    # -- records --------------------------------------------------------------------------
+    @property
+    def datasets(self) -> list[Dataset]:
+        """The estimation records."""
+        return [pr.data for pr in self.records]
+
+    @property
+    def names(self) -> list[str]:
+        """One label per record: its name, or its source, or ``"record <k>"``."""
+        return [record_label(pr.data, k) for k, pr in enumerate(self.records, start=1)]
+
+    def blocks(self) -> list[tuple[RecordProblem, np.ndarray]]:
+        """``(record's problem, indices of its coordinates in the stacked ones)`` per record."""
+        return list(zip(self.records, self._index, strict=True))
+
+    def record_values(self, values: np.ndarray, k: int) -> np.ndarray:
+        """Free values of record ``k`` (from 0) in its own problem's order, shape (..., n)."""
+        return np.asarray(values, dtype=float)[..., self._index[k]]
+
+    def per_record_values(self, values: np.ndarray) -> list[tuple[RecordProblem, np.ndarray]]:
+        """``(record's problem, its free values)`` for every record (:meth:`record_values`)."""
+        return [(pr, self.record_values(values, k)) for k, pr in enumerate(self.records)]
+
+    # -- the first record (the record of a one-record problem) -------------------------------
+    @property
+    def data(self) -> Dataset:
+        """The first estimation record (a one-record problem's record; all: :attr:`datasets`)."""
+        return self.records[0].data
+
+    @property
+    def sim(self) -> Simulator:
+        """The first record's simulator (all, by sample rate: :attr:`simulators`)."""
+        return self.records[0].sim
+
+    @property
+    def u(self) -> np.ndarray:
+        """The first record's input."""
+        return self.records[0].u
+
+    @property
+    def t(self) -> np.ndarray:
+        """The first record's time from 0."""
+        return self.records[0].t
+
+    @property
+    def base(self) -> np.ndarray:
+        """The first record's full parameter vector before fitting."""
+        return self.records[0].base
+
+    @property
+    def x0_states(self) -> list[str]:
+        """States whose initial value is a free parameter ``x0_<state>`` (``"fit"`` rule)."""
+        return self.records[0].x0_states
+
+    # -- coordinates --------------------------------------------------------------------
+    def to_z(self, values: np.ndarray) -> np.ndarray:
+        """Fitting coordinates of free-parameter values (physical units), shape (..., n_free)."""
+        v = np.asarray(values, dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self._log, np.log10(np.abs(v)), v / self._scale)
+
+    def from_z(self, z: np.ndarray) -> np.ndarray:
+        """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
+        zz = np.asarray(z, dtype=float)
+        with np.errstate(over="ignore"):  # an extreme coordinate gives inf, flagged later
+            return np.where(self._log, 10.0 ** zz, zz * self._scale)
+
+    def bounds_z(self) -> np.ndarray:
+        """Search box in fitting coordinates, shape (n_free, 2)."""
+        lo = np.array([p.lower for p in self.free_params])
+        hi = np.array([p.upper for p in self.free_params])
+        return np.stack([self.to_z(lo), self.to_z(hi)], axis=1)
+
+    def start_values(self) -> np.ndarray:
+        """Starting values of the free parameters (physical units)."""
+        out = np.empty(self.n_free)
+        for pr, idx in self.blocks():
+            out[idx] = pr.start_values()
+        return out
+
+    def full(self, values: np.ndarray) -> np.ndarray:
+        """Full model parameter vector(s) of the first record, shape (..., n_params)."""
+        return self.records[0].full(self.record_values(values, 0))
+
+    def initial_states(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
+        """Initial states of the first record (or, with ``data``, of that record under the
+        first record's values), shape (n_pop, nx) (:meth:`RecordProblem.initial_states`)."""
+        return self.records[0].initial_states(self.record_values(values, 0), data)
+
+    def simulator_for(self, data: Dataset) -> Simulator:
+        """A simulator at ``data``'s sample rate and inter-sample behaviour."""
+        return self.records[0].simulator_for(data)
+
+    # -- evaluation ------------------------------------------------------------------------
+    def __call__(self, Z: np.ndarray) -> np.ndarray:
+        """Vectorised objective in fitting coordinates: the sum of the records' costs,
+        (n, n_free) -> (n,).
+
+        Candidates whose simulation is flagged (unstable, diverging) cost ``inf``.
+        """
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        total = np.zeros(Z.shape[0])
+        for pr, idx in self.blocks():
+            total = total + pr(Z[:, idx])
+        return np.where(np.isfinite(total), total, np.inf)
+
+    def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
+        """Simulated outputs, (n_free,) -> (N,) or (n, n_free) -> (n, N).
+
+        Without ``data`` the records' outputs one after another (``N`` all their
+        samples); with ``data`` (e.g. a whole validation record) the simulation runs on
+        its input with the first record's values, starting from its first measured
+        output by the ``"data"`` rule.
+        """
+        if data is not None:
+            return self.records[0].simulate_values(self.record_values(values, 0), data=data)
+        parts = [pr.simulate_values(vk) for pr, vk in self.per_record_values(values)]
+        return np.concatenate(parts, axis=-1)
+
+    def cost_of(self, Y: np.ndarray) -> np.ndarray:
+        """Cost of stacked simulated outputs (n, N) against the records: the sum of theirs."""
+        Y2 = np.atleast_2d(np.asarray(Y, dtype=float))
+        total = np.zeros(Y2.shape[0])
+        a = 0
+        for pr in self.records:
+            total = total + pr.cost_of(Y2[:, a:a + pr.y.size])
+            a += pr.y.size
+        total = np.where(np.isfinite(total), total, np.inf)
+        return total if np.ndim(Y) > 1 else total[0]
+
+    def simulate_parts(self, values: np.ndarray,
+                       parts: Sequence[Dataset | None] | None = None) -> list[np.ndarray]:
+        """Each record's simulated output with its own values, shape (N_k,) each.
+
+        ``parts[k]`` (e.g. record ``k``'s selection part; ``None``: its estimation
+        record) is simulated from its first measured output by the ``"data"`` rule.
+        """
+        parts = [None] * len(self.records) if parts is None else list(parts)
+        return [pr.simulate_values(vk, data=ds)
+                for (pr, vk), ds in zip(self.per_record_values(values), parts, strict=True)]
+
+    def residual_function(self) -> ca.Function:
+        """CasADi ``r(z) = y_sim(z) - y``: the records' symbolic residuals stacked."""
+        if len(self.records) == 1:  # the stacked coordinates are the record's own
+            return self.records[0].residual_function()
+        if getattr(self, "_residual_fn", None) is None:
+            z = ca.MX.sym("z", self.n_free)
+            parts = [pr.residual_function()(ca.vertcat(*[z[int(i)] for i in idx]))
+                     for pr, idx in self.blocks()]
+            self._residual_fn = ca.Function("residual", [z], [ca.vertcat(*parts)], ["z"], ["r"])
         return self._residual_fn
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from hhra_phys import interrupt
 from hhra_phys.errors import ParameterError
-from hhra_phys.problem import Problem
+from hhra_phys.problem import Problem, RecordProblem
 
 __all__ = [
     "Stage",
@@ -94,23 +94,18 @@ class CompiledLeastSquares:
     coordinate map and the initial-state rule. The last point is cached because
     IPOPT asks for cost, gradient and Hessian at the same point.
 
-    A problem made of several records (:class:`~hhra_phys.multi.MultiProblem`)
-    lists them with ``blocks()``: pairs of a one-record :class:`Problem` and the
-    indices of its free coordinates in the stacked ones. The residuals are then
-    stacked record after record and each record's Jacobian fills its rows at
-    those columns (zero elsewhere: one record's initial state does not move
-    another's output).
+    A problem lists its records with ``blocks()``: pairs of a record's
+    :class:`~hhra_phys.problem.RecordProblem` and the indices of its free
+    coordinates in the stacked ones. The residuals are stacked record after record
+    and each record's Jacobian fills its rows at those columns (zero elsewhere: one
+    record's initial state does not move another's output).
     """
 
     def __init__(self, problem: Problem) -> None:
         from hhra_phys.sensitivity import TrajectorySensitivity
 
         self.problem = problem
-        blocks = getattr(problem, "blocks", None)
-        self.blocks: list[tuple[Problem, np.ndarray]] = (
-            list(blocks()) if blocks is not None
-            else [(problem, np.arange(problem.n_free))]
-        )
+        self.blocks: list[tuple[RecordProblem, np.ndarray]] = problem.blocks()
         self.sens = TrajectorySensitivity.of(self.blocks[0][0].sim)
         self._sens = [TrajectorySensitivity.of(pr.sim) for pr, _ in self.blocks]
         self.n_free = problem.n_free
@@ -141,7 +136,7 @@ class CompiledLeastSquares:
 
 
 def _block_least_squares(
-    pr: Problem, sens: Any, z: np.ndarray
+    pr: RecordProblem, sens: Any, z: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residual (N,) and Jacobian (N, n_free) of one one-record problem at coordinates ``z``."""
     n_free = pr.n_free
@@ -312,10 +307,11 @@ def refine_ipopt(
     bz = problem.bounds_z()
     z0 = np.clip(z0, bz[:, 0], bz[:, 1])
     if shooting == "multiple":
-        if hasattr(problem, "blocks"):
+        if len(problem.records) > 1:
             raise ParameterError("multiple shooting fits one record; use shooting='single' "
                                  "for several records")
-        return _ipopt_multiple_shooting(problem, z0, hessian, segments, max_iter, tol, verbose, t0)
+        return _ipopt_multiple_shooting(problem.records[0], z0, hessian, segments, max_iter,
+                                        tol, verbose, t0)
     use_compiled = derivatives == "compiled" and hessian != "exact"
     callback = None
     if use_compiled:
@@ -388,7 +384,7 @@ def _gauss_newton_hessian(z: ca.MX, J: ca.MX) -> ca.Function:
 
 
 def _ipopt_multiple_shooting(
-    problem: Problem,
+    problem: RecordProblem,
     z0: np.ndarray,
     hessian: str,
     segments: int,

@@ -351,18 +351,10 @@ def at_noise_level(level: Mapping[str, Any], noise_tol: float) -> bool:
     return bool(level["ratio"] <= 1 + noise_tol or level["white"])
 
 
-def stops_at_noise(level: Mapping[str, Any], noise_tol: float, parts: str = "both") -> bool:
-    """The decision of :func:`noise_stop` from its ``level`` dictionary.
-
-    ``"both"``: the selection part and ``level["estimation"]`` are at the noise
-    level (:func:`at_noise_level`); ``"selection"``: the selection part is.
-    """
-    if parts not in ("both", "selection"):
-        raise ParameterError(f"stop_on must be 'both' or 'selection', got {parts!r}")
-    stop = at_noise_level(level, noise_tol)
-    if parts == "both":
-        stop = stop and at_noise_level(level["estimation"], noise_tol)
-    return stop
+def stops_at_noise(level: Mapping[str, Any], noise_tol: float) -> bool:
+    """The decision of :func:`noise_stop` from its ``level`` dictionary: the selection part
+    and ``level["estimation"]`` are both at the noise level (:func:`at_noise_level`)."""
+    return at_noise_level(level, noise_tol) and at_noise_level(level["estimation"], noise_tol)
 
 
 def split_record(data: Dataset, split: float, test: float) -> tuple[Dataset, Dataset,

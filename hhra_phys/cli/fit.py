@@ -198,7 +198,7 @@ def print_result(res: Any, say: Any) -> None:
     """The fit summary: parameters and derived quantities with their intervals
     (:meth:`~hhra_phys.result.FitResult.summary`), each record's errors, the stages."""
     say(res.summary())
-    for rec in res.records:
+    for rec in res.records if len(res.records) > 1 else []:  # one record: the summary
         parts = [f"{label} RMSE {_num(rec[key].get('rmse'), '.4g')}"
                  for key, label in (("est", "estimation"), ("val", "validation"))
                  if rec[key]]

@@ -35,16 +35,15 @@ values and optional settings; parameter values not given there are taken from
     coulomb_friction  domega/dt -= level*sgn(omega) [+ g_viscous*omega],
                       level = g_coulomb [+ g_stribeck*exp(-(omega/v_stribeck)^2)]
                       (Stribeck term when g_stribeck is given); settings width [rad/s]
-                      (or the parameter v_switch), or the legacy eps [rad/s] with dt [s]
+                      (or the parameter v_switch)
     valve_deadzone    c -> max(c - i_dead, 0) - max(-c - i_dead, 0); settings u_scale,
-                      width (or the legacy eps)
-    valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, width (or eps)
+                      width
+    valve_saturation  c -> clip(c, -i_sat, i_sat); settings u_scale, width
     input_delay       c from u(t - delay*dt): (1-f)*u[n-k] + f*u[n-k-1], delay = k + f [samples]
     valve_dynamics    tau_spool*dx_spool/dt = c - x_spool, c -> x_spool
     gravity_load      domega/dt -= g_grav_cos*cos(theta) + g_grav_sin*sin(theta)
     backlash          gap [rad] = shaft minus encoder angle, |gap| <= play/2 [deg], y -= gap;
-                      settings width [deg] (or the parameter w_contact), or the legacy
-                      eps_omega [rad/s]
+                      settings width [deg] (or the parameter w_contact)
     sensor_offset     y += y_offset
     asymmetric_valve  q *= 1 + asym*sgn(c); settings u_scale, eps
 
@@ -53,14 +52,12 @@ package are used, so that a comparison with it can be tight:
 ``sgn(v) ~ v/sqrt(v^2 + eps^2)``; the orifice's signed root
 ``sign(z)*(sqrt(|z| + delta) - sqrt(delta))/(sqrt(1 + delta) - sqrt(delta))``;
 ``max(v, 0)`` of the dead zone and saturation with a quadratic corner,
-``(v + w)^2/(4w)`` for ``|v| < w`` and exact beyond, ``w = width*u_scale`` (or, with
-the legacy ``eps``, ``(v + sqrt(v^2 + (eps*u_scale)^2))/2``); friction width ``width`` (0.005 rad/s
-unless given, or ``v_switch``; the legacy ``eps + level*dt/2`` when ``eps`` is given);
+``(v + w)^2/(4w)`` for ``|v| < w`` and exact beyond, ``w = width*u_scale``; friction
+width ``width`` (0.005 rad/s unless given, or ``v_switch``);
 backlash ``dgap/dt = max(omega, 0)*f((h - gap)/w) + min(omega, 0)*f((h + gap)/w)``
 with ``h = play/2``, ``f(z) = z`` up to 0.5, ``z - (z - 0.5)^2/2`` up to 1.5, then 1,
 and the contact width ``w`` (``width``, 0.01 deg unless given, or
-``w_contact``), or with the legacy ``eps_omega`` the soft contact
-``omega*(1 - sigma((sgn(omega)*gap - h)/e + 3))``, ``e = 0.1*play + 0.03`` deg. With
+``w_contact``). With
 ``smooth=False`` every switch is exact (``sign``, ``sqrt``, ``clip``, ``max``, an ideal
 play operator, and Coulomb friction that sticks: within ``stick_band`` of zero velocity
 the friction cancels the rest of the acceleration up to its level, Karnopp's model, so
@@ -130,11 +127,11 @@ _INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dy
 
 #: Default smoothing settings of each effect (the package's documented defaults).
 _SETTINGS: dict[str, dict[str, float]] = {
-    "coulomb_friction": {"width": 0.005},  # eps (legacy width eps + level*dt/2), dt if given
-    "valve_deadzone": {"u_scale": 1.0, "width": 0.01},  # the legacy eps if given
+    "coulomb_friction": {"width": 0.005},
+    "valve_deadzone": {"u_scale": 1.0, "width": 0.01},
     "valve_saturation": {"u_scale": 1.0, "width": 0.01},
     "asymmetric_valve": {"u_scale": 1.0, "eps": 0.01},
-    "backlash": {"width": 0.01},  # [deg]; the legacy eps_omega [rad/s] if given
+    "backlash": {"width": 0.01},  # [deg]
     "input_delay": {},
     "valve_dynamics": {},
     "gravity_load": {},
@@ -175,12 +172,6 @@ def _sgn(v: float, eps: float, smooth: bool) -> float:
     return float(np.sign(v))
 
 
-def _relu(v: float, eps: float, smooth: bool) -> float:
-    if smooth:
-        return 0.5 * (v + math.sqrt(v * v + eps * eps))
-    return max(v, 0.0)
-
-
 def _corner_relu(v: float, w: float, smooth: bool) -> float:
     if not smooth:
         return max(v, 0.0)
@@ -197,9 +188,7 @@ def _contact(z: float) -> float:
 
 
 def _input_relu(v: float, settings: Mapping[str, float], smooth: bool) -> float:
-    """The dead zone's and saturation's ``max(v, 0)``: corner ``width`` or legacy ``eps``."""
-    if "eps" in settings:
-        return _relu(v, settings["eps"] * settings["u_scale"], smooth)
+    """The dead zone's and saturation's ``max(v, 0)``: a corner of ``width``."""
     return _corner_relu(v, settings["width"] * settings["u_scale"], smooth)
 
 
@@ -250,7 +239,7 @@ def _spec(
     if output not in ("angle", "pressure"):
         raise ValueError(f"output must be 'angle' or 'pressure', got {output!r}")
     p = _group_values(params, valve, output, spool_lag)
-    eff = {name: _effect_values(name, given, p, dt) for name, given in (effects or {}).items()}
+    eff = {name: _effect_values(name, given, p) for name, given in (effects or {}).items()}
     if output == "pressure" and "backlash" in eff:
         raise ValueError("backlash is seen by an angle encoder; use output='angle'")
     names = reference_state_names(spool_lag=spool_lag, effects=eff)
@@ -275,15 +264,16 @@ def _group_values(params: Mapping[str, float], valve: str, output: str, spool_la
     return p
 
 
-def _effect_values(name: str, given: Mapping[str, float], p: Mapping[str, float], dt: float
+def _effect_values(name: str, given: Mapping[str, float], p: Mapping[str, float]
                    ) -> dict[str, float]:
     """An effect's settings and parameter values: its defaults, then ``p``'s values of its
     parameters, then ``given``; checked."""
     if name not in _EFFECT_PARAMS:
         raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
     vals = dict(_SETTINGS[name])
-    if name == "coulomb_friction":
-        vals["dt"] = dt
+    removed = sorted({"eps", "eps_omega", "dt"} & set(given) - set(vals))
+    if removed:
+        raise ValueError(f"{name}: settings {removed} were removed (set its width)")
     for key in _EFFECT_PARAMS[name] + _OPTIONAL_PARAMS.get(name, ()):
         if key in p:
             vals[key] = p[key]
@@ -377,13 +367,8 @@ def _with_friction(acc: float, w: float, s: _Spec, mode: int | None) -> float:
         level += v["g_stribeck"] * math.exp(-((w / v["v_stribeck"]) ** 2))
     acc -= v.get("g_viscous", 0.0) * w
     if s.smooth:
-        # The package's documented width: a physical v_switch (fitted) or width
-        # [rad/s]; the legacy eps ties it to the sample period.
-        if "eps" in v:
-            width = v["eps"] + 0.5 * v["dt"] * level
-        else:
-            width = v.get("v_switch", v["width"])
-        return acc - level * _sgn(w, width, True)
+        # The package's documented width: a physical v_switch (fitted) or width [rad/s].
+        return acc - level * _sgn(w, v.get("v_switch", v["width"]), True)
     if mode == 0:
         return 0.0  # stuck: the simulation set omega = 0 exactly and holds it
     if mode is not None:
@@ -403,10 +388,6 @@ def _gap_rate(w: float, gap: float, s: _Spec) -> float:
     if not s.smooth:
         contact = 1.0 if math.copysign(1.0, w) * gap >= half else 0.0
         return w * (1.0 - contact)
-    if "eps_omega" in v:  # the legacy soft contact
-        e = (0.1 * v["play"] + 0.03) / RAD2DEG
-        z = (_sgn(w, v["eps_omega"], True) * gap - half) / e + 3.0
-        return w * (1.0 - 1.0 / (1.0 + math.exp(-z)))
     wid = v.get("w_contact", v["width"]) / RAD2DEG
     return (max(w, 0.0) * _contact((half - gap) / wid)
             + min(w, 0.0) * _contact((half + gap) / wid))

@@ -84,7 +84,7 @@ def test_records_of_different_lengths_and_rates_have_metrics_per_record_and_pool
     assert [r["name"] for r in d["records"]] == [a.name, b.name]
 
 
-def test_whole_validation_records_and_the_single_record_layout_is_unchanged():
+def test_whole_validation_records_and_a_single_record_is_a_set_of_one():
     _, a, b = _two_records(4)
     c = reference_record(seed=9, params=_truth(4), duration=3.0)
     res = fit([a, b], validation=[c], pop_size=10, max_iter=5, seed=2)
@@ -92,8 +92,14 @@ def test_whole_validation_records_and_the_single_record_layout_is_unchanged():
     assert res.records[2]["est"] == {}
     assert res.metrics["val"]["rmse"] == res.records[2]["val"]["rmse"]
     single = fit(a, pop_size=10, max_iter=5, seed=2)
-    assert single.records == [] and "records" not in single.to_json()
+    # One record is a set of one: plain names, one per-record entry, pooled = its own.
     assert single.free == [*GROUPS, "x0_theta"]
+    assert [r["name"] for r in single.to_json()["records"]] == [a.name]
+    assert single.records[0]["est"] == single.metrics["est"]
+    assert single.records[0]["val"] == single.metrics["val"]
+    listed = fit([a], pop_size=10, max_iter=5, seed=2)
+    assert listed.free == single.free
+    assert listed.metrics == single.metrics and listed.values == single.values
 
 
 def test_stacked_jacobian_is_the_records_blocks():

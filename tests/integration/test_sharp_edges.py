@@ -88,8 +88,8 @@ def test_backlash_matches_the_exact_play_operator(play: float) -> None:
     assert sim.method == "ros4"  # the contact's stiffness is seen (stiff_states)
     err = float(np.max(np.abs(y - exact)))
     assert err < BACKLASH_WIDTH, f"play {play}: max |package - exact| = {err:.3g} deg"
-    # The earlier soft contact (legacy eps_omega) is far off: the test sees the sharpness.
-    y_old, _ = _package("backlash", u, {"play": play}, x0, eps_omega=0.01)
+    # A soft contact (0.5 deg wide) is far off: the test sees the sharpness.
+    y_old, _ = _package("backlash", u, {"play": play}, x0, width=0.5)
     assert float(np.max(np.abs(y_old - exact))) > 5 * BACKLASH_WIDTH
 
 
@@ -123,9 +123,9 @@ def test_deadzone_and_saturation_match_exact_clipping(name: str, size: dict) -> 
     y, _ = _package(name, ds.u, size, x0)
     err = float(np.max(np.abs(y - ds.y)))
     assert err < 1e-3, f"{name} {size}: max |package - exact| = {err:.3g} deg"
-    # The earlier square-root corners (legacy eps) leave a residual the angle
-    # integrates (2.8e-3 to 7.7e-3 deg here): the test sees the sharpness.
-    y_old, _ = _package(name, ds.u, size, x0, eps=0.01)
+    # Wide corners (0.2 mA, reaching the nearest input levels) leave a residual the
+    # angle integrates: the test sees the sharpness.
+    y_old, _ = _package(name, ds.u, size, x0, width=0.2)
     assert float(np.max(np.abs(y_old - ds.y))) > 2e-3
     # Without the effect the output differs by far more: the comparison sees it.
     y0 = simulate_reference(ds.u, FS, NOMINAL, x0=x0, smooth=False)

@@ -127,7 +127,7 @@ def test_gravity_columns_are_the_two_torques():
 def test_friction_signature_is_its_own_rate_change():
     sig = _signals()
     for kw in ({}, {"stribeck": True}):
-        fr = make_effect("coulomb_friction", dt=DT, **kw)
+        fr = make_effect("coulomb_friction", **kw)
         cols = fr.first_order(sig)
         rate = _apply(fr, sig, fr.probe(), "rate:omega")
         if not kw:

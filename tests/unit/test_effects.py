@@ -161,34 +161,12 @@ def test_first_order_signatures_have_the_record_length(name):
     assert cols.shape[0] == u.size and np.isfinite(cols).all()
 
 
-def test_legacy_smoothing_fields_load_and_keep_their_old_forms():
-    """Saved models from before the sharp edges set eps_omega / eps: they load and run as then.
-
-    The old forms are the soft backlash contact (not stiff: RK4) and the square-root
-    corners; the new defaults are the 0.01 deg contact (stiff: ROS4) and the
-    quadratic corners, which differ from them.
-    """
+def test_bad_smoothing_settings_are_refused_by_name():
     from hhra_phys.errors import ParameterError
 
-    new = HHRAModel(effects=[make_effect("backlash"), make_effect("valve_deadzone")])
-    spec = new.to_json()
-    for part in spec["parts"]:
-        if part["type"] == "Backlash":
-            part["args"] = {"eps_omega": 0.01}  # what earlier versions saved
-        elif part["type"] == "ValveDeadzone":
-            part["args"] = {"u_scale": 1.0, "eps": 0.01}
-    old = Model.from_json(spec)
-    u = _input()
-    values = {"play": 2.0, "i_dead": 0.2}
-    sim_old = Simulator(old.with_nominal(values), fs=250.0, backend="casadi")
-    sim_new = Simulator(new.with_nominal(values), fs=250.0, backend="casadi")
-    assert (sim_old.method, sim_new.method) == ("rk4", "ros4")
-    y_old = sim_old.simulate(u, old.with_nominal(values).nominal())
-    y_new = sim_new.simulate(u, new.with_nominal(values).nominal())
-    assert np.isfinite(y_old).all() and np.max(np.abs(y_old - y_new)) > 0.05
     for name, bad in (("backlash", {"width": 0.0}), ("backlash", {"speed": -1.0}),
-                      ("valve_deadzone", {"width": -0.01}), ("valve_saturation", {"eps": 0.0}),
-                      ("backlash", {"eps_omega": 0.01, "fit_width": True})):
+                      ("valve_deadzone", {"width": -0.01}), ("valve_saturation", {"width": 0.0}),
+                      ("coulomb_friction", {"width": -1.0})):
         with pytest.raises(ParameterError, match=name):
             make_effect(name, **bad)
 
@@ -202,3 +180,28 @@ def test_backlash_width_can_be_fitted():
     narrow = _sim(model, u, play=2.0, w_contact=0.005)
     wide = _sim(model, u, play=2.0, w_contact=0.2)
     assert 0.01 < np.max(np.abs(narrow - wide)) < 0.2
+
+
+@pytest.mark.parametrize(("name", "setting"), [("coulomb_friction", "eps"),
+                                               ("valve_deadzone", "eps"),
+                                               ("valve_saturation", "eps"),
+                                               ("backlash", "eps_omega")])
+def test_the_removed_smoothing_settings_are_refused_by_name(name, setting):
+    from hhra_phys.effects import make_effect
+    from hhra_phys.errors import ModelError
+
+    with pytest.raises(ModelError, match=f"{setting} was removed"):
+        make_effect(name, **{setting: 0.01})
+
+
+def test_a_saved_model_with_a_removed_setting_is_refused_by_name():
+    from hhra_phys.effects import make_effect
+    from hhra_phys.errors import ModelError
+    from hhra_phys.model import Model
+    from hhra_phys.models.hhra import HHRAModel
+
+    spec = HHRAModel(effects=[make_effect("backlash")]).to_json()
+    part = next(p for p in spec["parts"] if "backlash" in p["type"].lower())
+    part["args"]["eps_omega"] = None
+    with pytest.raises(ModelError, match="eps_omega"):
+        Model.from_json(spec)

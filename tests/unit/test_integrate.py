@@ -76,9 +76,9 @@ def test_simulator_chooses_ros4_for_sharp_friction_only() -> None:
     sim = Simulator(model, FS, backend="casadi")
     assert sim.method == "ros4" and sim.substeps >= 8
     assert sim.method_reason.startswith("stiff")
-    # The old sample-tied smoothing (eps) is not stiff: RK4 as before.
-    legacy = HHRAModel(effects=[make_effect("coulomb_friction", eps=0.05)])
-    assert Simulator(legacy, FS, backend="casadi").method == "rk4"
+    # A soft switch (0.2 rad/s wide, as the earlier sample-tied smoothing) is not stiff.
+    soft = HHRAModel(effects=[make_effect("coulomb_friction", width=0.2)])
+    assert Simulator(soft, FS, backend="casadi").method == "rk4"
     with pytest.raises(Exception, match="method must be"):
         Simulator(model, FS, method="euler")
 

@@ -21,7 +21,7 @@ def test_overrides_apply_on_top_of_given_options():
         ("criterion", "aicc", "criterion"),
         ("margin", 1.0, "margin"),
         ("noise_tol", -0.1, "noise_tol"),
-        ("stop_on", "test", "stop_on"),
+        ("stop_on", "selection", "stop_on was removed"),
         ("max_effects", -1, "max_effects"),
         ("top_k", 0, "top_k"),
         ("pop_size", 0, "pop_size"),

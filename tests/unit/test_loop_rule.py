@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from hhra_phys.errors import ParameterError
-from hhra_phys.selection import Step, stops_at_noise
+from hhra_phys.selection import Step, at_noise_level, stops_at_noise
 from hhra_phys.selection import judge as _decide
 
 NOISE = 0.05
@@ -67,10 +67,14 @@ def _level(ratio: float, p: float) -> dict:
 )
 def test_noise_stop_needs_both_non_test_parts(sel, est, both, selection_only, why):
     level = {**_level(*sel), "estimation": _level(*est)}
-    assert stops_at_noise(level, 0.15, "both") is both, why
-    assert stops_at_noise(level, 0.15, "selection") is selection_only, why
+    assert stops_at_noise(level, 0.15) is both, why
+    # The selection part alone would have decided otherwise in some of these cases.
+    assert at_noise_level(level, 0.15) is selection_only, why
 
 
-def test_noise_stop_refuses_an_unknown_rule():
-    with pytest.raises(ParameterError, match="stop_on"):
-        stops_at_noise({**_level(1.0, 0.5), "estimation": _level(1.0, 0.5)}, 0.15, "test")
+@pytest.mark.parametrize("value", ["selection", "both"])
+def test_the_removed_stop_on_setting_is_refused_by_name(value):
+    from hhra_phys.loop import LoopOptions
+
+    with pytest.raises(ParameterError, match="stop_on was removed"):
+        LoopOptions.of(stop_on=value)

@@ -107,13 +107,13 @@ def test_at_noise_level_by_ratio_or_whiteness() -> None:
 @pytest.fixture(scope="module")
 def records_problem():
     from hhra_phys.models.cylinder import LinearCylinderModel, simulate_cylinder
-    from hhra_phys.multi import MultiProblem
+    from hhra_phys.problem import Problem
 
     model = LinearCylinderModel()
     noises = (0.02, 0.08, 0.04)
     recs = [simulate_cylinder(seed=k, duration=d, noise=s)
             for k, (s, d) in enumerate(zip(noises, (12.0, 4.0, 8.0), strict=True))]
-    prob = MultiProblem(model, recs, free=["c_force", "c_valve"])
+    prob = Problem(model, recs, free=["c_force", "c_valve"])
     return prob, recs, noises
 
 

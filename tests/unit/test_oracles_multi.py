@@ -9,7 +9,6 @@ import pytest
 
 from hhra_phys.fit import fit
 from hhra_phys.models.cylinder import NOMINAL_GROUPS, LinearCylinderModel, simulate_cylinder
-from hhra_phys.multi import MultiProblem
 from hhra_phys.problem import Problem
 
 FACTORS = (0.7, 1.4)  # moving mass of the two records' loads: c_force = A_p p_s / m
@@ -25,7 +24,7 @@ def records():
 def test_stacked_cost_is_the_sum_of_the_records_costs(records) -> None:
     model = LinearCylinderModel()
     free = ["c_force", "c_valve"]
-    multi = MultiProblem(model, records, cost="ssr", free=free, per_record=["c_force"])
+    multi = Problem(model, records, cost="ssr", free=free, per_record=["c_force"])
     assert sorted(multi.free_names) == ["c_force_rec1", "c_force_rec2", "c_valve"]
     own = {"c_force_rec1": 0.8, "c_force_rec2": 1.3, "c_valve": 1.1}
     z = multi.to_z(np.array([own[n] * NOMINAL_GROUPS[n.split("_rec")[0]]

@@ -231,7 +231,7 @@ class PressureOutput(Part):
     (so the model needs no assumption on the sign convention of the data).
     ``p_offset`` is the sensor's zero. Both are linear-scale parameters. The zero
     drifts between runs, so a fit of several records estimates ``p_offset`` once
-    per record (``per_record``, :mod:`hhra_phys.multi`).
+    per record (``per_record``, :class:`~hhra_phys.problem.Problem`).
 
     With only a pressure measured, the angle's scale is not observable: scaling
     ``theta`` by ``b`` and dividing ``g_compress`` by ``b`` (and multiplying
