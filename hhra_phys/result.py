@@ -503,7 +503,8 @@ class FitResult:
         finite on the estimation record: the values are where the search stopped, the
         metrics are not finite and the result must not be used (a warning says why).
     records : list of dict
-        Per record of a several-record fit (see :func:`hhra_phys.fit.records_result`).
+        One entry per record (name, sizes, initial state, per-record values, ``est`` and
+        ``val`` metrics), then one per whole validation record (:func:`hhra_phys.fit.fit`).
     covariance : ndarray or None
         Linearised covariance of the free parameters in physical units, in the order
         of :attr:`free` (``inf`` on the diagonal of parameters the data do not
