@@ -773,6 +773,46 @@ def _int_or_none(x: Any) -> int | None:
         return None
 
 
+def _coloured_intervals(problem: Any, z: np.ndarray, J: np.ndarray, r: np.ndarray,
+                        cov: np.ndarray, sd: np.ndarray, ci95: dict[str, tuple[float, float]],
+                        std: dict[str, float], warnings: list[str],
+                        interval_info: dict[str, Any]) -> np.ndarray:
+    """Linear intervals under a coloured residual: updates ``ci95`` and ``std`` in place
+    and returns the standard deviations of the fitting coordinates (``sd`` if unchanged).
+
+    When the residual's ARMA(1,1) noise model says white-noise intervals are more than
+    :data:`COLOURED_FACTOR` too narrow, the linear intervals come from the sandwich
+    covariance with that noise model (:func:`hhra_phys.noise.coloured_covariance`):
+    white-noise ones covered the truth on under half the records with AR(1) 0.9 noise
+    (docs/measuring.md). Profile intervals and undetermined directions keep theirs.
+    """
+    colour = interval_factor(r)
+    if colour["factor"] <= COLOURED_FACTOR:
+        return sd
+    interval_info["coloured_noise"] = colour
+    if interval_info["method"] != "linear" or not np.all(np.isfinite(cov)):
+        warnings.append(
+            f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
+            f"{colour['c']:+.2f}): the intervals assume white residuals and are up "
+            f"to {colour['factor']:.1f}x too narrow")
+        return sd
+    sd_c = np.sqrt(np.clip(np.diag(coloured_covariance(J, r, cov, colour)), 0, None))
+    names = list(problem.free_names)
+    colour["widened"] = {n: float(sd_c[i] / sd[i]) if sd[i] > 0 else 1.0
+                         for i, n in enumerate(names)}
+    lo, hi = problem.from_z(z - 1.96 * sd_c), problem.from_z(z + 1.96 * sd_c)
+    for i, name in enumerate(names):
+        ci95[name] = (float(min(lo[i], hi[i])), float(max(lo[i], hi[i])))
+        std[name] = float(sd_c[i])
+    widest = max(colour["widened"].values(), default=1.0)
+    warnings.append(
+        f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
+        f"{colour['c']:+.2f}): the linearised intervals take it into account "
+        f"(sandwich covariance with that noise model, up to {widest:.1f}x wider "
+        "than white-noise ones)")
+    return sd_c
+
+
 def _intervals(
     problem: Any, z: np.ndarray, intervals: str
 ) -> tuple[dict[str, tuple[float, float]], dict[str, float], np.ndarray, list[str],
@@ -835,33 +875,7 @@ def _intervals(
     if undetermined:
         interval_info["undetermined"] = undetermined
     if not diverged:
-        colour = interval_factor(r)
-        if colour["factor"] > COLOURED_FACTOR:
-            interval_info["coloured_noise"] = colour
-            if interval_info["method"] == "linear" and np.all(np.isfinite(cov)):
-                # The linear intervals take the noise's colour (sandwich covariance with
-                # the residual's ARMA(1,1) noise model): white-noise ones cover the truth
-                # on under half the records with AR(1) 0.9 noise (docs/measuring.md).
-                cov_c = coloured_covariance(J, r, cov, colour)
-                sd_c = np.sqrt(np.clip(np.diag(cov_c), 0, None))
-                colour["widened"] = {n: float(sd_c[i] / sd[i]) if sd[i] > 0 else 1.0
-                                     for i, n in enumerate(problem.free_names)}
-                sd = sd_c
-                for i, name in enumerate(problem.free_names):
-                    lo, hi = problem.from_z(z - 1.96 * sd)[i], problem.from_z(z + 1.96 * sd)[i]
-                    ci95[name] = (float(min(lo, hi)), float(max(lo, hi)))
-                    std[name] = float(sd[i])
-                widest = max(colour["widened"].values(), default=1.0)
-                warnings.append(
-                    f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
-                    f"{colour['c']:+.2f}): the linearised intervals take it into account "
-                    f"(sandwich covariance with that noise model, up to {widest:.1f}x wider "
-                    "than white-noise ones)")
-            else:
-                warnings.append(
-                    f"the residual is coloured (noise model pole {colour['a']:.2f}, zero "
-                    f"{colour['c']:+.2f}): the intervals assume white residuals and are up "
-                    f"to {colour['factor']:.1f}x too narrow")
+        sd = _coloured_intervals(problem, z, J, r, cov, sd, ci95, std, warnings, interval_info)
     weak = weak_directions(J, list(problem.free_names))
     if weak:
         # Which parameters trade off, and why their intervals are missing.
