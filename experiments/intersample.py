@@ -25,12 +25,18 @@ held), 8 s each, fitted with the HHRA (H-GWO 20 x 20, IPOPT) as zoh.
         [--cubic 0.003] [--json docs/figures/intersample_study.json]
         [--figure docs/figures/intersample_fit.png] [--records DIR]
     python experiments/intersample.py --hhra
+    python experiments/intersample.py --floor [--bands 1.25 1.5 2] [--spps 8 9 10]
+
+``--floor`` fits nothing with the package: it computes, with scipy alone, how much of
+the noise-free output of the linear record each hold leaves unexplained at its best
+parameters (the hold's own interpolation error, see :func:`floor`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -171,6 +177,65 @@ def hhra_signatures() -> None:
               f"selection RMSE {res.metrics['val']['rmse']:.4f} deg", flush=True)
 
 
+def _lsim(p: np.ndarray, u: np.ndarray, fs: float, kind: str) -> np.ndarray:
+    """The linear resonator driven by ``u`` read as ``kind``, by scipy (not the package).
+
+    ``zoh`` and ``foh`` are exact (``lsim`` with a held or a linear input); ``cubic``
+    evaluates the cubic convolution at 20 points per sample and integrates the
+    piecewise-linear input through them (exact up to that resampling).
+    """
+    from scipy import signal as sps
+
+    g, w, z = p
+    lti = sps.lti([g * w * w], [1.0, 2 * z * w, w * w])
+    t = np.arange(u.size) / fs
+    if kind in ("zoh", "foh"):
+        return sps.lsim(lti, u, t, interp=kind == "foh")[1]
+    k = 20
+    up = np.concatenate([[u[0]], u, [u[-1], u[-1]]])
+    s = np.arange(k) / k
+    p0, p1, p2, p3 = up[:-3, None], up[1:-2, None], up[2:-1, None], up[3:, None]
+    fine = (p1 + 0.5 * (p2 - p0) * s + (p0 - 2.5 * p1 + 2 * p2 - 0.5 * p3) * s ** 2
+            + 0.5 * (3 * p1 - p0 - 3 * p2 + p3) * s ** 3).ravel()
+    return sps.lsim(lti, fine, np.arange(fine.size) / (fs * k), interp=True)[1][::k]
+
+
+def floor(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Each hold's own error on noise-free linear records: the best fit's residual.
+
+    The linear resonator is fitted (least squares from the truth, 100 samples of
+    start-up skipped) to the noise-free output under each hold, computed by scipy
+    alone: what remains is the hold's interpolation error that no gain, frequency or
+    damping absorbs, the floor of a fit's error. Over the noise it gives the test
+    RMSE ratio a perfect fit would reach, ``sqrt(1 + (floor / noise)^2)``.
+    """
+    from scipy.optimize import least_squares
+
+    truth = np.array([1.0, 2 * np.pi * 10.0, 0.05])
+    rows = []
+    for band in args.bands:
+        for spp in args.spps:
+            for seed in args.seeds:
+                ds = multisine_resonator_record(seed=seed, samples_per_period=spp, noise=0.0,
+                                                periods=args.periods, band=band)
+                row = {"band": band, "spp": spp, "seed": seed,
+                       "output_rms": float(np.std(ds.y))}
+                for kind in ("foh", "cubic"):
+                    sol = least_squares(
+                        lambda q, k=kind, d=ds: (_lsim(q, d.u, d.fs, k) - d.y)[100:], truth,
+                        x_scale=truth)
+                    err = float(np.sqrt(np.mean(sol.fun ** 2)))
+                    row[kind] = {"floor": err, "values": sol.x.tolist(),
+                                 "over_noise": float(np.hypot(1.0, err / args.noise))}
+                rows.append(row)
+                print(f"band {band:g} f_n, {spp:g} samples per period, seed {seed}: output RMS "
+                      f"{row['output_rms']:.3f} V; foh floor {row['foh']['floor']:.4f} V "
+                      f"({row['foh']['over_noise']:.3f} x noise {args.noise:g}), gain "
+                      f"{row['foh']['values'][0]:.4f}; cubic floor {row['cubic']['floor']:.4f} V "
+                      f"({row['cubic']['over_noise']:.3f} x)", flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
@@ -185,7 +250,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", default=None, help="write the cubic records (CSV) here")
     ap.add_argument("--hhra", action="store_true",
                     help="only the signature on HHRA records whose input was held")
+    ap.add_argument("--floor", action="store_true",
+                    help="only each hold's own error on noise-free linear records (scipy)")
+    ap.add_argument("--bands", type=float, nargs="+", default=[2.0],
+                    help="--floor: highest multisine line over f_n")
+    ap.add_argument("--spps", type=float, nargs="+", default=[9.0],
+                    help="--floor: samples per resonance period")
     args = ap.parse_args(argv)
+    if args.floor:
+        rows = floor(args)
+        if args.json:
+            atomic_write_text(Path(args.json), json.dumps(
+                jsonable({"settings": vars(args), "loadavg": os.getloadavg(),
+                          "rows": rows}), indent=1) + "\n")
+        return 0
     if args.hhra:
         hhra_signatures()
         return 0

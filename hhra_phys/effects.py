@@ -10,13 +10,15 @@ Library names (stable, read by outside checks)::
 
     coulomb_friction  valve_deadzone  valve_saturation  input_delay  valve_dynamics
     gravity_load      backlash        sensor_offset     asymmetric_valve
+    sensor_drift
 
 Each effect declares what it reads and writes (:attr:`Effect.reads`,
 :attr:`Effect.writes`), and :meth:`Effect.applicable` checks exactly that, so the
 loop skips an effect a model cannot take and says why. Input-side effects
 (``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``)
-act on the model's input ``ctx.u`` and output-side ``sensor_offset`` on the
-output ``y``: they attach to any model. ``coulomb_friction`` and ``gravity_load``
+act on the model's input ``ctx.u`` and output-side ``sensor_offset`` and
+``sensor_drift`` (a sensor's, not the physics') on the output ``y``: they attach to
+any model. ``coulomb_friction`` and ``gravity_load``
 act on the rate of a rotary velocity state ``omega`` (and read ``theta``),
 ``backlash`` on an angle output in degrees, ``asymmetric_valve`` on the
 ``"flow"`` and ``"command"`` signals of a valve model such as the HHRA. A user's
@@ -684,6 +686,59 @@ class SensorOffset(Effect):
 
     def first_order(self, sig: Signals) -> np.ndarray:
         return np.full((sig.u.size, 1), 0.1 * self.y_scale)
+
+
+@register_effect
+@dataclass(frozen=True)
+class SensorDrift(Effect):
+    """Slow drift of the sensor's zero: ``y += y_drift``, ``d y_drift/dt = drift_rate``.
+
+    A sensor effect, not physics: an encoder or strain gauge whose zero moves with
+    temperature adds a trend to the measured output that no input explains. The drift
+    state starts at 0 on every record (a record's own offset is its initial state's
+    business), so on a part of a record the drift is ``drift_rate * (t - t0)``. Under an
+    integrating output a constant bias at the input (an asymmetric valve) also makes a
+    trend; a trend the model reproduces as the sensor's keeps the physics free of it.
+
+    Parameters
+    ----------
+    y_scale : float
+        Typical output magnitude (output units): the bound of ``drift_rate`` is
+        ``y_scale / (100 dt)``.
+    dt : float
+        Sample period [s] (or samples for records in sample time).
+    """
+
+    y_scale: float = 1.0
+    dt: float = 0.004
+    stage: ClassVar[str] = "output"
+    name: ClassVar[str] = "sensor_drift"
+    writes: ClassVar[tuple[str, ...]] = ("y",)
+    entry: ClassVar[str] = "output"
+    signature: ClassVar[str] = "residual trend linear in time (the sensor's zero drifts)"
+    regressors: ClassVar[tuple[str, ...]] = ("time",)
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        a = self.y_scale / (100.0 * self.dt)
+        return (Parameter("drift_rate", "out/s", 0.0, -a, a, "linear",
+                          "drift of the sensor's zero per second"),)
+
+    @property
+    def states(self) -> Sequence[State]:
+        return (State("y_drift", "out", 0.0, "drift of the sensor's zero since the record's start",
+                      fit_initial=False, scale=float(self.y_scale)),)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.add_rate("y_drift", ctx.p["drift_rate"])
+        ctx.signals["y"] = ctx.signal("y", self.name) + ctx.x["y_drift"]
+
+    def probe(self) -> dict[str, float]:
+        # 0.1 y_scale over 1000 samples.
+        return {"drift_rate": 1e-4 * self.y_scale / self.dt}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        return (np.arange(sig.u.size) * sig.dt * self.probe()["drift_rate"])[:, None]
 
 
 #: Names of the library's own effects (:data:`EFFECTS` also holds a user's registered ones).

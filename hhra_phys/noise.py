@@ -38,7 +38,8 @@ from typing import Any
 import numpy as np
 from scipy import optimize, stats
 
-__all__ = ["difference_level", "fit_noise_model", "interval_factor", "noise_level",
+__all__ = ["coloured_covariance", "difference_level", "fit_noise_model", "interval_factor",
+           "noise_level",
            "noise_spectrum"]
 
 #: Welch segment length [samples] for records long enough (shorter ones use N/8).
@@ -252,3 +253,45 @@ def interval_factor(residual: np.ndarray, inputs: Sequence[np.ndarray] = ()) -> 
     a, c = m["a"], m["c"]
     ratio = (1 + c) ** 2 * (1 - a * a) / ((1 - a) ** 2 * (1 + 2 * a * c + c * c))
     return {"factor": float(math.sqrt(max(ratio, 0.0))), "a": a, "c": c}
+
+
+def coloured_covariance(J: np.ndarray, r: np.ndarray, cov: np.ndarray,
+                        model: dict[str, float]) -> np.ndarray:
+    """Covariance of an output-error fit's coordinates under ARMA(1,1) noise (sandwich).
+
+    The output-error estimate stays consistent under coloured noise, but its
+    covariance is ``M J^T Sigma J M`` with ``M = (J^T J)^-1``, not ``s^2 M``: the
+    noise covariance ``Sigma`` is that of the residual's noise model
+    ``v = sqrt(lam) (1 + c q^-1) / (1 - a q^-1) e``, scaled to the residual's own
+    variance ``s^2 = r.r / (N - n)``. ``J^T Sigma J = lam' G^T G`` with ``G = H^T J``,
+    each column of ``J`` filtered by the noise model backwards in time. For white
+    noise (``a = c = 0``) it is the usual ``s^2 M``.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, n)
+        Residual Jacobian at the optimum (fitting coordinates).
+    r : ndarray, shape (N,)
+        Residuals at the optimum.
+    cov : ndarray, shape (n, n)
+        The white-noise covariance ``s^2 M`` of the same coordinates (finite).
+    model : dict
+        ``a`` and ``c`` of the noise model (:func:`fit_noise_model`,
+        :func:`interval_factor`).
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+    """
+    from scipy import signal as sps
+
+    J = np.asarray(J, dtype=float)
+    r = np.asarray(r, dtype=float)
+    n_obs, n = J.shape
+    s2 = float(r @ r) / max(n_obs - n, 1)
+    a, c = float(model["a"]), float(model["c"])
+    lam = s2 * (1 - a * a) / (1 + 2 * a * c + c * c)
+    G = sps.lfilter([1.0, c], [1.0, -a], J[::-1], axis=0)[::-1]
+    M = np.asarray(cov, dtype=float) / s2
+    out = lam * (M @ (G.T @ G) @ M)
+    return 0.5 * (out + out.T)

@@ -593,31 +593,31 @@ class Simulator:
     def _sample_map(self, method: str, substeps: int) -> ca.Function:
         """CasADi-VM map of one sample of ``substeps`` steps over :data:`ACCURACY_CHUNK` samples.
 
-        ``(x0[nx], lags[nu, chunk], p[n_params]) -> (x_end[nx], y[1, chunk])``: the error
-        estimate runs outside the compiled code, so it needs no compilation of its own.
+        ``(x0[nx], rows[n_u, chunk], p[n_params]) -> (x_end[nx], y[1, chunk])`` with the
+        columns of :meth:`input_rows`, so the input moves between samples as
+        :attr:`intersample` says: the error estimate runs outside the compiled code, so
+        it needs no compilation of its own.
         """
         key = (method, int(substeps))
         cache = self._vm_maps
         if key not in cache:
             m = self.model
             x = ca.SX.sym("x", m.nx)
-            u = ca.SX.sym("u", m.n_lags + 1)
+            u = ca.SX.sym("u", self.n_u)
             p = ca.SX.sym("p", m.n_params)
-            f, h, jac = self._fns["f"], self._fns["h"], self._fns["jac"]
-            x_next = advance(method, f, jac, x, u, p, self.dt / substeps, int(substeps))
-            one = ca.Function("sample", [x, u, p], [x_next, h(x, u, p)], {"cse": True})
+            x_next = self.advance_sample(x, u, p, method=method, substeps=int(substeps))
+            one = ca.Function("sample", [x, u, p],
+                              [x_next, self._fns["h"](x, self.sample_input(u), p)], {"cse": True})
             cache[key] = one.mapaccum("samples", ACCURACY_CHUNK, [0], [0], {})
         return cache[key]
 
     def _vm_output(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray, method: str,
                    substeps: int) -> np.ndarray:
         """Output of one parameter vector with ``method`` x ``substeps`` (CasADi VM)."""
-        n, nu = u.size, self.model.n_lags + 1
-        padded = np.concatenate([np.full(nu - 1, u[0]), u])
-        lags = np.stack([padded[nu - 1 - j: nu - 1 - j + n] for j in range(nu)])
+        n = u.size
         fn = self._sample_map(method, substeps)
         n_chunks = -(-n // ACCURACY_CHUNK)
-        lags = np.hstack([lags, np.repeat(lags[:, -1:], n_chunks * ACCURACY_CHUNK - n, axis=1)])
+        lags = self.input_rows(u, n_chunks * ACCURACY_CHUNK)
         y = np.empty(n_chunks * ACCURACY_CHUNK)
         x = np.asarray(x0, dtype=float)
         with np.errstate(all="ignore"):
@@ -736,7 +736,8 @@ class Simulator:
                     self.model, self.fs, substeps=n, method=self.method,
                     threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
                     chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
-                    diverge_limit=self.diverge_limit, simd=self._simd_arg)
+                    diverge_limit=self.diverge_limit, simd=self._simd_arg,
+                    intersample=self.intersample)
             sim = self._derived[key]
         sim.accuracy = {"method": self.method, "substeps": int(n),
                         "error_estimate": float(err), "tolerance": float(tolerance),
@@ -928,7 +929,8 @@ class Simulator:
         return [p1, 0.5 * (p2 - p0), p0 - 2.5 * p1 + 2 * p2 - 0.5 * p3,
                 0.5 * (3 * p1 - p0 - 3 * p2 + p3)]
 
-    def advance_sample(self, x: ca.SX, uk: ca.SX, p: ca.SX) -> ca.SX:
+    def advance_sample(self, x: ca.SX, uk: ca.SX, p: ca.SX, method: str | None = None,
+                       substeps: int | None = None) -> ca.SX:
         """Symbolic state one sample on from ``x``, the input as :attr:`intersample` says.
 
         Parameters
@@ -939,10 +941,16 @@ class Simulator:
             The sample's column of :meth:`input_rows`.
         p : casadi.SX or MX, shape (n_params,)
             Parameters.
+        method, substeps : optional
+            Integrator and steps per sample (default: this simulator's; the accuracy
+            estimate varies them).
         """
         f, jac = self._fns["f"], self._fns["jac"]
+        method = method or self.method
+        substeps = int(substeps or self.substeps)
+        h = self.dt / substeps
         if self.intersample == "zoh":
-            return advance(self.method, f, jac, x, uk, p, self.h, self.substeps)
+            return advance(method, f, jac, x, uk, p, h, substeps)
         # Integrate [x; v; dv/dt; ...] with v the interpolated lags (module docstring):
         # the chain starts at the polynomial's derivatives at the sample instant and
         # ends in its constant highest derivative.
@@ -950,8 +958,7 @@ class Simulator:
         order = len(c) - 1
         derivs = [math.factorial(i) * c[i] / self.dt ** i for i in range(order + 1)]
         fa, ja = self._ramp_functions(order)
-        xa = advance(self.method, fa, ja, ca.vertcat(x, *derivs[:-1]), derivs[-1], p, self.h,
-                     self.substeps)
+        xa = advance(method, fa, ja, ca.vertcat(x, *derivs[:-1]), derivs[-1], p, h, substeps)
         return xa[:self.model.nx]
 
     def _ramp_functions(self, order: int) -> tuple[ca.Function, ca.Function]:

@@ -25,8 +25,8 @@ lag ``tau_v*dxs/dt = c - xs`` and the input-stage effects. Output: the angle in
 degrees, or ``p_gain*p + p_offset``.
 
 State vector: ``[theta, omega, p]``, then ``xs`` (``spool_lag=True``), then
-``x_spool`` (effect ``valve_dynamics``), then ``gap`` (effect ``backlash``): the
-package's order for the same model.
+``x_spool`` (effect ``valve_dynamics``), then ``gap`` (effect ``backlash``), then
+``y_drift`` (effect ``sensor_drift``): the package's order for the same model.
 
 Effects (argument ``effects``: a mapping from the library name to its parameter
 values and optional settings; parameter values not given there are taken from
@@ -45,6 +45,7 @@ values and optional settings; parameter values not given there are taken from
     backlash          gap [rad] = shaft minus encoder angle, |gap| <= play/2 [deg], y -= gap;
                       settings width [deg] (or the parameter w_contact)
     sensor_offset     y += y_offset
+    sensor_drift      y += y_drift, dy_drift/dt = drift_rate [deg/s] (y_drift from 0)
     asymmetric_valve  q *= 1 + asym*sgn(c); settings u_scale, eps
 
 Smoothing. With ``smooth=True`` (default) the documented smoothings of the
@@ -121,6 +122,7 @@ REFERENCE_GROUPS: dict[str, float] = {
 EFFECT_NAMES: tuple[str, ...] = (
     "coulomb_friction", "valve_deadzone", "valve_saturation", "input_delay",
     "valve_dynamics", "gravity_load", "backlash", "sensor_offset", "asymmetric_valve",
+    "sensor_drift",
 )
 
 _INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dynamics")
@@ -136,6 +138,7 @@ _SETTINGS: dict[str, dict[str, float]] = {
     "valve_dynamics": {},
     "gravity_load": {},
     "sensor_offset": {},
+    "sensor_drift": {},
 }
 
 #: Parameters each effect needs (``coulomb_friction`` also takes the optional
@@ -149,6 +152,7 @@ _EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "gravity_load": ("g_grav_cos", "g_grav_sin"),
     "backlash": ("play",),
     "sensor_offset": ("y_offset",),
+    "sensor_drift": ("drift_rate",),
     "asymmetric_valve": ("asym",),
 }
 
@@ -339,6 +343,8 @@ def _rates(
     rates["omega"] = acc
     if "backlash" in s.effects:
         rates["gap"] = _gap_rate(w, x["gap"], s)
+    if "sensor_drift" in s.effects:
+        rates["y_drift"] = s.effects["sensor_drift"]["drift_rate"]
     return rates
 
 
@@ -543,6 +549,8 @@ def _y(x: np.ndarray, s: _Spec) -> float:
         y -= RAD2DEG * gap
     if "sensor_offset" in s.effects:
         y += s.effects["sensor_offset"]["y_offset"]
+    if "sensor_drift" in s.effects:
+        y += xs["y_drift"]
     return float(y)
 
 
@@ -556,12 +564,14 @@ def reference_state_names(
     Returns
     -------
     list of str
-        ``["theta", "omega", "p"]`` then ``"xs"``, ``"x_spool"``, ``"gap"`` as present.
+        ``["theta", "omega", "p"]`` then ``"xs"``, ``"x_spool"``, ``"gap"``, ``"y_drift"``
+        as present.
     """
     names = ["theta", "omega", "p"]
     names += ["xs"] if spool_lag else []
     names += ["x_spool"] if effects and "valve_dynamics" in effects else []
     names += ["gap"] if effects and "backlash" in effects else []
+    names += ["y_drift"] if effects and "sensor_drift" in effects else []
     return names
 
 

@@ -212,6 +212,7 @@ EFFECT_CASES: dict[str, tuple[dict, dict, list[dict[str, float]]]] = {
     "backlash@width": ({"width": 0.003}, {"width": 0.003}, [{"play": 1.0}]),
     "backlash+fit_width": ({"fit_width": True}, {}, [{"play": 1.0, "w_contact": 0.05}]),
     "sensor_offset": ({}, {}, [{"y_offset": -1.5}, {"y_offset": 0.3}]),
+    "sensor_drift": ({}, {}, [{"drift_rate": -0.4}, {"drift_rate": 0.02}]),
     "asymmetric_valve": ({}, {}, [{"asym": -0.3}, {"asym": 0.2}, {"asym": 0.7}]),
     "asymmetric_valve@scale": ({"u_scale": 0.5}, {"u_scale": 0.5}, [{"asym": 0.4}]),
 }
@@ -223,6 +224,8 @@ U_HISTORY = np.array([0.7, -0.4, 0.15, 1.0, -0.9, 0.05, 0.5, -0.25, 0.8, -0.6])
 def _extra_states(name: str) -> list[tuple[float, ...]]:
     if name == "valve_dynamics":
         return [(-0.6,), (0.3,)]
+    if name == "sensor_drift":  # the drift so far (deg)
+        return [(0.0,), (-0.7,), (0.25,)]
     if name == "backlash":  # inside the play, within the contact width, beyond (rad)
         return [(0.0,), (0.012,), (-0.012,), (0.05,), (0.0174,), (-0.00872,)]
     return [()]

@@ -44,3 +44,36 @@ def test_simulate_cli_sensor_flags(tmp_path, capsys):
     assert "--generator reference" in capsys.readouterr().err
     assert main(["simulate", "--generator", "reference", "--noise-ar", "1.5",
                  "--out", str(tmp_path / "b.csv")]) == 2
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_drift_is_fitted_as_the_sensors(seed):
+    """sensor_drift takes a drifting encoder's trend: its rate, and the residual at the noise."""
+    from hhra_phys.effects import make_effect
+    from hhra_phys.fit import fit
+    from hhra_phys.models.hhra import HHRAModel
+
+    ds = reference_record(seed=seed, duration=4.0, noise_deg=0.02, drift_deg=0.3)
+    rate = 0.3 / (ds.t[-1] - ds.t[0])  # deg/s
+    base = fit(ds, HHRAModel(), pop_size=12, max_iter=15, seed=seed)
+    model = HHRAModel(effects=[make_effect("sensor_drift", data=ds)])
+    res = fit(ds, model, pop_size=12, max_iter=15, seed=seed)
+    assert res.values["drift_rate"] == pytest.approx(rate, rel=0.2)
+    assert res.metrics["est"]["rmse"] < base.metrics["est"]["rmse"]
+    assert res.metrics["est"]["rmse"] < 1.1 * 0.02
+
+
+def test_intervals_under_coloured_noise_come_from_its_noise_model():
+    """AR(1) 0.9: the linear intervals are the sandwich ones (wider, said so); white: unchanged."""
+    from hhra_phys.fit import fit
+    from hhra_phys.models.hhra import HHRAModel
+
+    ar = fit(reference_record(seed=2, duration=4.0, noise_deg=0.05, noise_ar=0.9), HHRAModel(),
+             pop_size=12, max_iter=15, seed=2)
+    colour = ar.intervals["coloured_noise"]
+    assert colour["a"] > 0.7 and min(colour["widened"].values()) > 1.5
+    assert any("sandwich covariance" in w for w in ar.warnings)
+    white = fit(reference_record(seed=2, duration=4.0, noise_deg=0.05), HHRAModel(),
+                pop_size=12, max_iter=15, seed=2)
+    assert "coloured_noise" not in white.intervals
+    assert not any("coloured" in w for w in white.warnings)

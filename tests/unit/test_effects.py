@@ -205,3 +205,26 @@ def test_a_saved_model_with_a_removed_setting_is_refused_by_name():
     part["args"]["eps_omega"] = None
     with pytest.raises(ModelError, match="eps_omega"):
         Model.from_json(spec)
+
+
+@pytest.mark.parametrize("kind", ["hhra", "resonator"])
+def test_sensor_drift_adds_a_ramp_and_nothing_else(kind) -> None:
+    """The sensor's zero drifts linearly from the record's start; the physics is untouched."""
+    from hhra_phys.models.resonator import ResonatorDrive, ResonatorMotion, ResonatorSensor
+
+    model = (HHRAModel() if kind == "hhra"
+             else Model([ResonatorDrive(), ResonatorMotion(w_n=30.0), ResonatorSensor()]))
+    u = _input()
+    drift = make_effect("sensor_drift", y_scale=5.0, dt=0.004)
+    assert drift.applicable(model) is None
+    assert drift.stage == "output" and drift.entry == "output"
+    base = _sim(model, u)
+    for rate in (0.3, -0.05):
+        got = _sim(model.with_parts(drift), u, drift_rate=rate)
+        np.testing.assert_allclose(got - base, rate * np.arange(u.size) / 250.0, atol=1e-9)
+    # The first-order signature is the probe's ramp; the bound scales with y_scale / dt.
+    sig = Signals(u=u, dt=0.004)
+    np.testing.assert_allclose(drift.first_order(sig)[:, 0],
+                               drift.probe()["drift_rate"] * 0.004 * np.arange(u.size))
+    (par,) = drift.parameters
+    assert par.upper == pytest.approx(5.0 / (100 * 0.004)) and par.lower == -par.upper

@@ -162,6 +162,27 @@ def test_population_single_symbolic_and_sensitivity_paths_agree(kind) -> None:
     assert not np.allclose(Simulator(m, fs=40.0).simulate(u, P[0]), Y[0], atol=1e-6)
 
 
+@pytest.mark.parametrize("kind", ["zoh", "foh", "cubic"])
+def test_accuracy_estimate_simulates_the_records_hold(kind) -> None:
+    """The step-doubling estimate and the simulator accurate() picks follow the record."""
+    m = _model(1)
+    rng = np.random.default_rng(11)
+    u = np.cumsum(rng.standard_normal(300)) * 0.2
+    p = np.array([40.0, 30.0])
+    sim = Simulator(m, fs=25.0, intersample=kind, substeps=1, simd=None)
+    for n in (1, 3):
+        # The estimate's own runs (CasADi VM, outside the compiled code) are the
+        # compiled simulation of the same hold and substeps.
+        fine = Simulator(m, fs=25.0, intersample=kind, substeps=n, simd=None)
+        assert np.allclose(sim._vm_output(u, p, m.x0(), sim.method, n), fine.simulate(u, p),
+                           rtol=1e-12, atol=1e-12)
+    # A tolerance the single substep misses: the finer simulator keeps the hold.
+    acc = sim.accurate(u, p, 1e-6 * np.std(u))
+    assert acc.substeps > 1 and acc.intersample == kind
+    exact = sim.reference(u, p, rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(acc.simulate(u, p) - exact)) < 10 * acc.accuracy["error_estimate"] + 1e-9
+
+
 def test_problem_takes_the_records_hold_and_refiners_fit_it() -> None:
     from hhra_phys.problem import Problem
     from hhra_phys.refine import refine_ipopt, refine_nlopt

@@ -84,3 +84,36 @@ def test_interval_factor_of_coloured_noise(seed):
     rng = np.random.default_rng(seed)
     assert interval_factor(_ar1(rng, 2000, 0.9, 0.05))["factor"] == pytest.approx(4.36, rel=0.3)
     assert interval_factor(0.05 * rng.standard_normal(2000))["factor"] < 1.3
+
+
+def test_coloured_covariance_matches_the_spread_of_the_estimates():
+    """Least squares under AR(1) noise: the sandwich sd is the estimates' spread over seeds.
+
+    The white-noise sd understates the spread of a slowly varying regressor's
+    coefficient by about sqrt((1 + a)/(1 - a)) (4.4 at 0.9); the sandwich does not.
+    """
+    from hhra_phys.noise import coloured_covariance, interval_factor
+
+    a, n = 0.9, 2000
+    t = np.arange(n)
+    X = np.column_stack([np.sin(2 * np.pi * t / 400), np.sign(np.sin(2 * np.pi * t / 150))])
+    info_inv = np.linalg.inv(X.T @ X)
+    est, sds, sds_white = [], [], []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        y = X @ np.array([1.0, -0.5]) + _ar1(rng, n, a, 0.05)
+        b = info_inv @ X.T @ y
+        r = y - X @ b
+        cov = float(r @ r) / (n - 2) * info_inv
+        model = interval_factor(r)
+        est.append(b)
+        sds_white.append(np.sqrt(np.diag(cov)))
+        sds.append(np.sqrt(np.diag(coloured_covariance(-X, r, cov, model))))
+    spread = np.std(est, axis=0, ddof=1)
+    ratio = spread / np.mean(sds, axis=0)
+    assert np.all((ratio > 0.75) & (ratio < 1.3)), ratio
+    assert np.all(spread / np.mean(sds_white, axis=0) > 2.5)
+    # White noise: the sandwich is the usual covariance.
+    r = 0.05 * np.random.default_rng(1).standard_normal(n)
+    cov = float(r @ r) / (n - 2) * info_inv
+    assert np.allclose(coloured_covariance(X, r, cov, {"a": 0.0, "c": 0.0}), cov, rtol=0.1)
