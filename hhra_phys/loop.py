@@ -82,6 +82,7 @@ from hhra_phys.selection import (
     choose,
     information_criterion,
     judge,
+    noise_tolerance,
     round_settled,
     split_record,
     stops_at_noise,
@@ -1105,9 +1106,11 @@ class _Loop:
                  executor: Executor | None, progress: Callable[[str], None] | None) -> None:
         self.o, self.executor, self.base_given = opts, executor, base is not None
         self.say = progress or (lambda s: None)
-        self.tol = NOISE_TOL if opts.noise_tol is None else float(opts.noise_tol)
         self.t0 = time.perf_counter()
         est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
+        # Default: the tolerance the selection part's length justifies (selection.py).
+        self.tol = (noise_tolerance(sel.n) if opts.noise_tol is None
+                    else float(opts.noise_tol))
         if isinstance(est, RecordSet):
             data = RecordSet(data if isinstance(data, (list, tuple)) else [data])
         self.data, self.est, self.sel, self.held = data, est, sel, held
@@ -1257,7 +1260,7 @@ class _Loop:
         disc = None
         if self.discover:
             disc = _discovery(self.cfg, cur, cur_prob, self.cur_free, rnd, o.criterion,
-                              o.discover_kw, self.say, self.skipped)
+                              o.discover_kw, self.say, self.skipped, self.tol)
             if disc is None:
                 self.discover = False
             else:
@@ -1488,12 +1491,14 @@ def _noise_stop_text(level: Mapping[str, Any], stop_on: str, noise_tol: float) -
 
 def _discovery(cfg: _Settings, cur: FitResult, cur_prob: Any, cur_free: Sequence[str],
                rnd: int, criterion: str, discover_kw: Mapping[str, Any] | None,
-               say: Callable[[str], None], skipped: dict[str, str]) -> Discovery | None:
+               say: Callable[[str], None], skipped: dict[str, str],
+               noise_tol: float = NOISE_TOL) -> Discovery | None:
     """This round's discovery candidates (screened), or None when the model cannot be
     screened (said and recorded in ``skipped["discovery"]``; a bad option is an error)."""
     try:
         return Discovery(_DiscoveryFits(cfg), cur, cur_prob, list(cur_free), round_no=rnd,
-                         criterion=criterion, progress=say, **dict(discover_kw or {}))
+                         criterion=criterion, progress=say, noise_tol=noise_tol,
+                         **dict(discover_kw or {}))
     except ParameterError as exc:
         if "cannot be simulated" not in str(exc):
             raise
