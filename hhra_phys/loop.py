@@ -872,11 +872,13 @@ class LoopOptions:
     margin : float
         Required relative fall of the selection RMSE (0.1: at least 10 %).
     noise_tol : float, optional
-        Structural-mismatch allowance: the loop stops when the selection RMSE is
+        Tolerance of the noise level: the loop stops when the selection RMSE is
         within ``(1 + noise_tol)`` of the selection residual's noise level (or that
         residual is white), and a candidate must remove more selection variance than
-        ``((1 + noise_tol)^2 - 1) * noise^2``. Default :data:`NOISE_TOL` (measured,
-        ``docs/diagnosis.md``).
+        ``((1 + noise_tol)^2 - 1) * noise^2``. Default: what the selection part's length
+        justifies, :func:`~hhra_phys.selection.noise_tolerance` (0.068 for 400 samples);
+        a number gives a flat allowance (:data:`NOISE_TOL` = 0.15 was the default until
+        2026-11-25, ``docs/diagnosis.md``).
     criterion : {"bic", "aic"}
         Information criterion on the estimation part that must also fall.
     free : sequence of str, optional
