@@ -6,19 +6,22 @@ discovery proposing in every round, one rule, the backward step, box widening):
 
 ``drag``
     velocity-squared damping ``domega/dt -= size*omega*|omega|`` (outside the library);
-    success: the discovered terms chosen act at ``rate:omega``, use ``omega`` and hold an
-    odd, faster-than-linear function of it (``odd2(omega)`` or ``cube(omega)``), no library
-    effect is chosen. (How visible the drag is depends on the seed's excitation: a quick
-    base-fit probe found it above the noise on 0/5 seeds at 150, 2/5 at 300, 4/5 at 600;
-    at 1500 the full base fit absorbed it on 4/5 (docs/diagnosis.md); hence 600.)
+    success: the discovered terms chosen act at ``rate:omega`` and hold an odd,
+    faster-than-linear function of ``omega`` (``omega*|omega|`` or ``omega^3`` in the
+    fitted expression), no library effect is chosen. (How visible the drag is depends on
+    the seed's excitation: a quick base-fit probe found it above the noise on 0/5 seeds
+    at 150, 2/5 at 300, 4/5 at 600; at 1500 the full base fit absorbed it on 4/5
+    (docs/diagnosis.md); hence 600.)
 ``gravity``
     a gravity load far beyond the effect's default box (``g_grav_sin`` = ``size``,
     ``g_grav_cos`` = ``-size/5``) on an actuator whose damping group lies beyond the base
     model's default box; success: ``gravity_load`` alone is chosen.
 ``deadzone_friction``
     a valve dead zone (``i_dead`` 0.15) beside an exact (sharp) Coulomb friction of
-    ``size``; success: both are chosen (or the dead zone and a discovered term at
-    ``rate:omega`` using ``omega`` with a sign-like shape), nothing else.
+    ``size``; success: both are chosen, each as the library effect or as a discovered term
+    in its signal with its shape (the dead zone: at ``input``, in ``u`` alone, a step
+    ``sgn``/``sat``/``tanh`` of ``u``; the friction: at ``rate:omega``, a step of
+    ``omega``), nothing else.
 ``clean``
     the physics the model covers; success: nothing is chosen.
 
@@ -70,8 +73,14 @@ def record(family: str, seed: int, duration: float):
     return reference_record(seed, duration=duration, noise_deg=NOISE)
 
 
-def _sign_like(expr: str) -> bool:
-    return any(k in expr for k in ("sgn(omega)", "sat(omega)", "tanh(", "sgn"))
+def _step_in(var: str, expr: str) -> bool:
+    """Whether a discovered expression holds a sign-like (odd step) function of ``var``."""
+    return any(f"{k}({var}" in expr for k in ("sgn", "sat", "tanh"))
+
+
+def _faster_than_linear_in(var: str, expr: str) -> bool:
+    """Whether a discovered expression holds ``var*|var|`` or ``var^3``."""
+    return f"{var}*|{var}|" in expr or f"{var}^3" in expr
 
 
 def judge(family: str, res: Any) -> tuple[bool, str]:
@@ -87,17 +96,22 @@ def judge(family: str, res: Any) -> tuple[bool, str]:
         ok = not chosen
     elif family == "drag":
         ok = (bool(disc) and not lib and all(
-            s["entry"] == "rate:omega" and "omega" in s["uses"]
-            and any(t in s["screening"]["terms"] for t in ("odd2(omega)", "cube(omega)"))
+            s["entry"] == "rate:omega" and _faster_than_linear_in("omega", s["expression"])
             for s in disc))
     elif family == "gravity":
         ok = chosen == ["gravity_load"]
     else:
-        friction = "coulomb_friction" in lib or any(
-            s["entry"] == "rate:omega" and "omega" in s["uses"] and _sign_like(s["expression"])
-            for s in disc)
-        ok = ("valve_deadzone" in lib and friction
-              and set(lib) <= {"valve_deadzone", "coulomb_friction"} and len(chosen) == 2)
+        # The library effect, or a discovered term in its signal with its shape: the dead
+        # zone moves the input towards zero by a step (u - i_dead*sgn(u) outside the zone),
+        # the friction is a step in the velocity.
+        dead = [s for s in disc if s["entry"] == "input" and set(s["uses"]) == {"u"}
+                and _step_in("u", s["expression"])]
+        fric = [s for s in disc if s["entry"] == "rate:omega" and "omega" in s["uses"]
+                and _step_in("omega", s["expression"])]
+        ok = (("valve_deadzone" in lib or bool(dead))
+              and ("coulomb_friction" in lib or bool(fric))
+              and set(lib) <= {"valve_deadzone", "coulomb_friction"}
+              and len(chosen) == len(lib) + len(dead) + len(fric) == 2)
     what = ", ".join(chosen) or "none"
     return ok and (family == "clean" or at_noise), what
 

@@ -83,7 +83,7 @@ import math
 import textwrap
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import casadi as ca
@@ -95,7 +95,7 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
 from hhra_phys.problem import Problem
 from hhra_phys.result import FitResult, redundant
-from hhra_phys.selection import Step, information_criterion
+from hhra_phys.selection import NOISE_TOL, Step, information_criterion, tie_break
 from hhra_phys.terms import (
     _NP,
     FAMILIES,
@@ -121,6 +121,7 @@ __all__ = [
     "entry_points",
     "term_library",
     "screen",
+    "variable_forms",
     "variable_series",
     "lasso_path",
     "Discovery",
@@ -139,6 +140,14 @@ SPARSITY_METHODS: tuple[str, ...] = ("threshold", "l1")
 T_DROP = 1.96
 #: Quantile of |q| where a hinge knot starts.
 KNOT_QUANTILE = 0.6
+#: Other variables whose best first-order term also leads a fitted form of an entry's
+#: term (:class:`Discovery`): in steady motion terms in different variables can be
+#: first-order equivalent (a drag torque in the velocity equals a pressure term), so the
+#: first pick alone does not decide the variable.
+ALT_VARIABLES = 2
+#: Least fraction of the first pick's first-order share another variable's best term
+#: must explain to lead a form of its own.
+ALT_FRACTION = 0.5
 #: Relative excess over the estimation range (of the range's width) that flags extrapolation.
 RANGE_TOLERANCE = 0.05
 
@@ -353,8 +362,10 @@ class EntryScreen:
                 "beta": [float(b) for b in self.beta]}
 
 
-def _pursuit(S: np.ndarray, r: np.ndarray, k: int) -> tuple[list[int], list[float], np.ndarray]:
-    """Orthogonal matching pursuit: up to ``k`` columns of ``S`` explaining ``r``."""
+def _pursuit(S: np.ndarray, r: np.ndarray, k: int, first: int | None = None
+             ) -> tuple[list[int], list[float], np.ndarray]:
+    """Orthogonal matching pursuit: up to ``k`` columns of ``S`` explaining ``r`` (the
+    first one ``first`` when given)."""
     norms = np.linalg.norm(S, axis=0)
     ok = norms > 1e-9 * max(float(norms.max(initial=0.0)), 1e-300)
     Sn = np.where(ok, S / np.where(ok, norms, 1.0), 0.0)
@@ -370,7 +381,7 @@ def _pursuit(S: np.ndarray, r: np.ndarray, k: int) -> tuple[list[int], list[floa
             Qp, _ = np.linalg.qr(Sn[:, picked])
             leftover = np.linalg.norm(Sn - Qp @ (Qp.T @ Sn), axis=0)
             c[leftover < 0.05] = -1.0
-        j = int(np.argmax(c))
+        j = int(np.argmax(c)) if first is None or picked else first
         if c[j] <= 0:
             break
         picked.append(j)
@@ -378,6 +389,43 @@ def _pursuit(S: np.ndarray, r: np.ndarray, k: int) -> tuple[list[int], list[floa
         res = r - S[:, picked] @ beta
         explained.append(float(np.clip(1 - (res @ res) / rr, 0.0, 1.0)))
     return picked, explained, beta
+
+
+def variable_forms(scr: EntryScreen, k: int, n: int = ALT_VARIABLES,
+                   fraction: float = ALT_FRACTION) -> list[EntryScreen]:
+    """The entry's screening led by other variables than its first pick's.
+
+    For each variable the first pick does not use, its single-variable term that explains
+    most of the projected residual; of those explaining at least ``fraction`` of the first
+    pick's share, the ``n`` best each lead a pursuit of up to ``k`` terms (the first pick
+    forced, the rest as usual).
+
+    Returns
+    -------
+    list of EntryScreen
+        Best leading term first; empty when the screen picked nothing.
+    """
+    if not scr.picked:
+        return []
+    lead = set(_parse(scr.candidates[scr.picked[0]].spec)[1])
+    norms = np.linalg.norm(scr.S, axis=0)
+    share = np.where(norms > 0, (scr.S.T @ scr.r) / np.where(norms > 0, norms, 1.0), 0.0) ** 2
+    share /= float(scr.r @ scr.r) or 1e-300
+    best: dict[str, int] = {}
+    for j, c in enumerate(scr.candidates):
+        vs = _parse(c.spec)[1]
+        if len(vs) != 1 or vs[0] in lead:
+            continue
+        if vs[0] not in best or share[j] > share[best[vs[0]]]:
+            best[vs[0]] = j
+    lead_share = scr.explained[0]
+    top = sorted((j for j in best.values() if share[j] >= fraction * lead_share),
+                 key=lambda j: -share[j])[:n]
+    out = []
+    for j in top:
+        picked, explained, beta = _pursuit(scr.S, scr.r, k, first=j)
+        out.append(replace(scr, picked=picked, explained=explained, beta=beta))
+    return out
 
 
 def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = None,
@@ -1152,12 +1200,17 @@ class Discovery:
         and those of :func:`mode_entries` for a resonant mode (:class:`DiscoveredMode`).
     progress : callable, optional
         Receives a line of text per step.
+    noise_tol : float
+        The loop's tolerance of the noise level: an entry's fitted forms (its first-order
+        picks, and those led by other variables, :func:`variable_forms`) are told apart by
+        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it.
     """
 
     def __init__(self, fitter: Any, cur: FitResult, cur_prob: Any, cur_free: list[str], *,
                  round_no: int, criterion: str = "bic", method: str = "threshold",
                  max_terms: int = 4, entries: Sequence[str] | None = None,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None,
+                 noise_tol: float = NOISE_TOL) -> None:
         self.say = progress or (lambda s: None)
         if method not in SPARSITY_METHODS:
             raise ParameterError(f"discovery method must be one of "
@@ -1167,6 +1220,7 @@ class Discovery:
         self.fitter, self.cur, self.cur_prob = fitter, cur, cur_prob
         self.cur_free, self.round_no = list(cur_free), round_no
         self.criterion, self.method, self.max_terms = criterion, method, max_terms
+        self.noise_tol = noise_tol
         values = np.array([cur.values[n] if n in cur.values else cur.x0_param(n)
                            for n in cur_prob.free_names])
         self.sub, self.sub_values, self.record, self.record_index = _record_view(
@@ -1244,8 +1298,7 @@ class Discovery:
             picks = ", ".join(scr.candidates[i].spec for i in scr.picked)
             say(f"  entry {scr.entry}: screened {picks}")
             if self.method == "threshold":
-                fitted, log = _sparse_threshold(self, scr, self.index, cur, cur_prob,
-                                                self.cur_free, self.criterion, say)
+                fitted, log, scr = self._forms(scr)
             else:
                 fitted, log = _sparse_l1(self, scr, self.index, cur, cur_prob,
                                          self.cur_free, self.criterion, self.max_terms, say)
@@ -1287,6 +1340,42 @@ class Discovery:
                 "estimation: the discovered term is extrapolated there")
         step.seconds = time.perf_counter() - ts
         return step, fitted, veto
+
+    def _forms(self, scr: EntryScreen) -> tuple[_Fitted | None, list[str], EntryScreen]:
+        """The entry's term fitted from its first-order picks and from the forms other
+        variables lead (:func:`variable_forms`), one chosen by the loop's tie rule."""
+        got: list[tuple[_Fitted, EntryScreen]] = []
+        log: list[str] = []
+        for k, form in enumerate([scr, *variable_forms(scr, self.max_terms)]):
+            if k:
+                self.say(f"  entry {scr.entry}: led by another variable: " + ", ".join(
+                    form.candidates[i].spec for i in form.picked))
+                log.append("led by another variable: " + ", ".join(
+                    form.candidates[i].spec for i in form.picked))
+            fitted, lines = _sparse_threshold(self, form, self.index, self.cur, self.cur_prob,
+                                              self.cur_free, self.criterion, self.say)
+            log += lines
+            if fitted is not None:
+                got.append((fitted, form))
+        if not got:
+            return None, log, scr
+        if len(got) == 1:
+            return got[0][0], log, got[0][1]
+        i = tie_break([(f.val_rmse, f.crit) for f, _ in got], self._sel_noise(),
+                      self.noise_tol)
+        log.append(f"of {len(got)} fitted forms, the tie rule kept "
+                   f"{', '.join(got[i][0].term.terms)}")
+        self.say("    " + log[-1])
+        return got[i][0], log, got[i][1]
+
+    def _sel_noise(self) -> float:
+        """Noise level of the current model's selection residual (output units)."""
+        if self._before is None:
+            self._before = _residuals(self.sub, _ValuesOnly(self.sub.free_names,
+                                                            self.sub_values), self._val())
+        r = self._before[1]
+        val = self._val()
+        return noise_level(r, (val.u, val.y - r)) if np.isfinite(r).all() else math.nan
 
     # What the sparse fits need of the loop's fitter (they take this object as theirs).
     @property

@@ -75,6 +75,7 @@ from hhra_phys.selection import (
     choose,
     information_criterion,
     judge,
+    noise_tolerance,
     round_settled,
     split_record,
     stops_at_noise,
@@ -883,11 +884,13 @@ class LoopOptions:
     margin : float
         Required relative fall of the selection RMSE (0.1: at least 10 %).
     noise_tol : float, optional
-        Structural-mismatch allowance: the loop stops when the selection RMSE is
+        Tolerance of the noise level: the loop stops when the selection RMSE is
         within ``(1 + noise_tol)`` of the selection residual's noise level (or that
         residual is white), and a candidate must remove more selection variance than
-        ``((1 + noise_tol)^2 - 1) * noise^2``. Default :data:`NOISE_TOL` (measured,
-        ``docs/diagnosis.md``).
+        ``((1 + noise_tol)^2 - 1) * noise^2``. Default: what the selection part's length
+        justifies, :func:`~hhra_phys.selection.noise_tolerance` (0.068 for 400 samples);
+        a number gives a flat allowance (:data:`NOISE_TOL` = 0.15 was the default until
+        2026-11-25, ``docs/diagnosis.md``).
     criterion : {"bic", "aic"}
         Information criterion on the estimation part that must also fall.
     free : sequence of str, optional
@@ -1117,9 +1120,11 @@ class _Loop:
                  executor: Executor | None, progress: Callable[[str], None] | None) -> None:
         self.o, self.executor, self.base_given = opts, executor, base is not None
         self.say = progress or (lambda s: None)
-        self.tol = NOISE_TOL if opts.noise_tol is None else float(opts.noise_tol)
         self.t0 = time.perf_counter()
         data, est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
+        # Default: the tolerance the selection part's length justifies (selection.py).
+        self.tol = (noise_tolerance(sel.n) if opts.noise_tol is None
+                    else float(opts.noise_tol))
         self.data, self.est, self.sel, self.held = data, est, sel, held
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
         if model is None:
@@ -1267,7 +1272,7 @@ class _Loop:
         disc = None
         if self.discover:
             disc = _discovery(self.cfg, cur, cur_prob, self.cur_free, rnd, o.criterion,
-                              o.discover_kw, self.say, self.skipped)
+                              o.discover_kw, self.say, self.skipped, self.tol)
             if disc is None:
                 self.discover = False
             else:
@@ -1493,12 +1498,14 @@ def _noise_stop_text(level: Mapping[str, Any], noise_tol: float) -> str:
 
 def _discovery(cfg: _Settings, cur: FitResult, cur_prob: Any, cur_free: Sequence[str],
                rnd: int, criterion: str, discover_kw: Mapping[str, Any] | None,
-               say: Callable[[str], None], skipped: dict[str, str]) -> Discovery | None:
+               say: Callable[[str], None], skipped: dict[str, str],
+               noise_tol: float = NOISE_TOL) -> Discovery | None:
     """This round's discovery candidates (screened), or None when the model cannot be
     screened (said and recorded in ``skipped["discovery"]``; a bad option is an error)."""
     try:
         return Discovery(_DiscoveryFits(cfg), cur, cur_prob, list(cur_free), round_no=rnd,
-                         criterion=criterion, progress=say, **dict(discover_kw or {}))
+                         criterion=criterion, progress=say, noise_tol=noise_tol,
+                         **dict(discover_kw or {}))
     except ParameterError as exc:
         if "cannot be simulated" not in str(exc):
             raise

@@ -84,8 +84,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--margin", type=float, default=0.1,
                    help="required relative fall of the selection RMSE (default 0.1)")
     p.add_argument("--noise-tol", type=float, default=None,
-                   help="structural-mismatch allowance over the noise level (default "
-                        "hhra_phys.loop.NOISE_TOL, measured; see docs/diagnosis.md)")
+                   help="tolerance of the noise level (default: from the selection "
+                        "part's length, hhra_phys.selection.noise_tolerance; see "
+                        "docs/diagnosis.md)")
     p.add_argument("--no-discover", action="store_true",
                    help="do not propose terms and modes outside the library (discovery, "
                         "hhra_phys.discover, proposes beside the library in every round by "

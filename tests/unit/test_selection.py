@@ -10,10 +10,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from hhra_phys.errors import ParameterError
-from hhra_phys.selection import Step, choose, noise_allowance, round_settled
+from hhra_phys.selection import (
+    Step,
+    choose,
+    noise_allowance,
+    noise_tolerance,
+    round_settled,
+    tie_break,
+)
 
 NOISE = 0.05
 TOL = 0.15
@@ -107,3 +115,39 @@ def test_a_given_effect_keeps_a_tie_with_a_discovered_term_at_its_entry():
     lib3 = _step("valve_deadzone", 0.09, -100.0)
     lib3.entry = "input"
     assert choose([(term3, 1), (lib3, 2)], NOISE, TOL)[0] is term3
+
+
+def test_tie_break_follows_choose_on_bare_fits():
+    # the same numbers as the near-tie case: tied on selection, the lower criterion wins
+    assert tie_break([(0.055, 10.0), (0.060, 5.0)], NOISE, TOL) == 1
+    # clearly worse on selection (0.10^2 - 0.08^2 > allowance): the criterion is not asked
+    assert tie_break([(0.10, -50.0), (0.08, 50.0)], NOISE, TOL) == 1
+    # a fit that could not be simulated never wins over a finite one
+    assert tie_break([(math.nan, -1e9), (0.2, 0.0)], NOISE, TOL) == 1
+    with pytest.raises(ParameterError, match="at least one"):
+        tie_break([], NOISE, TOL)
+
+
+@pytest.mark.parametrize(("n", "tol"), [(400, 0.0684), (1200, 0.0400), (2, 0.7321)])
+def test_noise_tolerance_from_the_sample_count(n, tol):
+    # sqrt(1 + 2*sqrt(2/n)) - 1 by hand: 400 -> sqrt(1.14142) - 1
+    assert noise_tolerance(n) == pytest.approx(tol, abs=1e-4)
+    assert noise_tolerance(4 * n) < noise_tolerance(n)
+
+
+def test_noise_tolerance_covers_white_noise_and_refuses_no_samples():
+    # The ratio rmse^2 / noise_level^2 of white noise stays within the derived allowance
+    # in at least 95 % of 200 draws (the level estimated from the same samples).
+    from hhra_phys.noise import noise_level
+
+    n = 400
+    t = np.linspace(0, 8, n)
+    u, y = np.sign(np.sin(2 * np.pi * 0.7 * t)), np.sin(2 * np.pi * 0.3 * t)
+    lim = (1 + noise_tolerance(n)) ** 2
+    inside = 0
+    for k in range(200):
+        r = np.random.default_rng(k).standard_normal(n)
+        inside += np.mean(r ** 2) / noise_level(r, (u, y)) ** 2 <= lim
+    assert inside >= 190
+    with pytest.raises(ParameterError, match="n=0"):
+        noise_tolerance(0)
