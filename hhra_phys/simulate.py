@@ -467,7 +467,7 @@ class Simulator:
         return out
 
     def plan(self, p: np.ndarray, umax: float | None = None,
-             method: str | None = None) -> tuple[str, int, str]:
+             method: str | None = None, stiff_floor: bool = True) -> tuple[str, int, str]:
         """Method and substeps this simulator's rule gives for parameters ``p``.
 
         Parameters
@@ -481,6 +481,10 @@ class Simulator:
         method : {"rk4", "ros2", "ros4"}, optional
             Force the method (default: RK4 unless it would need more than
             :data:`RK4_MAX_SUBSTEPS`).
+        stiff_floor : bool
+            Give ROS4 at least :data:`ROS4_MIN_STIFF` substeps on a model with a stiff
+            mode (default). ``False``: only the non-stiff modes set them (at least 2), for
+            a caller whose error estimate decides instead (:meth:`accurate`).
 
         Returns
         -------
@@ -505,7 +509,7 @@ class Simulator:
         # A stiff mode is damped by R(-inf) = 1/3 per ROS4 step, and each friction
         # reversal is resolved to first order only: at least 8 steps per sample
         # (docs/performance.md: 2.7e-2 deg with 2, 2e-3 to 1e-2 with 4, 3e-4 with 8).
-        n_ros = max(ROS4_MIN_STIFF if stiff.any() else 2,
+        n_ros = max(ROS4_MIN_STIFF if stiff.any() and stiff_floor else 2,
                     math.ceil(rho_ns * dt / ROS4_ACCURACY))
         if not math.isfinite(rho_rest) or not math.isfinite(rho_pts):
             return (method or "rk4", 2, "non-finite state Jacobian")
@@ -600,7 +604,7 @@ class Simulator:
         return step_doubling_error(*ys)
 
     def accurate(self, u: np.ndarray, p: np.ndarray, tolerance: float,
-                 x0: np.ndarray | None = None) -> Simulator:
+                 x0: np.ndarray | None = None, coarsest: bool = False) -> Simulator:
         """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
 
         Starts from this simulator's substeps when they are stable for ``p`` (the
@@ -628,18 +632,27 @@ class Simulator:
             noise level (:func:`accuracy_tolerance`).
         x0 : array, shape (nx,), optional
             Initial state.
+        coarsest : bool
+            Start from the fewest substeps the method allows for ``p`` instead: the
+            stability rule's at ``p`` (for ROS4 without the :data:`ROS4_MIN_STIFF` floor
+            of a stiff model), so the estimate may also choose fewer substeps than this
+            simulator's (a sharp backlash whose record ROS4 x 4 integrates within the
+            tolerance, at half the cost of x 8).
         """
         u, P, X0, _ = self._prepare(u, p, x0)
         pv, xv = P[0], X0[:, 0]
         umax = float(np.max(np.abs(u)))
-        _, n_rule, _ = self.plan(pv, umax, method=self.method)
-        # Start at this simulator's substeps where they are stable for p (the
-        # population's flagging rule), else at the stability rule's: the error
-        # estimate, not the rule's margin, decides whether more are needed.
-        stable = (self.method != "rk4"
-                  or float(self.stability_index(P, umax)[0]) <= self.rho_max)
-        n = (self.substeps if stable or not self.substeps_auto
-             else max(int(n_rule), self.substeps))
+        _, n_rule, _ = self.plan(pv, umax, method=self.method, stiff_floor=not coarsest)
+        if coarsest:
+            n = int(n_rule)
+        else:
+            # Start at this simulator's substeps where they are stable for p (the
+            # population's flagging rule), else at the stability rule's: the error
+            # estimate, not the rule's margin, decides whether more are needed.
+            stable = (self.method != "rk4"
+                      or float(self.stability_index(P, umax)[0]) <= self.rho_max)
+            n = (self.substeps if stable or not self.substeps_auto
+                 else max(int(n_rule), self.substeps))
         n_start = n
         if n > MAX_AUTO_SUBSTEPS:
             # Parameters the stability rule cannot serve (a held value far off the
@@ -673,7 +686,8 @@ class Simulator:
                     self.model, self.fs, substeps=n, method=self.method,
                     threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
                     chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
-                    diverge_limit=self.diverge_limit, simd=self._simd_arg)
+                    diverge_limit=self.diverge_limit, simd=self._simd_arg,
+                    intersample=self.intersample)
             sim = self._derived[key]
         sim.accuracy = {"method": self.method, "substeps": int(n),
                         "error_estimate": float(err), "tolerance": float(tolerance),
