@@ -467,7 +467,7 @@ class Simulator:
         return out
 
     def plan(self, p: np.ndarray, umax: float | None = None,
-             method: str | None = None, stiff_floor: bool = True) -> tuple[str, int, str]:
+             method: str | None = None) -> tuple[str, int, str]:
         """Method and substeps this simulator's rule gives for parameters ``p``.
 
         Parameters
@@ -481,10 +481,6 @@ class Simulator:
         method : {"rk4", "ros2", "ros4"}, optional
             Force the method (default: RK4 unless it would need more than
             :data:`RK4_MAX_SUBSTEPS`).
-        stiff_floor : bool
-            Give ROS4 at least :data:`ROS4_MIN_STIFF` substeps on a model with a stiff
-            mode (default). ``False``: only the non-stiff modes set them (at least 2), for
-            a caller whose error estimate decides instead (:meth:`accurate`).
 
         Returns
         -------
@@ -509,7 +505,7 @@ class Simulator:
         # A stiff mode is damped by R(-inf) = 1/3 per ROS4 step, and each friction
         # reversal is resolved to first order only: at least 8 steps per sample
         # (docs/performance.md: 2.7e-2 deg with 2, 2e-3 to 1e-2 with 4, 3e-4 with 8).
-        n_ros = max(ROS4_MIN_STIFF if stiff.any() and stiff_floor else 2,
+        n_ros = max(ROS4_MIN_STIFF if stiff.any() else 2,
                     math.ceil(rho_ns * dt / ROS4_ACCURACY))
         if not math.isfinite(rho_rest) or not math.isfinite(rho_pts):
             return (method or "rk4", 2, "non-finite state Jacobian")
@@ -633,18 +629,19 @@ class Simulator:
         x0 : array, shape (nx,), optional
             Initial state.
         coarsest : bool
-            Start from the fewest substeps the method allows for ``p`` instead: the
-            stability rule's at ``p`` (for ROS4 without the :data:`ROS4_MIN_STIFF` floor
-            of a stiff model), so the estimate may also choose fewer substeps than this
-            simulator's (a sharp backlash whose record ROS4 x 4 integrates within the
-            tolerance, at half the cost of x 8).
+            Start from the fewest substeps the method allows for ``p`` instead, so the
+            estimate may also choose fewer than this simulator's: the stability rule's
+            at ``p`` for RK4, 2 for the Rosenbrock methods (A-stable: the step is stable
+            at any size, and the estimate alone says how coarse it may be; a sharp
+            backlash whose record ROS4 x 4 integrates within the tolerance, where the
+            stiff rule asks for at least :data:`ROS4_MIN_STIFF`).
         """
         u, P, X0, _ = self._prepare(u, p, x0)
         pv, xv = P[0], X0[:, 0]
         umax = float(np.max(np.abs(u)))
-        _, n_rule, _ = self.plan(pv, umax, method=self.method, stiff_floor=not coarsest)
+        _, n_rule, _ = self.plan(pv, umax, method=self.method)
         if coarsest:
-            n = int(n_rule)
+            n = int(n_rule) if self.method == "rk4" else 2
         else:
             # Start at this simulator's substeps where they are stable for p (the
             # population's flagging rule), else at the stability rule's: the error
