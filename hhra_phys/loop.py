@@ -232,14 +232,18 @@ def _stiff_substeps(problem: Problem | MultiProblem) -> None:
     from the coarsest count (:meth:`Simulator.accurate`) often allows fewer (a sharp
     backlash on the rig's record: ROS4 x 4 within a tenth of the noise, at half the cost
     of x 8). The fit checks the estimate again at the fitted values and refines with
-    more substeps if they need them. Models integrated with RK4 are left as they are.
+    more substeps if they need them. Models integrated with RK4, and candidates whose
+    estimate does not meet the tolerance (or does not stay finite), are left as they are.
     """
     if isinstance(problem, MultiProblem) or problem.sim.method == "rk4":
         return
     v = problem.start_values()
-    problem.sim = problem.sim.accurate(problem.u, problem.full(v),
-                                       accuracy_tolerance(problem.y),
-                                       x0=problem.initial_states(v)[0], coarsest=True)
+    sim = problem.sim.accurate(problem.u, problem.full(v), accuracy_tolerance(problem.y),
+                               x0=problem.initial_states(v)[0], coarsest=True)
+    if sim.accuracy.get("within"):
+        problem.sim = sim
+    elif sim is problem.sim:
+        sim.accuracy = {}  # as before: substeps inherited, not estimated
 
 
 def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[str, float],
