@@ -119,3 +119,14 @@ def test_coarsest_lets_the_estimate_choose_fewer_ros4_substeps_for_a_sharp_backl
     assert base.accurate(u, p, tol).substeps >= base.substeps
     # A tight tolerance asks for more than the coarsest choice.
     assert base.accurate(u, p, 1e-5, coarsest=True).substeps > sim.substeps
+
+
+@pytest.mark.parametrize("intersample", ["foh", "cubic"])
+def test_the_refined_simulator_keeps_the_inter_sample_behaviour(intersample):
+    model = HHRAModel()
+    p = model.nominal()
+    u = _steps(1.0, 8)
+    base = Simulator(model, fs=FS, intersample=intersample)
+    tight = base.accurate(u, p, 1e-6)
+    assert tight is not base and tight.substeps > base.substeps
+    assert tight.intersample == intersample
