@@ -317,10 +317,23 @@ def _linear_response(problem: Problem, P: np.ndarray, entry: str, cols: np.ndarr
             f"unknown entry point {entry!r} (input, output or rate:<state> with a state of "
             f"{', '.join(names)})")
     Ad, Bd, Cd, Dd, _ = sps.cont2discrete((A, B, C, Dm), dt, method="zoh")
+    return _discrete_response(Ad, Bd[:, 0], Cd[0], float(Dd[0, 0]), cols)
+
+
+def _discrete_response(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float,
+                       cols: np.ndarray) -> np.ndarray:
+    """Outputs (N, k) of ``x+ = A x + b u``, ``y = c x + d u`` from rest, every column at once.
+
+    The recursion of :func:`scipy.signal.dlsim` advanced for all columns per sample:
+    ``dlsim`` loops over the samples in Python once per column, which made the
+    discovery's mode screening (tens of columns per entry) the loop's largest cost.
+    """
+    cols = np.asarray(cols, dtype=float)
+    x = np.zeros((A.shape[0], cols.shape[1]))
     out = np.empty_like(cols)
-    for j in range(cols.shape[1]):
-        _, y, _ = sps.dlsim((Ad, Bd, Cd, Dd, dt), cols[:, j])
-        out[:, j] = np.ravel(y)
+    for i, ui in enumerate(cols):
+        out[i] = c @ x + d * ui
+        x = A @ x + np.outer(b, ui)
     return out
 
 

@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
+from itertools import islice
 from types import FrameType
 from typing import Any, TypeVar
 
@@ -167,7 +169,8 @@ def stop_on_interrupt(executor: Executor | None) -> Iterator[None]:
         raise
 
 
-def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T]) -> Iterator[R]:
+def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T],
+                 ahead: int | None = None) -> Iterator[R]:
     """``executor.map(fn, jobs)`` whose results, on Ctrl-C while waiting, stop the workers.
 
     Parameters
@@ -176,11 +179,34 @@ def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T]) ->
     fn : callable
         Picklable for process and Dask executors.
     jobs : iterable
+    ahead : int, optional
+        Most jobs submitted and not yet taken by the caller (``None``: all at once, as
+        ``Executor.map``). A caller that may stop early (the loop's round, settled by a
+        candidate at the noise level) then leaves at most ``ahead`` jobs run for nothing:
+        closing the iterator cancels the queued ones, but leaving a ``with
+        ProcessPoolExecutor()`` block waits for the running ones. The results are those
+        of ``Executor.map``; only when the jobs run changes.
 
     Yields
     ------
     The results in the order of ``jobs``.
     """
-    results: Iterator[Any] = executor.map(fn, jobs)
-    with stop_on_interrupt(executor):
-        yield from results
+    if ahead is None:
+        results: Iterator[Any] = executor.map(fn, jobs)
+        with stop_on_interrupt(executor):
+            yield from results
+        return
+    pending = iter(jobs)
+    running: deque[Future[R]] = deque()
+    try:
+        with stop_on_interrupt(executor):
+            for job in islice(pending, max(1, int(ahead))):
+                running.append(executor.submit(fn, job))
+            while running:
+                result = running.popleft().result()
+                for job in islice(pending, 1):  # the next one starts before the caller works
+                    running.append(executor.submit(fn, job))
+                yield result
+    finally:
+        for fut in running:
+            fut.cancel()

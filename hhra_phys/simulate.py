@@ -663,7 +663,7 @@ class Simulator:
         return step_doubling_error(*ys)
 
     def accurate(self, u: np.ndarray, p: np.ndarray, tolerance: float,
-                 x0: np.ndarray | None = None) -> Simulator:
+                 x0: np.ndarray | None = None, coarsest: bool = False) -> Simulator:
         """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
 
         Starts from this simulator's substeps when they are stable for ``p`` (the
@@ -691,18 +691,28 @@ class Simulator:
             noise level (:func:`accuracy_tolerance`).
         x0 : array, shape (nx,), optional
             Initial state.
+        coarsest : bool
+            Start from the fewest substeps the method allows for ``p`` instead, so the
+            estimate may also choose fewer than this simulator's: the stability rule's
+            at ``p`` for RK4, 2 for the Rosenbrock methods (A-stable: the step is stable
+            at any size, and the estimate alone says how coarse it may be; a sharp
+            backlash whose record ROS4 x 4 integrates within the tolerance, where the
+            stiff rule asks for at least :data:`ROS4_MIN_STIFF`).
         """
         u, P, X0, _ = self._prepare(u, p, x0)
         pv, xv = P[0], X0[:, 0]
         umax = float(np.max(np.abs(u)))
         _, n_rule, _ = self.plan(pv, umax, method=self.method)
-        # Start at this simulator's substeps where they are stable for p (the
-        # population's flagging rule), else at the stability rule's: the error
-        # estimate, not the rule's margin, decides whether more are needed.
-        stable = (self.method != "rk4"
-                  or float(self.stability_index(P, umax)[0]) <= self.rho_max)
-        n = (self.substeps if stable or not self.substeps_auto
-             else max(int(n_rule), self.substeps))
+        if coarsest:
+            n = int(n_rule) if self.method == "rk4" else 2
+        else:
+            # Start at this simulator's substeps where they are stable for p (the
+            # population's flagging rule), else at the stability rule's: the error
+            # estimate, not the rule's margin, decides whether more are needed.
+            stable = (self.method != "rk4"
+                      or float(self.stability_index(P, umax)[0]) <= self.rho_max)
+            n = (self.substeps if stable or not self.substeps_auto
+                 else max(int(n_rule), self.substeps))
         n_start = n
         if n > MAX_AUTO_SUBSTEPS:
             # Parameters the stability rule cannot serve (a held value far off the

@@ -94,3 +94,39 @@ def test_a_loose_tolerance_keeps_the_stability_rule_and_a_tight_one_refines():
     assert tight.accuracy["error_estimate"] < loose.accuracy["error_estimate"]
     # Built once and kept.
     assert base.accurate(u, p, 1e-4) is tight
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_coarsest_lets_the_estimate_choose_fewer_ros4_substeps_for_a_sharp_backlash(seed):
+    """A stiff model: the rule's floor of 8 ROS4 substeps is not needed where the error
+    estimate says fewer meet the tolerance, and what it chooses meets it against CVODES."""
+    from hhra_phys.effects import make_effect
+    from hhra_phys.simulate import ROS4_MIN_STIFF
+
+    model = HHRAModel().with_parts(make_effect("backlash"))
+    p = model.nominal()
+    u = _steps(2.0, seed, amplitude=1.0)
+    base = Simulator(model, fs=FS, block=2)
+    assert base.method == "ros4" and base.substeps >= ROS4_MIN_STIFF
+    y_ref = base.reference(u, p, rtol=1e-10, atol=1e-10)
+    tol = 0.005  # a tenth of the rig's 0.05 deg noise
+    sim = base.accurate(u, p, tol, coarsest=True)
+    assert sim.method == "ros4" and sim.substeps < base.substeps
+    assert sim.accuracy["within"] and sim.accuracy["start_substeps"] < ROS4_MIN_STIFF
+    err = np.max(np.abs(sim.simulate(u, p[None, :])[0] - y_ref))
+    assert err <= tol and sim.accuracy["error_estimate"] >= 0.5 * err
+    # Without it the simulator's substeps are the start: never fewer.
+    assert base.accurate(u, p, tol).substeps >= base.substeps
+    # A tight tolerance asks for more than the coarsest choice.
+    assert base.accurate(u, p, 1e-5, coarsest=True).substeps > sim.substeps
+
+
+@pytest.mark.parametrize("intersample", ["foh", "cubic"])
+def test_the_refined_simulator_keeps_the_inter_sample_behaviour(intersample):
+    model = HHRAModel()
+    p = model.nominal()
+    u = _steps(1.0, 8)
+    base = Simulator(model, fs=FS, intersample=intersample)
+    tight = base.accurate(u, p, 1e-6)
+    assert tight is not base and tight.substeps > base.substeps
+    assert tight.intersample == intersample
