@@ -221,7 +221,7 @@ def _print_loop(res: Any, hidden: str, truth: dict[str, float]) -> None:
                   f"95 % CI [{lo:.4g}, {hi:.4g}]")
     b, f = res.test_scores.get("base", {}), res.test_scores.get("final", {})
     if b and f:
-        print(f"error on the test part (it chose nothing): RMSE {b['rmse']:.4g} -> "
+        print(f"error on the held-out test part (not used to choose): RMSE {b['rmse']:.4g} -> "
               f"{f['rmse']:.4g} deg, VAF {b['vaf']:.4f} -> {f['vaf']:.4f} %")
     print(f"loop: {res.settings['stop']}; {res.settings['seconds']:.1f} s")
 
