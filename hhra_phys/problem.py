@@ -191,7 +191,36 @@ def _simulators_by_rate(simulator: Simulator | Mapping[float, Simulator] | None,
             if abs(simulator.fs - ds.fs) <= 1e-9 * ds.fs}
 
 
-class RecordProblem:
+class _Coordinates:
+    """The map between free-parameter values and fitting coordinates, shared by a record's
+    problem and the problem of a record set: ``log10`` for log-scaled parameters, the
+    value over half its box width for linear ones (``_log``, ``_scale``, ``free_params``
+    are the subclass's)."""
+
+    _log: np.ndarray
+    _scale: np.ndarray
+    free_params: list[Parameter]
+
+    def to_z(self, values: np.ndarray) -> np.ndarray:
+        """Fitting coordinates of free-parameter values (physical units), shape (..., n_free)."""
+        v = np.asarray(values, dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self._log, np.log10(np.abs(v)), v / self._scale)
+
+    def from_z(self, z: np.ndarray) -> np.ndarray:
+        """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
+        zz = np.asarray(z, dtype=float)
+        with np.errstate(over="ignore"):  # an extreme coordinate gives inf, flagged later
+            return np.where(self._log, 10.0 ** zz, zz * self._scale)
+
+    def bounds_z(self) -> np.ndarray:
+        """Search box in fitting coordinates, shape (n_free, 2)."""
+        lo = np.array([p.lower for p in self.free_params])
+        hi = np.array([p.upper for p in self.free_params])
+        return np.stack([self.to_z(lo), self.to_z(hi)], axis=1)
+
+
+class RecordProblem(_Coordinates):
     """One record's part of a :class:`Problem`: model + record + cost + free parameters.
 
     A :class:`Problem` holds one per record (:attr:`Problem.records`); it is what the
@@ -393,25 +422,6 @@ class RecordProblem:
                              "to": list(new), "reason": "start", "decades": decades})
         return par.with_(lower=new[0], upper=new[1])
 
-    # -- coordinates --------------------------------------------------------------------
-    def to_z(self, values: np.ndarray) -> np.ndarray:
-        """Fitting coordinates of free-parameter values (physical units), shape (..., n_free)."""
-        v = np.asarray(values, dtype=float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self._log, np.log10(np.abs(v)), v / self._scale)
-
-    def from_z(self, z: np.ndarray) -> np.ndarray:
-        """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
-        zz = np.asarray(z, dtype=float)
-        with np.errstate(over="ignore"):  # an extreme coordinate gives inf, flagged later
-            return np.where(self._log, 10.0 ** zz, zz * self._scale)
-
-    def bounds_z(self) -> np.ndarray:
-        """Search box in fitting coordinates, shape (n_free, 2)."""
-        lo = np.array([p.lower for p in self.free_params])
-        hi = np.array([p.upper for p in self.free_params])
-        return np.stack([self.to_z(lo), self.to_z(hi)], axis=1)
-
     def start_values(self) -> np.ndarray:
         """Starting values of the free parameters (physical units)."""
         out = []
@@ -588,7 +598,7 @@ class RecordProblem:
 
 
 
-class Problem:
+class Problem(_Coordinates):
     """Model + one or several estimation records + cost + free/fixed parameters and scaling.
 
     The one fitting problem of the package: the fit, the diagnosis loop, discovery, the
@@ -864,25 +874,6 @@ class Problem:
     def x0_states(self) -> list[str]:
         """States whose initial value is a free parameter ``x0_<state>`` (``"fit"`` rule)."""
         return self.records[0].x0_states
-
-    # -- coordinates --------------------------------------------------------------------
-    def to_z(self, values: np.ndarray) -> np.ndarray:
-        """Fitting coordinates of free-parameter values (physical units), shape (..., n_free)."""
-        v = np.asarray(values, dtype=float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self._log, np.log10(np.abs(v)), v / self._scale)
-
-    def from_z(self, z: np.ndarray) -> np.ndarray:
-        """Free-parameter values (physical units) of fitting coordinates, shape (..., n_free)."""
-        zz = np.asarray(z, dtype=float)
-        with np.errstate(over="ignore"):  # an extreme coordinate gives inf, flagged later
-            return np.where(self._log, 10.0 ** zz, zz * self._scale)
-
-    def bounds_z(self) -> np.ndarray:
-        """Search box in fitting coordinates, shape (n_free, 2)."""
-        lo = np.array([p.lower for p in self.free_params])
-        hi = np.array([p.upper for p in self.free_params])
-        return np.stack([self.to_z(lo), self.to_z(hi)], axis=1)
 
     def start_values(self) -> np.ndarray:
         """Starting values of the free parameters (physical units)."""
