@@ -124,10 +124,15 @@ def _header(res: Any) -> list[str]:
             f"test {ds.get('n_test')} (the test part chooses nothing; 'val' is the selection "
             f"part), seed {st['seed']}; accept an effect when the selection RMSE "
             f"falls by {100 * st['margin']:.0f} % or more, by more than the noise "
-            f"allowance (noise_tol {st.get('noise_tol')}), and "
+            f"allowance (noise_tol {_tol(st.get('noise_tol'))}), and "
             f"{st['criterion'].upper()} on estimation agrees. Stopped: "
             f"{st.get('stop')}.", "",
             f"**Chosen effects:** {', '.join(res.chosen) or 'none'}", ""]
+
+
+def _tol(value: Any) -> str:
+    """The noise tolerance as printed: three digits (it is derived from the record's length)."""
+    return f"{value:.3g}" if isinstance(value, (int, float)) else str(value)
 
 
 def _errors(out: dict[str, Any]) -> list[str]:
