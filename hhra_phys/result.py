@@ -210,8 +210,11 @@ def _delta(q: DerivedQuantity, value: float, grad: np.ndarray, cov: np.ndarray |
         return Estimate(value, q.unit, (math.nan, math.nan), status, math.inf, q.description)
     sd = float(math.sqrt(max(float(grad[used] @ sub @ grad[used]), 0.0)))
     if q.positive and value > 0:
-        rel = sd / value
-        ci = (value * math.exp(-Z95 * rel), value * math.exp(Z95 * rel))
+        # exp of a huge relative spread (a quantity the fit hardly determines) overflows:
+        # its upper end is then infinite, not an error.
+        with np.errstate(over="ignore"):
+            spread = float(np.exp(Z95 * sd / value))
+        ci = (value / spread, value * spread)
     else:
         ci = (value - Z95 * sd, value + Z95 * sd)
     return Estimate(value, q.unit, ci, status, sd, q.description)

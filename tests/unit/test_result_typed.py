@@ -98,6 +98,20 @@ def test_positive_quantity_interval_is_on_its_logarithm_and_stays_positive():
     assert (lo + hi) / 2 == pytest.approx(e["ratio"].value, rel=1e-12) and lo < 0
 
 
+def test_a_positive_quantity_the_fit_hardly_determines_gets_an_open_interval():
+    """A relative spread whose exp overflows: the interval is (0, inf), not an error
+    (a gravity base fit with a far-off damping raised OverflowError here)."""
+    values = {"k1": 1.0, "k2": 1.0, "k3": 1.0, "h": 1.0}
+    cov = np.diag([1e6, 1e6, 0.0])  # sd 1000 x the value
+    e = derived_estimates(QUANTITIES, values, NAMES, cov)
+    lo, hi = e["product"].ci95
+    assert lo == 0.0 and hi == math.inf and e["product"].value == pytest.approx(1.0)
+    moderate = derived_estimates(QUANTITIES, values, NAMES, np.diag([0.04, 0.0, 0.0]))
+    lo, hi = moderate["product"].ci95  # the same rule below the overflow
+    assert lo == pytest.approx(math.exp(-1.96 * 0.2), rel=1e-9)
+    assert hi == pytest.approx(math.exp(1.96 * 0.2), rel=1e-9)
+
+
 def test_held_undetermined_and_edge_statuses():
     values, cov = _case(7)
     e = derived_estimates(QUANTITIES, values, NAMES, cov)
