@@ -54,7 +54,7 @@ def main() -> None:
             load0 = os.getloadavg()[0]
             wall, cpu, out = timed(demo + ["--out", str(Path(tmp, f"run{i}"))], env)
             found = re.search(r"effects added: (.*)", out)
-            score = re.search(r"error on the test part.*", out)
+            score = re.search(r"error on the held-out test part.*", out)
             print(f"run {i + 1} ({'cold' if args.cold else 'warm'}): wall {wall:.1f} s, "
                   f"CPU {cpu:.1f} s (load average {load0:.1f} -> {os.getloadavg()[0]:.1f}); "
                   f"{found.group(1) if found else '?'}; "

@@ -62,7 +62,7 @@ def test_demo_quick_runs_end_to_end(tmp_path, capsys):
     from hhra_phys.cli.demo import hidden_effect
 
     hidden, _ = hidden_effect(0)
-    assert f"hides {hidden}" in text and "error on the test part" in text
+    assert f"hides {hidden}" in text and "error on the held-out test part" in text
     loop = json.loads((out / "demo_loop.json").read_text())
     assert loop["test"]["rmse"] < loop["base"]["test"]["rmse"]
     for name in ("demo_fit.png", "demo_fit.json", "demo_rig.csv", "demo_loop.png",
