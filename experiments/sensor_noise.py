@@ -21,7 +21,7 @@ differences) back in at the loop's call sites, to measure the change.
 
     python experiments/sensor_noise.py [--seeds 5] [--estimator spectral|difference]
         [--cases white,ar,quant,drift,ar+valve_deadzone] [--discover]
-        [--out docs/figures/measuring_sensor_noise.json]
+        [--out FILE.json]
 
 ``--estimates FIGURE.png`` runs no loop: for every case (and ``white+EFFECT``) and seed
 the base HHRA is fitted once (pop 20 x 30, estimation half) and both noise estimates of
@@ -213,7 +213,8 @@ def coverage(seeds: list[int], duration: float, out_path: str) -> None:
     from hhra_phys.fit import fit
     from hhra_phys.models.hhra import HHRAModel
 
-    out = check_output_path(out_path, overwrite=True, what="--out", suffixes=(".json",))
+    out = (check_output_path(out_path, overwrite=True, what="--out", suffixes=(".json",))
+           if out_path else None)
     rows = []
     load_start = os.getloadavg()
     for case in ("white", "ar"):
@@ -266,10 +267,11 @@ def coverage(seeds: list[int], duration: float, out_path: str) -> None:
         for n, v in summary[case].items():
             print(f"| {n} | {v['seeds']} | {100 * v['covered']:.0f} % | "
                   f"{100 * v['covered_widened']:.0f} % | {v['spread_over_reported']:.2f} |")
-    atomic_write_text(out, json.dumps(jsonable(
-        {"duration": duration, "sensors": SENSORS, "loadavg_start": load_start,
-         "loadavg_now": os.getloadavg(), "command": "python " + " ".join(sys.argv),
-         "summary": summary, "rows": rows}), indent=1))
+    if out is not None:
+        atomic_write_text(out, json.dumps(jsonable(
+            {"duration": duration, "sensors": SENSORS, "loadavg_start": load_start,
+             "loadavg_now": os.getloadavg(), "command": "python " + " ".join(sys.argv),
+             "summary": summary, "rows": rows}), indent=1))
 
 
 def main() -> None:
@@ -283,7 +285,8 @@ def main() -> None:
                     help="noise level the loop uses (difference: the earlier estimate)")
     ap.add_argument("--discover", action="store_true", help="let the loop discover terms too")
     ap.add_argument("--max-effects", type=int, default=2)
-    ap.add_argument("--out", default="docs/figures/measuring_sensor_noise.json")
+    ap.add_argument("--out", default=None,
+                    help="write the rows here (.json); default: print the table only")
     ap.add_argument("--estimates", default=None, metavar="FIGURE.png",
                     help="no loop: compare the noise estimates on base-fit residuals")
     ap.add_argument("--coverage", action="store_true",
@@ -308,7 +311,8 @@ def main() -> None:
     if args.coverage:
         coverage(seeds, args.duration, args.out)
         return
-    out = check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
+    out = (check_output_path(args.out, overwrite=True, what="--out", suffixes=(".json",))
+           if args.out else None)
     if args.estimator == "difference":
         _use_difference()
     loop_kw = {"max_effects": args.max_effects, "pop_size": 20, "max_iter": 30,
@@ -326,11 +330,12 @@ def main() -> None:
                   f"; test {row['base_test'] or np.nan:.4g} -> {row['final_test'] or np.nan:.4g} "
                   f"stop {row['stop']} [{row['seconds']:.0f} s]", flush=True)
             # Written after every record, so an interrupted study keeps its rows.
-            atomic_write_text(out, json.dumps(jsonable(
-                {"duration": args.duration, "loop": loop_kw, "estimator": args.estimator,
-                 "sensors": SENSORS, "effects": EFFECTS, "loadavg_start": load_start,
-                 "loadavg_now": os.getloadavg(), "command": "python " + " ".join(sys.argv),
-                 "rows": rows}), indent=1))
+            if out is not None:
+                atomic_write_text(out, json.dumps(jsonable(
+                    {"duration": args.duration, "loop": loop_kw, "estimator": args.estimator,
+                     "sensors": SENSORS, "effects": EFFECTS, "loadavg_start": load_start,
+                     "loadavg_now": os.getloadavg(), "command": "python " + " ".join(sys.argv),
+                     "rows": rows}), indent=1))
     print("\n| case | seeds | added (records) | hidden found | sensor std | spectral / sensor "
           "(median) | difference / sensor (median) | stop |")
     print("|---|---|---|---|---|---|---|---|")

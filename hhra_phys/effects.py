@@ -662,6 +662,7 @@ class SensorOffset(Effect):
     y_scale: float = 1.0
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "sensor_offset"
+    sensor: ClassVar[bool] = True
     writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
     signature: ClassVar[str] = "constant residual mean"
@@ -713,6 +714,7 @@ class SensorDrift(Effect):
     dt: float = 0.004
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "sensor_drift"
+    sensor: ClassVar[bool] = True
     writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
     signature: ClassVar[str] = "residual trend linear in time (the sensor's zero drifts)"

@@ -286,6 +286,17 @@ def _simulator(cfg: _Settings, model: Model) -> dict[float, Simulator]:
             for fs in dict.fromkeys(float(ds.fs) for ds in as_records(cfg.est))}
 
 
+#: Queue kinds refitted by :func:`refit_candidate` (the rest are discovered candidates).
+_LIBRARY_KINDS = ("effect", "sensor")
+
+
+def _kind(effect: str) -> str:
+    """A library candidate's kind in a round: ``"sensor"`` for an effect that describes
+    the measurement (:attr:`hhra_phys.parts.Effect.sensor`), else ``"effect"``."""
+    cls = EFFECTS.get(effect)
+    return "sensor" if cls is not None and getattr(cls, "sensor", False) else "effect"
+
+
 def _lookahead(executor: Executor) -> int | None:
     """Library refits handed to ``executor`` ahead of the round: one per local worker.
 
@@ -676,6 +687,7 @@ def refit_candidate(job: _Job) -> _Outcome:
                 dict(r2.metrics["est"]), dict(r2.metrics["val"]), crit, job.crit_cur,
                 job.rmse_cur)
     step.entry = str(getattr(eff, "entry", "") or "")
+    step.sensor = bool(getattr(eff, "sensor", False))
     bad = _unidentified(r2, new, model_c)
     if bad:
         step.identifiable = False
@@ -1309,7 +1321,7 @@ class _Loop:
                          self.est_range, previous)
                     for ev in (ranked if o.top_k is None else ranked[:o.top_k])]
             queue += [((not job.evidence["identifiable"], -float(job.evidence["score"])),
-                       "effect", job) for job in jobs]
+                       _kind(job.effect), job) for job in jobs]
         disc = None
         if self.discover:
             disc = _discovery(self.cfg, cur, cur_prob, self.cur_free, rnd, o.criterion,
@@ -1335,26 +1347,31 @@ class _Loop:
         """Refit the queue in order, judge each refit; the acceptable ones.
 
         A candidate at the noise level on both parts settles the round for its kind
-        (library effects, discovered terms and modes): the kind's later candidates are not
-        refitted. The other kind goes on until one of its own settles, so that a library
-        effect and a discovered term that both reach the noise meet in the tie rule
-        (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round.
+        (library effects of the dynamics, sensor effects, discovered terms and modes): the
+        kind's later candidates are not refitted. The other kinds go on until one of their
+        own settles, so that a library effect, a sensor's explanation and a discovered
+        term that each reach the noise meet in the tie rule
+        (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round
+        (a sensor's drift and a biased valve leave the same trend: ranked first, the valve
+        took drift records before the drift was refitted).
         """
         o, say = self.o, self.say
         crit_cur = information_criterion(self.cur, o.criterion)
         rmse_cur = float(self.cur.metrics["val"]["rmse"])
         noise_sel = float(level["noise"])
         noise_est = float(level["estimation"]["noise"])
-        library = iter(map_stopping(self.executor, refit_candidate, jobs,
-                                    ahead=_lookahead(self.executor))
-                       if self.executor is not None else map(refit_candidate, jobs))
+        # One stream of refits per library kind, each in queue order, so that a settled
+        # kind's rest is cancelled without holding back the other kind's refits.
+        order = [item for _, kind, item in queue if kind in _LIBRARY_KINDS]
+        library = {kind: self._library_refits([j for j in order if _kind(j.effect) == kind])
+                   for kind in _LIBRARY_KINDS}
         tried: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
         for _, kind, item in queue:
             if kind in settlers:
                 not_refitted.setdefault(kind, []).append(
-                    item.effect if kind == "effect" else f"discovery at {item.entry}")
+                    item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}")
                 continue
             got = self._refit_one(kind, item, library, disc)
             if got is None:
@@ -1371,11 +1388,13 @@ class _Loop:
                 tried.append((step, payload))
             if round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
-        if hasattr(library, "close"):
-            library.close()  # cancels library refits queued but not started
+        for stream in library.values():
+            if hasattr(stream, "close"):
+                stream.close()  # cancels library refits queued but not started
         for kind, rest in not_refitted.items():
             step = settlers[kind]
-            what = "library effect" if kind == "effect" else "discovered candidate"
+            what = {"effect": "library effect", "sensor": "sensor effect"}.get(
+                kind, "discovered candidate")
             note = (f"leaves both parts at the noise level, so no later {what} can beat it "
                     f"by more than the noise allowance: not refitted this round: "
                     f"{', '.join(rest)}")
@@ -1384,11 +1403,18 @@ class _Loop:
             say(f"  {step.effect} {note}")
         return tried
 
-    def _refit_one(self, kind: str, item: Any, library: Any, disc: Any
+    def _library_refits(self, jobs: list[_Job]) -> Any:
+        """The refits of ``jobs`` in their order, on the loop's executor if it has one."""
+        if self.executor is None:
+            return map(refit_candidate, jobs)
+        return iter(map_stopping(self.executor, refit_candidate, jobs,
+                                 ahead=_lookahead(self.executor)))
+
+    def _refit_one(self, kind: str, item: Any, library: Mapping[str, Any], disc: Any
                    ) -> tuple[Step, Any, str] | None:
         """The refit of one queued candidate: (step, what to continue from, veto) or None."""
-        if kind == "effect":
-            out = next(library)
+        if kind in _LIBRARY_KINDS:
+            out = next(library[kind])
             if out.step is None:
                 self.skipped[item.effect] = out.error
                 self.names = [n for n in self.names if n != item.effect]

@@ -322,6 +322,12 @@ class Effect(Part):
         Generic regressors of :mod:`hhra_phys.diagnose` it relates to.
     position_dependent : bool
         Whether it depends on a position-like state (it may extrapolate badly).
+    sensor : bool
+        Whether it describes the measurement, not the dynamics (a sensor's offset or
+        drift): the loop judges such effects as their own kind of candidate, so a
+        physics candidate that settles a round does not skip them (a drift and a
+        biased valve leave the same trend; both explanations must meet in the tie
+        rule).
     """
 
     stage: ClassVar[str] = INPUT_STAGE
@@ -331,6 +337,7 @@ class Effect(Part):
     signature: ClassVar[str] = ""
     regressors: ClassVar[tuple[str, ...]] = ()
     position_dependent: ClassVar[bool] = False
+    sensor: ClassVar[bool] = False
 
     def applicable(self, model: Any) -> str | None:
         """``None`` if the effect can be added to ``model``, else the reason why not.

@@ -199,6 +199,9 @@ class Step:
     #: Where the candidate enters the model (``"input"``, ``"output"``, ``"rate:<state>"``,
     #: ``"mode:..."``; empty when it changes no equation).
     entry: str = ""
+    #: The candidate describes the measurement (a sensor's offset or drift,
+    #: :attr:`hhra_phys.parts.Effect.sensor`), not the dynamics.
+    sensor: bool = False
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.
     discovered: ClassVar[bool] = False
@@ -214,7 +217,7 @@ class Step:
             "val_rmse_before": self.val_rmse_before, "accepted": self.accepted,
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
             "seconds": self.seconds, "action": self.action, "removed": self.removed,
-            "entry": self.entry,
+            "entry": self.entry, "sensor": self.sensor,
         }
 
 
@@ -254,7 +257,10 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     (``Step.criterion``) decides among them, the lowest wins; except that a discovered
     term tied with a given (library or user) effect at the same entry is not chosen over
     it (on a dead-zone record a discovered ``u += ... relu(u - c)`` tied with the library
-    dead zone and won by BIC: the same physics, with a shape searched among many).
+    dead zone and won by BIC: the same physics, with a shape searched among many); and a
+    sensor effect (``Step.sensor``) tied with candidates that change the dynamics is chosen
+    over them (on a record with a drifting encoder a biased valve tied with the drift and
+    won by 5 units of BIC: physics added for a sensor's fault, docs/measuring.md).
     Measured on reference records (docs/diagnosis.md): among resonant modes the criterion
     chose the true one 6 of 6 times where the lowest selection error chose an input-mode
     stand-in once in 3.
@@ -289,21 +295,30 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     best = min(sel(s) for s, _ in candidates)
     allowance = noise_allowance(noise, noise_tol)
     tied = [c for c in candidates if _tied(sel(c[0]), best, allowance)]
+    why_not = {id(c[0]): "a higher selection error" for c in candidates}
+    level = "within the noise allowance of the best on selection"
     # At one entry, a given effect and a discovered term that the selection part cannot
     # tell apart are two descriptions of one missing piece: the effect whose shape was
     # known in advance is kept. The criterion charges the term's coefficients, not the
     # search over shapes that chose it from the data.
     given = {c[0].entry for c in tied if not c[0].discovered and c[0].entry}
-    tied = [c for c in tied if not (c[0].discovered and c[0].entry in given)] or tied
-    step, payload = min(tied, key=lambda c: (c[0].criterion, sel(c[0])))
+    kept = [c for c in tied if not (c[0].discovered and c[0].entry in given)] or tied
+    why_not.update({id(c[0]): f"{level}, a discovered term at the entry of a given effect"
+                    for c in tied if all(c is not k for k in kept)})
+    # A sensor's explanation tied with a change of the dynamics is kept: the record cannot
+    # tell them apart (a drifting encoder and a biased valve leave the same trend), and
+    # only the dynamics change would alter the model a controller is designed on.
+    sensors = [c for c in kept if c[0].sensor] or kept
+    why_not.update({id(c[0]): f"{level}, a change of the dynamics tied with a sensor effect"
+                    for c in kept if all(c is not k for k in sensors)})
+    why_not.update({id(c[0]): f"{level}, higher {criterion.upper()}" for c in sensors})
+    step, payload = min(sensors, key=lambda c: (c[0].criterion, sel(c[0])))
     step.accepted = True
     step.reason = "accepted: " + step.reason
     for other, _ in candidates:
         if other is not step:
-            how = ("within the noise allowance of the best on selection, higher "
-                   f"{criterion.upper()}" if any(other is t[0] for t in tied)
-                   else "a higher selection error")
-            other.reason = f"acceptable, not chosen ({how} than {step.effect}): {other.reason}"
+            other.reason = (f"acceptable, not chosen ({why_not[id(other)]} than {step.effect})"
+                            f": {other.reason}")
     return step, payload
 
 

@@ -77,3 +77,23 @@ def test_intervals_under_coloured_noise_come_from_its_noise_model():
                 pop_size=12, max_iter=15, seed=2)
     assert "coloured_noise" not in white.intervals
     assert not any("coloured" in w for w in white.warnings)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_drifting_encoder_adds_no_physics_to_the_loop(seed):
+    """On these drift records a valve bias or a load ties with the drift (or settles the
+    round first when ranked above it); the loop must still try the sensor's explanation
+    and keep it, never the physics (both took these records before the sensor kind)."""
+    import warnings
+
+    from hhra_phys.loop import augment
+
+    ds = reference_record(seed=seed, duration=8.0, levels=4, noise_deg=0.05, drift_deg=0.2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = augment(ds, seed=seed, max_effects=2, pop_size=20, max_iter=30)
+    assert set(res.chosen) <= {"sensor_drift", "sensor_offset"}, res.chosen
+    tried = {s.effect for s in res.steps if s.action == "add"}
+    assert "sensor_drift" in tried
+    drift = [s for s in res.steps if s.effect == "sensor_drift"]
+    assert all(s.sensor for s in drift)

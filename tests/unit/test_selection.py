@@ -117,6 +117,36 @@ def test_a_given_effect_keeps_a_tie_with_a_discovered_term_at_its_entry():
     assert choose([(term3, 1), (lib3, 2)], NOISE, TOL)[0] is term3
 
 
+def test_a_sensor_effect_keeps_a_tie_with_a_change_of_the_dynamics():
+    # the drift record's round: the valve bias has the lower BIC, the drift the lower
+    # selection error, the two within the allowance: the sensor's explanation is kept
+    valve = _step("asymmetric_valve", 0.05273, -5957.1)
+    drift = _step("sensor_drift", 0.05246, -5952.1)
+    drift.sensor = True
+    assert choose([(valve, 1), (drift, 2)], NOISE, TOL)[0] is drift
+    assert "tied with a sensor effect" in valve.reason
+    # a dynamics change clearly better on selection still wins
+    valve2 = _step("asymmetric_valve", 0.050, -5957.1)
+    drift2 = _step("sensor_drift", 0.080, -5952.1)
+    drift2.sensor = True
+    assert choose([(drift2, 2), (valve2, 1)], NOISE, TOL)[0] is valve2
+    # among sensor effects the criterion decides as before
+    off = _step("sensor_offset", 0.0525, -5960.0)
+    off.sensor = True
+    drift3 = _step("sensor_drift", 0.0524, -5952.1)
+    drift3.sensor = True
+    assert choose([(drift3, 1), (off, 2)], NOISE, TOL)[0] is off
+
+
+def test_sensor_flag_round_trips_through_json():
+    from hhra_phys.loop import _step_from_json
+
+    s = _step("sensor_drift", 0.05, -1.0)
+    s.sensor = True
+    assert _step_from_json(s.to_json()).sensor is True
+    assert _step_from_json(_step("gravity_load", 0.05, -1.0).to_json()).sensor is False
+
+
 def test_tie_break_follows_choose_on_bare_fits():
     # the same numbers as the near-tie case: tied on selection, the lower criterion wins
     assert tie_break([(0.055, 10.0), (0.060, 5.0)], NOISE, TOL) == 1
