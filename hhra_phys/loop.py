@@ -46,6 +46,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
+from copy import copy
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -79,6 +80,7 @@ from hhra_phys.selection import (
     round_settled,
     split_record,
     stops_at_noise,
+    tie_break,
 )
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 
@@ -996,6 +998,17 @@ class LoopOptions:
         effect is not proposed again; rounds go on until ``max_effects`` are in, so
         a loop may run more rounds than ``max_effects``. Each check is a
         :class:`Step` with ``action`` ``"keep"`` or ``"remove"``.
+    revisit : bool
+        Revisit the one greedy choice a searched shape won over a given mechanism: when a
+        round accepted a discovered term or mode over an acceptable given (library or
+        user) effect and the loop then ends above the noise level, the path from that
+        effect is followed too (from the same round, by the same rounds and rule), and
+        the final model of each path is compared by the rule of
+        :func:`~hhra_phys.selection.choose` (selection RMSE; within the noise allowance,
+        the information criterion). The first such round is revisited, once. On the public
+        record a two-term input stand-in took round 1 from the asymmetric valve and the
+        loop stopped at 7.4 x the noise (docs/diagnosis.md). ``settings["revisited"]``
+        says what ran and which path was kept.
     intersample : bool
         After the base fit (one record), when its residual carries the signature of the
         wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`),
@@ -1031,6 +1044,7 @@ class LoopOptions:
     discover_kw: Mapping[str, Any] | None = None
     joint_search: bool = False
     backward: bool = True
+    revisit: bool = True
     intersample: bool = True
 
     def validate(self) -> LoopOptions:
@@ -1201,6 +1215,9 @@ class _Loop:
         self.dropped: list[str] = []  # removed by the backward step, never proposed again
         self.levels: list[dict[str, Any]] = []
         self.settled: list[dict[str, Any]] = []  # rounds whose rest was skipped
+        self.branch: dict[str, Any] | None = None  # the path not taken (LoopOptions.revisit)
+        self.revisited: dict[str, Any] | None = None
+        self.at_noise = False
         self._fit_base(model, base)
 
     # -- base fit and inter-sample candidates -----------------------------------------------
@@ -1258,19 +1275,98 @@ class _Loop:
                          if self.executor is None and o.background and o.backend != "casadi"
                          else None)
         try:
-            rnd = 0
-            # One round per accepted candidate while nothing is removed; each removal
-            # takes a name out of the candidates for good, so the loop ends.
-            while len(self.chosen) < o.max_effects:
-                rnd += 1
-                stop = self._round(rnd)
-                if stop:
-                    self.stop = stop
-                    break
+            self._rounds(0)
+            if self.branch is not None and not self.at_noise:
+                self._revisit()
         finally:
             if self.compiler is not None:
                 self.compiler.shutdown(wait=True, cancel_futures=True)
         return self._result()
+
+    def _rounds(self, rnd: int) -> None:
+        """Rounds after round ``rnd`` until one stops the loop (``self.stop`` says why)."""
+        self.stop = "max_effects"
+        # One round per accepted candidate while nothing is removed; each removal
+        # takes a name out of the candidates for good, so the loop ends.
+        while len(self.chosen) < self.o.max_effects:
+            rnd += 1
+            stop = self._round(rnd)
+            if stop:
+                self.stop = stop
+                break
+
+    # What a path of rounds changes; a snapshot of these is a path's state.
+    _PATH = ("steps", "chosen", "diagnoses", "warnings", "skipped", "dropped", "levels",
+             "settled", "names", "cur", "cur_prob", "cur_free", "cfg", "discover", "stop",
+             "at_noise")
+
+    def _snapshot(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v)
+                for k in self._PATH for v in [getattr(self, k)]}
+
+    def _restore(self, state: Mapping[str, Any]) -> None:
+        for k, v in state.items():
+            setattr(self, k, list(v) if isinstance(v, list) else
+                    dict(v) if isinstance(v, dict) else v)
+
+    def _remember_branch(self, rnd: int, best: Step, tried: list[tuple[Step, Any]],
+                         noise: float) -> None:
+        """Before ``best`` is accepted: keep the path of the best given effect it beat."""
+        if not self.o.revisit or self.branch is not None or not best.discovered:
+            return
+        given = [(s, p) for s, p in tried if not s.discovered]
+        if not given:
+            return
+        k = tie_break([(float(s.val.get("rmse", math.inf)), s.criterion) for s, _ in given],
+                      noise, self.tol)
+        self.branch = {"round": rnd, "step": given[k][0], "payload": given[k][1],
+                       "instead_of": best, "noise": noise, "state": self._snapshot()}
+
+    def _revisit(self) -> None:
+        """Follow the path of the given effect a discovered candidate won over; keep the
+        better final model by the rule (:attr:`LoopOptions.revisit`)."""
+        br, say = self.branch, self.say
+        assert br is not None
+        first = self._snapshot()
+        first_sel = float(self.cur.metrics["val"]["rmse"])
+        first_crit = information_criterion(self.cur, self.o.criterion)
+        self._restore(br["state"])
+        # The two steps of the branch round are copied: the first path keeps its own.
+        alt, was = copy(br["step"]), copy(br["instead_of"])
+        alt.notes, was.notes = list(alt.notes), list(was.notes)
+        self.steps = [alt if s is br["step"] else was if s is br["instead_of"] else s
+                      for s in self.steps]
+        rnd = br["round"]
+        say(f"revisit: the loop ended above the noise level after {was.effect} took round "
+            f"{rnd} from {alt.effect}; following the path from {alt.effect}")
+        alt.accepted, was.accepted = True, False
+        # its reason said why it lost the round to `was`; what it was judged on stays
+        judged = alt.reason.split(f" than {was.effect}): ", 1)[-1]
+        alt.reason = f"accepted on revisiting round {rnd}: {judged}"
+        self._accept(rnd, alt, br["payload"])
+        self._rounds(rnd)
+        alt_sel = float(self.cur.metrics["val"]["rmse"])
+        alt_crit = information_criterion(self.cur, self.o.criterion)
+        keep_alt = tie_break([(first_sel, first_crit), (alt_sel, alt_crit)], br["noise"],
+                             self.tol) == 1
+        summary = (f"path from {was.effect}: selection RMSE {first_sel:.4g}, "
+                   f"{self.o.criterion.upper()} {first_crit:.1f} ({', '.join(first['chosen'])})"
+                   f"; path from {alt.effect}: {alt_sel:.4g}, {alt_crit:.1f} "
+                   f"({', '.join(self.chosen)})")
+        self.revisited = {"round": rnd, "instead_of": was.effect, "alternative": alt.effect,
+                          "first": {"val_rmse": first_sel, "criterion": first_crit,
+                                    "chosen": list(first["chosen"])},
+                          "alternative_path": {"val_rmse": alt_sel, "criterion": alt_crit,
+                                               "chosen": list(self.chosen)},
+                          "kept": "alternative" if keep_alt else "first"}
+        if keep_alt:
+            was.reason = (f"accepted, then replaced on revisiting round {rnd} (the rule "
+                          f"prefers the path from {alt.effect}: {summary}): {was.reason}")
+            say(f"revisit: kept the path from {alt.effect} ({summary})")
+        else:
+            self._restore(first)
+            br["instead_of"].notes.append(f"revisited round {rnd}, path kept: {summary}")
+            say(f"revisit: kept the path from {was.effect} ({summary})")
 
     def _round(self, rnd: int) -> str | None:
         """One round; the reason the loop stops, or None to go on."""
@@ -1280,6 +1376,7 @@ class _Loop:
             return "no candidates left"
         level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol)
         self.levels.append(level)
+        self.at_noise = at_noise
         if at_noise:
             stop = _noise_stop_text(level, self.tol)
             say(f"round {rnd}: {stop}; stop")
@@ -1292,6 +1389,7 @@ class _Loop:
             say(f"round {rnd}: nothing accepted; stop")
             return "no candidate accepted"
         best_step, payload = choose(tried, float(level["noise"]), self.tol, o.criterion)
+        self._remember_branch(rnd, best_step, tried, float(level["noise"]))
         self._accept(rnd, best_step, payload)
         return None
 
@@ -1483,7 +1581,7 @@ class _Loop:
             "criterion": o.criterion, "backend": o.backend, "discover": o.discover,
             "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
-            "settled": self.settled,
+            "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop,
             "noise_levels": self.levels + [final_level],

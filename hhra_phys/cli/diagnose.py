@@ -95,6 +95,11 @@ def register(subparsers: Any) -> None:
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
                         "rule would no longer accept it)")
+    p.add_argument("--no-revisit", action="store_true",
+                   help="do not revisit a round a discovered term won over an acceptable library "
+                        "effect (by default, when the loop then ends above the noise level, the "
+                        "path from that effect is followed too and the better final model by "
+                        "the rule is kept)")
     p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
                    help="sparsity rule of the discovery (default threshold)")
     add_cluster_arguments(p, "the candidate refits", default="auto")
@@ -166,7 +171,7 @@ def _augment(args: argparse.Namespace) -> Any:
             noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
-            backward=not args.no_backward,
+            backward=not args.no_backward, revisit=not args.no_revisit,
         )
     res.warnings.extend(data_warnings)
     for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
