@@ -9,7 +9,7 @@ pressure output with its own offset), then the discovery (terms and resonant
 modes, :mod:`hhra_phys.discover`).
 
     HHRA_SHARED_DATA=/work/shared/data python experiments/public_case.py
-        [--pop 60] [--iters 100] [--seed 0] [--max-effects 3] [--probe-resonance]
+        [--pop 60] [--iters 100] [--seed 0] [--max-effects 4] [--probe-resonance]
 
 Writes docs/figures/diagnosis_public.json and the residual figures
 docs/figures/diagnosis_public_before.png / _after.png (and _discovery.png: residuals
@@ -120,8 +120,9 @@ def main() -> None:
     ap.add_argument("--pop", type=int, default=60)
     ap.add_argument("--iters", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--max-effects", type=int, default=3,
-                    help="most library effects accepted before discovery (default 3)")
+    ap.add_argument("--max-effects", type=int, default=4,
+                    help="most additions, library effects and discovered terms alike "
+                         "(default 4, the loop's)")
     ap.add_argument("--prefix", default="docs/figures/diagnosis_public")
     ap.add_argument("--probe-resonance", action="store_true",
                     help="after the loop, refit the final model from other own-mode periods")

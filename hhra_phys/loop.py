@@ -921,7 +921,9 @@ class LoopOptions:
         that discovery alone proposes).
     max_effects : int
         Most additions (library effects, user effects, discovered terms and modes alike);
-        0 adds nothing.
+        0 adds nothing. Default 4: three library effects and one discovered term, what the
+        loop could add when discovery ran once after the library (the public record needs
+        all four: asymmetric valve, delay, saturation and a load mode, docs/diagnosis.md).
     top_k : int, optional
         Library candidates refitted per round, best ranked first. Default: all of them
         (until one settles the round, :func:`~hhra_phys.selection.round_settled`).
@@ -1022,7 +1024,7 @@ class LoopOptions:
     split: float = 0.5
     test: float = 0.25
     candidates: tuple[str, ...] | None = None
-    max_effects: int = 3
+    max_effects: int = 4
     top_k: int | None = None
     pop_size: int = 100
     max_iter: int = 200

@@ -60,9 +60,9 @@ def register(subparsers: Any) -> None:
                    help="write the JSON summary here ('-': to stdout)")
     p.add_argument("--report", type=output_path, metavar="OUT.md",
                    help="write the Markdown report here (figures beside it)")
-    p.add_argument("--max-effects", type=nonnegative_int, default=3,
+    p.add_argument("--max-effects", type=nonnegative_int, default=4,
                    help="most additions, library effects and discovered terms alike "
-                        "(default 3; 0 adds nothing)")
+                        "(default 4; 0 adds nothing)")
     p.add_argument("--top", type=positive_int, default=None,
                    help="candidates refitted per round, best ranked first, at least 1 "
                         "(default: all)")
