@@ -778,7 +778,7 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
             with np.errstate(all="ignore"):
                 sim.simulate_cost(u, np.tile(p, (n_pop, 1)), est.y[:n], np.ones(n), "abs")
                 sim.simulate(u, p)
-            TrajectorySensitivity.of(sim)
+            TrajectorySensitivity.of(sim).outputs_function()  # the refiners call both
     except Exception:  # noqa: BLE001, S110 - the refit reports its own failure
         pass
 
