@@ -1,4 +1,4 @@
-"""CPU seconds of each library candidate's refit in one round, and the stiff ones' ratio to the median.
+"""CPU seconds of each library candidate's refit in one round; the stiff ones against the median.
 
 Target (issue 25): a backlash, sharp friction or stiff-edge refit costs at most 3 times the
 median candidate refit of its round. The round: a reference-rig record (the independent
