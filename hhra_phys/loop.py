@@ -775,11 +775,13 @@ def _half_widths(problem: Problem, z: np.ndarray) -> np.ndarray:
     squares by more than the noise. One the record does not see there sits on a flat
     profile (a play or a dead band shrunk towards zero on a record without one); a
     wider box would only buy another search and refinement that moves it by decades
-    and the estimation cost by rounding. Each parameter is taken alone so that a group
-    the box pins against a correlated one (damping against torque gain) still counts,
-    as does one the data pull out of its box (a gravity load stopped at a third of its
-    size, docs/diagnosis.md). Without finite derivatives every half-width is 0 (widen
-    as before).
+    and the estimation cost by rounding. Each parameter is taken alone (its conditional,
+    not its marginal interval) so that a group the box pins while a correlated one
+    makes up for it still counts as seen (the torque gain at its upper edge on the
+    record of ``benchmarks/bench_candidates.py``: 0.02-0.06 decades), as does one the
+    data pull out of its box (a gravity load stopped at a third of its size,
+    docs/diagnosis.md). Without finite derivatives every half-width is 0 (widen as
+    before).
     """
     r, J = CompiledLeastSquares(problem)(z)
     if not (np.isfinite(r).all() and np.isfinite(J).all()):
