@@ -67,6 +67,7 @@ from hhra_phys.options import with_overrides
 from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
+from hhra_phys.refine import CompiledLeastSquares
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -755,17 +756,53 @@ def _edge_boxes(problem: Problem, res: FitResult, names: Sequence[str]
                 ) -> dict[str, tuple[float, float]]:
     """Widened boxes of the parameters ``names`` that end at a box edge: that side a decade
     further (log scale) or ten times as far from zero (linear; a side at zero is a sign and
-    stays). Boxes the user gave (explicit bounds) are never widened."""
+    stays). Boxes the user gave (explicit bounds) are never widened, nor those of
+    parameters the record does not see across the widening (:func:`_half_widths`)."""
     z = problem.to_z(_free_values(problem, res))
     out: dict[str, tuple[float, float]] = {}
+    half: np.ndarray | None = None
     for i, side in at_edges(problem, z):
         par = problem.free_params[i]
         if par.name not in names or par.name in getattr(problem, "explicit_bounds", ()):
             continue
         new = widened_box(par, side)  # the fit's widening step (hhra_phys.fit)
-        if new is not None:
+        if new is None:
+            continue
+        k = 0 if side == "lower" else 1
+        edges = np.full(problem.n_free, np.nan)
+        edges[i] = new[k]
+        step = abs(float(problem.to_z(edges)[i]) - float(problem.bounds_z()[i, k]))
+        if half is None:
+            half = _half_widths(problem, z)
+        if half[i] < step:
             out[par.name] = new
     return out
+
+
+def _half_widths(problem: Problem, z: np.ndarray) -> np.ndarray:
+    """Half-widths of the conditional 95 % intervals at ``z``, in fitting coordinates:
+    ``1.96 s / |J_i|`` (each parameter alone, the others held; ``J`` the residual
+    Jacobian, ``s`` the residual's RMS). One evaluation of the sensitivities.
+
+    A parameter at a box edge is widened only where the record sees it across the
+    widening step (half-width below the step): moving it that far changes the sum of
+    squares by more than the noise. One the record does not see there sits on a flat
+    profile (a play or a dead band shrunk towards zero on a record without one); a
+    wider box would only buy another search and refinement that moves it by decades
+    and the estimation cost by rounding. Each parameter is taken alone (its conditional,
+    not its marginal interval) so that a group the box pins while a correlated one
+    makes up for it still counts as seen (the torque gain at its upper edge on the
+    record of ``benchmarks/bench_candidates.py``: 0.02-0.06 decades), as does one the
+    data pull out of its box (a gravity load stopped at a third of its size,
+    docs/diagnosis.md). Without finite derivatives every half-width is 0 (widen as
+    before).
+    """
+    r, J = CompiledLeastSquares(problem)(z)
+    if not (np.isfinite(r).all() and np.isfinite(J).all()):
+        return np.zeros(problem.n_free)
+    s = math.sqrt(float(r @ r) / max(r.size - problem.n_free, 1))
+    with np.errstate(divide="ignore"):
+        return 1.96 * s / np.linalg.norm(J, axis=0)
 
 
 def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
@@ -792,7 +829,7 @@ def _warm_compile(cfg: _Settings, model: Model, n_pop: int) -> None:
             with np.errstate(all="ignore"):
                 sim.simulate_cost(u, np.tile(p, (n_pop, 1)), est.y[:n], np.ones(n), "abs")
                 sim.simulate(u, p)
-            TrajectorySensitivity.of(sim)
+            TrajectorySensitivity.of(sim).outputs_function()  # the refiners call both
     except Exception:  # noqa: BLE001, S110 - the refit reports its own failure
         pass
 

@@ -112,7 +112,10 @@ class CompiledLeastSquares:
         self.n_obs = int(sum(pr.y.size for pr, _ in self.blocks))
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray] | None = None
+        self._r_key: bytes | None = None
+        self._r: np.ndarray | None = None
         self.n_eval = 0
+        self.n_resid = 0
 
     def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         z = np.asarray(z, dtype=float).ravel()
@@ -133,6 +136,35 @@ class CompiledLeastSquares:
         self.n_eval += 1
         self._key, self._value = key, (r, J)
         return r, J
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """``r(z)`` alone, as :meth:`__call__` gives it, without the Jacobian.
+
+        A line search asks for the cost at trial points and for the Jacobian only at
+        the accepted ones; the outputs-only trajectory function costs a fraction of
+        the sensitivities (the same discretisation and expressions). Non-finite outputs
+        are flagged as in :meth:`__call__`; a point whose outputs are finite but whose
+        sensitivities are not is flagged only when its Jacobian is asked for (none of the
+        nine candidates of ``benchmarks/bench_candidates.py`` met one in 1131 evaluations).
+        """
+        z = np.asarray(z, dtype=float).ravel()
+        key = z.tobytes()
+        if key == self._key and self._value is not None:
+            return self._value[0]
+        if key == self._r_key and self._r is not None:
+            return self._r
+        r = np.empty(self.n_obs)
+        row = 0
+        for (pr, idx), sens in zip(self.blocks, self._sens, strict=True):
+            v = pr.from_z(z[idx])
+            y = sens.outputs(pr.u, pr.full(v), pr.initial_states(v)[0])
+            r[row:row + y.size] = y - pr.y
+            row += y.size
+        if not np.isfinite(r).all():
+            r = np.full_like(r, 1e150)  # as __call__: a failed step
+        self.n_resid += 1
+        self._r_key, self._r = key, r
+        return r
 
 
 def _block_least_squares(
@@ -190,7 +222,7 @@ class _ResidualCallback(ca.Callback):
     def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
         interrupt.check()  # after Ctrl-C every evaluation fails, so IPOPT stops at once
         z = np.frombuffer(arg[0], dtype=np.float64)
-        np.frombuffer(res[0], dtype=np.float64)[:] = self.engine(z)[0]
+        np.frombuffer(res[0], dtype=np.float64)[:] = self.engine.residual(z)
         return 0
 
     def has_jacobian(self) -> bool:

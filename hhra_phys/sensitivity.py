@@ -112,6 +112,57 @@ class TrajectorySensitivity:
         self._fn: CompiledFunction | ca.Function = (
             (compile_function(fn) if sim.backend != "casadi" else None) or fn
         )
+        # The same substep without its sensitivity, for the residual alone: a refiner's
+        # line search asks for the cost at many trial points and for the Jacobian only
+        # at the accepted ones (IPOPT: about 8 costs per gradient on the loop's
+        # candidates). The same SX expressions of the step and output, so the outputs
+        # are those of the sensitivity function. Built on first use.
+        self._out_parts = (ca.Function("out_sub", [xa, p, r], [x1], {"cse": True}),
+                           ca.Function("out_y", [x, p, u], [y], {"cse": True}), order)
+        self._out_fn: CompiledFunction | ca.Function | None = None
+
+    def outputs_function(self) -> CompiledFunction | ca.Function:
+        """The trajectory function ``(x0, p, U) -> (Y, x_end)`` without sensitivities."""
+        if self._out_fn is not None:
+            return self._out_fn
+        sim = self.sim
+        sub, out, order = self._out_parts
+        nu = sim.n_u
+        xm, pm1, um = ca.MX.sym("x", self.nx), ca.MX.sym("p", self.np_), ca.MX.sym("u", nu)
+        if order:
+            c = sim._input_polynomial(um)
+            derivs = [math.factorial(i) * c[i] / sim.dt ** i for i in range(order + 1)]
+            xi, ri = ca.vertcat(xm, *derivs[:-1]), derivs[-1]
+        else:
+            xi, ri = xm, um
+        for _ in range(int(sim.substeps)):
+            xi = sub(xi, pm1, ri)
+        step = ca.Function("out_step", [xm, pm1, um], [xi[:self.nx], out(xm, pm1, um)])
+        acc = step.mapaccum("out_acc", CHUNK, [0], [0], {})
+        x0, pm = ca.MX.sym("x0", self.nx), ca.MX.sym("p", self.np_)
+        U = ca.MX.sym("U", nu, CHUNK)
+        X, Y = acc(x0, ca.repmat(pm, 1, CHUNK), U)
+        fn = ca.Function("hhra_sens_out", [x0, pm, U], [ca.reshape(Y, CHUNK, 1), X[:, -1]])
+        self._out_fn = (compile_function(fn) if sim.backend != "casadi" else None) or fn
+        return self._out_fn
+
+    def outputs(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """Output ``y`` (N,) of one trajectory, as :meth:`__call__` gives it, without
+        its derivatives (a fraction of the cost)."""
+        fn = self.outputs_function()
+        u = np.asarray(u, dtype=float)
+        n = u.size
+        n_chunks = -(-n // CHUNK)
+        lags = self.sim.input_rows(u, n_chunks * CHUNK)
+        x = np.asarray(x0, dtype=float)
+        ys = []
+        with np.errstate(all="ignore"):
+            for c in range(n_chunks):
+                y, x = (np.asarray(o, dtype=float)
+                        for o in fn(x, p, lags[:, c * CHUNK:(c + 1) * CHUNK]))
+                ys.append(y.ravel())
+                x = x.ravel()
+        return np.concatenate(ys)[:n]
 
     @classmethod
     def of(cls, sim: Simulator) -> TrajectorySensitivity:

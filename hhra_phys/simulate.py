@@ -139,6 +139,8 @@ ACCURACY_SHARE = 0.1
 
 #: Samples per call of the error estimate's CasADi-VM map.
 ACCURACY_CHUNK = 500
+#: Step-doubling outputs kept per simulator (:meth:`Simulator.integration_error`).
+VM_MEMO = 12
 
 
 def step_doubling_error(y1: np.ndarray, y2: np.ndarray, y4: np.ndarray) -> float:
@@ -403,6 +405,9 @@ class Simulator:
         #: What :meth:`accurate` chose (empty until it was asked).
         self.accuracy: dict[str, object] = {}
         self._vm_maps: dict[tuple[str, int], ca.Function] = {}
+        # The last few step-doubling outputs: a fit estimates the error at its fitted
+        # values twice (the accuracy check, then the result's error_at_fit).
+        self._vm_memo: dict[tuple[Any, ...], np.ndarray] = {}
 
     # -- construction -------------------------------------------------------------
     @staticmethod
@@ -614,6 +619,19 @@ class Simulator:
     def _vm_output(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray, method: str,
                    substeps: int) -> np.ndarray:
         """Output of one parameter vector with ``method`` x ``substeps`` (CasADi VM)."""
+        key = (u.tobytes(), np.asarray(p, dtype=float).tobytes(),
+               np.asarray(x0, dtype=float).tobytes(), method, int(substeps))
+        if key in self._vm_memo:
+            return self._vm_memo[key]
+        y = self._vm_output_of(u, p, x0, method, substeps)
+        y.setflags(write=False)  # shared by the callers that ask again
+        if len(self._vm_memo) >= VM_MEMO:
+            del self._vm_memo[next(iter(self._vm_memo))]
+        self._vm_memo[key] = y
+        return y
+
+    def _vm_output_of(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray, method: str,
+                      substeps: int) -> np.ndarray:
         n = u.size
         fn = self._sample_map(method, substeps)
         n_chunks = -(-n // ACCURACY_CHUNK)
@@ -748,6 +766,11 @@ class Simulator:
                     chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
                     diverge_limit=self.diverge_limit, simd=self._simd_arg,
                     intersample=self.intersample)
+                # Same model, rate and hold: the estimate's VM maps and outputs are the
+                # same functions (a fit estimates again with the derived simulator at its
+                # fitted values; building a ROS4 x 16 sample graph costs a tenth of a second).
+                self._derived[key]._vm_maps = self._vm_maps
+                self._derived[key]._vm_memo = self._vm_memo
             sim = self._derived[key]
         sim.accuracy = {"method": self.method, "substeps": int(n),
                         "error_estimate": float(err), "tolerance": float(tolerance),

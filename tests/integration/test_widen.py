@@ -155,3 +155,52 @@ def test_the_loops_default_bounds_widen_and_its_bounds_do_not() -> None:
                                       for w in given.to_json()["base"].get("widened", [])}
     fixed = augment(data, HHRAModel(), bounds=box, **kw)
     assert all(w["name"] != "g_damping" for w in fixed.to_json()["base"].get("widened", []))
+
+
+
+def _candidate_step(data, effect: str):
+    res = augment(data, HHRAModel(), candidates=[effect], discover=False, max_effects=1,
+                  backward=False, intersample=False, pop_size=30, max_iter=40, seed=0,
+                  background=False)
+    return next(s for s in res.steps if s.effect == effect)
+
+
+@pytest.mark.parametrize(("effect", "name", "hidden", "seed"), [
+    pytest.param("valve_deadzone", "i_dead",
+                 {"gravity_load": {"g_grav_cos": 10.0, "g_grav_sin": -15.0}}, 2,
+                 id="dead_band-gravity"),
+    pytest.param("backlash", "play", {"valve_deadzone": {"i_dead": 0.1}}, 1,
+                 id="play-dead_zone", marks=pytest.mark.slow),  # a stiff candidate
+])
+def test_a_candidate_parameter_the_record_does_not_see_at_its_edge_is_not_widened(
+        effect, name, hidden, seed) -> None:
+    """A dead band or a play on a record without one (another effect hidden) shrinks to the
+    lower edge of its box (the default one, or the one opened to the first-order estimate),
+    where the record does not see it (flat profile): that side is not widened, while base
+    groups the record sees at their edges still are."""
+    from hhra_phys.effects import make_effect
+    from hhra_phys.reference import reference_record
+
+    data = reference_record(seed, duration=8.0, effects=hidden)
+    step = _candidate_step(data, effect)
+    par = HHRAModel().with_parts(make_effect(effect)).params[name]
+    first = step.evidence["estimate"][name]
+    lower = max(min(par.lower, first), par.lower / 10) if first > 0 else par.lower
+    assert step.params[name] == pytest.approx(lower, rel=1e-3)  # at its edge
+    assert not any(n.startswith(f"{name} ended at its box edge") for n in step.notes)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [2])
+def test_a_candidate_parameter_the_data_pull_out_of_its_box_is_widened(seed) -> None:
+    """The gravity family of experiments/one_loop.py (300 rad/s^2 against the effect's box of
+    +-105, damping beyond the base box): the coefficient stops at its box edge, where the
+    record sees it; that side is widened and the candidate searched again."""
+    from hhra_phys.reference import reference_record
+
+    data = reference_record(seed, duration=8.0, noise_deg=0.05, params={"g_damping": 60.0},
+                            effects={"gravity_load": {"g_grav_sin": 300.0,
+                                                      "g_grav_cos": -60.0}})
+    step = _candidate_step(data, "gravity_load")
+    assert any(n.startswith("g_grav_sin ended at its box edge; box widened") for n in step.notes)
+    assert step.params["g_grav_sin"] > 105

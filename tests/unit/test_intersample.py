@@ -151,6 +151,7 @@ def test_population_single_symbolic_and_sensitivity_paths_agree(kind) -> None:
         traj = sim.trajectory_function(u.size)
         ys = np.array(traj(m.x0(), P[i], sim.input_matrix(u))).ravel()[:u.size]
         ysens, dy = TrajectorySensitivity.of(sim)(u, P[i], m.x0())
+        assert np.array_equal(TrajectorySensitivity.of(sim).outputs(u, P[i], m.x0()), ysens)
         assert np.allclose(Y[i], y1, rtol=1e-12, atol=1e-12)
         assert np.allclose(ys, y1, rtol=1e-12, atol=1e-12)
         assert np.allclose(ysens, y1, rtol=1e-12, atol=1e-12)
