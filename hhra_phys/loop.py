@@ -1466,7 +1466,9 @@ class _Loop:
             if disc is None:
                 self.discover = False
             else:
-                queue += [((False, -p.score), "discovered", p) for p in disc.proposals()]
+                queue += [((False, -p.score),
+                           "mode" if str(p.entry).startswith("mode:") else "discovered", p)
+                          for p in disc.proposals()]
         queue.sort(key=lambda q: q[0])  # one ranking of every kind (stable: library order)
         if self.compiler is not None:
             for job in jobs:
@@ -1490,7 +1492,9 @@ class _Loop:
         term that each reach the noise meet in the tie rule
         (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round
         (a sensor's drift and a biased valve leave the same trend: ranked first, the valve
-        took drift records before the drift was refitted).
+        took drift records before the drift was refitted). Discovered resonant modes are
+        never skipped: a mode at one entry can reach the noise as a stand-in for the mode
+        at another, which the information criterion tells apart.
         """
         o, say = self.o, self.say
         crit_cur = information_criterion(self.cur, o.criterion)
@@ -1506,7 +1510,10 @@ class _Loop:
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
         for _, kind, item in queue:
-            if kind in settlers:
+            # Resonant modes are never skipped: a mode at one entry reaches the noise as a
+            # stand-in for a mode at another (an output mode settled a load-mode record's
+            # round before the load was refitted); the criterion tells them apart (choose).
+            if kind in settlers and kind != "mode":
                 not_refitted.setdefault(kind, []).append(
                     item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}")
                 continue
