@@ -151,6 +151,15 @@ def run(family: str, seed: int, duration: float, workers: int,
         "final_test": (js.get("test") or {}).get("rmse"),
         "stop": js["settings"]["stop"], "seconds": time.perf_counter() - t0,
         "what": what,
+        # Where each round started against the noise (selection and estimation parts).
+        "levels": [{"sel_ratio": lv["ratio"], "sel_noise": lv["noise"],
+                    "est_ratio": lv["estimation"]["ratio"]}
+                   for lv in js["settings"]["noise_levels"]],
+        # What competed and why it lost (the loop's reasons).
+        "steps": [{k: s.get(k) for k in ("round", "action", "effect", "entry", "expression",
+                                         "accepted", "reason")}
+                  | {"val_rmse": s["val"]["rmse"], "criterion": s["criterion"]}
+                  for s in js["steps"]],
     }
 
 

@@ -41,8 +41,9 @@ How (sparse fit through the simulator)
 
     ``"threshold"`` (default)
         sequential thresholding through the simulator: fit all screened terms,
-        drop every term whose coefficient's 95 % interval contains 0
-        (``|a|/sd < 1.96``), refit, until none is dropped;
+        drop terms whose coefficient's 95 % interval contains 0 (``|a|/sd < 1.96``),
+        refit, until none is dropped; those with ``|a|/sd < 1`` go together, of the
+        others only the weakest per refit (collinear terms share their evidence);
     ``"l1"``
         an L1 (lasso) path on the first-order problem gives nested supports of
         sizes ``1..max_terms``; each is refitted through the simulator and the
@@ -138,6 +139,10 @@ __all__ = [
 SPARSITY_METHODS: tuple[str, ...] = ("threshold", "l1")
 #: |coefficient|/sd below which sequential thresholding drops a term (95 % CI contains 0).
 T_DROP = 1.96
+#: |coefficient|/sd below which a term is dropped together with every other such term
+#: (one standard error holds 0: no evidence); between this and :data:`T_DROP` only the
+#: weakest term goes per refit, because collinear terms share their evidence.
+T_WEAK = 1.0
 #: Quantile of |q| where a hinge knot starts.
 KNOT_QUANTILE = 0.6
 #: Other variables whose best first-order term also leads a fitted form of an entry's
@@ -1018,6 +1023,13 @@ def _sparse_threshold(fitter: Any, scr: EntryScreen, index: int, cur: FitResult,
         if len(keep) == len(term.terms):
             best = f
             break
+        # Terms with no evidence (t < T_WEAK) go together; of the rest below T_DROP only
+        # the weakest: two collinear terms (a velocity cube and a pressure term that steady
+        # motion makes equivalent) each look insignificant beside the other, and dropping
+        # both at once lost the true term of a drag record to a leftover input term.
+        weak = [j for j in range(len(term.terms)) if t[j] < T_WEAK]
+        drop = set(weak) if weak else {int(np.argmin(t))}
+        keep = [j for j in range(len(term.terms)) if j not in drop]
         term = _with_values(term, keep, f.result.values)
     return best, log
 
