@@ -1002,20 +1002,33 @@ def _sparse_threshold(fitter: Any, scr: EntryScreen, index: int, cur: FitResult,
                       cur_prob: Problem, cur_free: list[str], criterion: str,
                       say: Callable[[str], None]) -> tuple[_Fitted | None, list[str]]:
     log: list[str] = []
-    term = _term_for(scr, scr.picked, scr.beta, index, cur_prob.model, fitter.data)
+    support = list(scr.picked)  # candidate indices of the term's terms, in order
+    term = _term_for(scr, support, scr.beta, index, cur_prob.model, fitter.data)
     best: _Fitted | None = None
+    crit_cur = getattr(fitter, "crit_cur", math.inf)
     while term.terms:
         f = _refit(fitter, term, cur_prob.model, cur, cur_free, criterion)
         if f is None:
             log.append(f"{', '.join(term.terms)}: refit failed")
             if len(term.terms) == 1:
                 break
+            support = support[1:]
             term = _with_values(term, list(range(1, len(term.terms))), {})
             continue
         t = _t_values(f)
         log.append(f"{', '.join(term.terms)}: |a|/sd {np.round(t, 1).tolist()}, "
                    f"{criterion.upper()} {f.crit:.1f}, val RMSE {f.val_rmse:.4g}")
         say("    " + log[-1])
+        if not f.crit < crit_cur and len(support) > 1:
+            # Worse than no term at all: the search from this start failed (collinear
+            # first-order coefficients that cancel), its t-values say nothing. The
+            # pursuit's last pick goes and the rest starts again from first order.
+            support = support[:-1]
+            beta, *_ = np.linalg.lstsq(scr.S[:, support], scr.r, rcond=None)
+            term = _term_for(scr, support, beta, index, cur_prob.model, fitter.data)
+            log.append("worse than no term: the last pick dropped, refitted from first "
+                       "order")
+            continue
         # A size threshold relative to the largest term (STLSQ's) was tried and
         # dropped the true term beside a large compensating one (two-tank record):
         # significance alone decides.
@@ -1030,6 +1043,7 @@ def _sparse_threshold(fitter: Any, scr: EntryScreen, index: int, cur: FitResult,
         weak = [j for j in range(len(term.terms)) if t[j] < T_WEAK]
         drop = set(weak) if weak else {int(np.argmin(t))}
         keep = [j for j in range(len(term.terms)) if j not in drop]
+        support = [support[j] for j in keep]
         term = _with_values(term, keep, f.result.values)
     return best, log
 
