@@ -1229,7 +1229,8 @@ class Discovery:
     noise_tol : float
         The loop's tolerance of the noise level: an entry's fitted forms (its first-order
         picks, and those led by other variables, :func:`variable_forms`) are told apart by
-        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it.
+        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it; at a state's
+        rate, a tied form holding a term of that state alone is preferred.
     """
 
     def __init__(self, fitter: Any, cur: FitResult, cur_prob: Any, cur_free: list[str], *,
@@ -1387,8 +1388,15 @@ class Discovery:
             return None, log, scr
         if len(got) == 1:
             return got[0][0], log, got[0][1]
+        # In a tie, a form in the state whose rate the term enters is kept: in steady
+        # motion a velocity drag equals a pressure (or valve-current) term through the
+        # model's own torque balance, and the criterion alone chose the pressure form on
+        # a drag record by 3 of about 500 BIC units (docs/diagnosis.md).
+        own = scr.entry.removeprefix("rate:") if scr.entry.startswith("rate:") else None
+        prefer = [own is not None and any(_parse(t)[1] == [own] for t in f.term.terms)
+                  for f, _ in got]
         i = tie_break([(f.val_rmse, f.crit) for f, _ in got], self._sel_noise(),
-                      self.noise_tol)
+                      self.noise_tol, prefer=prefer)
         log.append(f"of {len(got)} fitted forms, the tie rule kept "
                    f"{', '.join(got[i][0].term.terms)}")
         self.say("    " + log[-1])

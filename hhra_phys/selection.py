@@ -321,14 +321,18 @@ def _tied(rmse: float, best: float, allowance: float) -> bool:
     return rmse ** 2 - best ** 2 <= allowance
 
 
-def tie_break(fits: Sequence[tuple[float, float]], noise: float, noise_tol: float) -> int:
+def tie_break(fits: Sequence[tuple[float, float]], noise: float, noise_tol: float,
+              prefer: Sequence[bool] | None = None) -> int:
     """:func:`choose`'s tie rule for bare fits: the index of the one it would choose.
 
     Of ``(selection RMSE, information criterion)`` pairs, those within the noise allowance
     of the lowest selection RMSE are tied and the lowest criterion among them wins (the
     lowest RMSE breaks an exact tie). Used where one candidate has several fitted forms
     (discovery's variants of a term at one entry), so that they are told apart as
-    candidates are.
+    candidates are. As :func:`choose` keeps a given effect over a discovered term it
+    ties with at one entry, ``prefer`` marks fits kept over the others in a tie
+    (discovery: forms in the state whose rate the term enters, the first-order
+    equivalents in other variables are the model's own dynamics passing it on).
 
     Parameters
     ----------
@@ -336,13 +340,21 @@ def tie_break(fits: Sequence[tuple[float, float]], noise: float, noise_tol: floa
         Selection RMSE (output units; non-finite counts as infinite) and criterion of each.
     noise, noise_tol : float
         As in :func:`choose`.
+    prefer : sequence of bool, optional
+        One per fit: the preferred among the tied fits, if any, are the only ones the
+        criterion then decides between.
     """
     if not fits:
         raise ParameterError("tie_break needs at least one fit")
+    if prefer is not None and len(prefer) != len(fits):
+        raise ParameterError(f"tie_break: prefer has {len(prefer)} entries for "
+                             f"{len(fits)} fits")
     sels = [v if math.isfinite(v) else math.inf for v, _ in fits]
     best = min(sels)
     allowance = noise_allowance(noise, noise_tol)
     tied = [i for i, v in enumerate(sels) if _tied(v, best, allowance)]
+    if prefer is not None:
+        tied = [i for i in tied if prefer[i]] or tied
     return min(tied, key=lambda i: (fits[i][1], sels[i]))
 
 
