@@ -10,8 +10,10 @@ discovery proposing in every round, one rule, the backward step, box widening):
     faster-than-linear function of ``omega`` (``omega*|omega|`` or ``omega^3`` in the
     fitted expression), no library effect is chosen. (How visible the drag is depends on
     the seed's excitation: a quick base-fit probe found it above the noise on 0/5 seeds
-    at 150, 2/5 at 300, 4/5 at 600; at 1500 the full base fit absorbed it on 4/5
-    (docs/diagnosis.md); hence 600.)
+    at 150, 2/5 at 300, 4/5 at 600; hence the default 600. At 2000, ``--size
+    drag=2000``, the base's selection RMSE is 1.08-1.16 x its noise and its estimation
+    RMSE 1.17-1.31 x on every seed: the study of docs/diagnosis.md, "The drag at sizes
+    the base cannot absorb".)
 ``gravity``
     a gravity load far beyond the effect's default box (``g_grav_sin`` = ``size``,
     ``g_grav_cos`` = ``-size/5``) on an actuator whose damping group lies beyond the base
@@ -28,7 +30,7 @@ discovery proposing in every round, one rule, the backward step, box widening):
 Every family also needs the final test RMSE at most 1.5 times the noise (0.05 deg).
 
     python experiments/one_loop.py [--families drag,gravity,deadzone_friction,clean]
-        [--seeds 1-5] [--duration 8] [--workers 1] [--out FILE.json]
+        [--seeds 1-5] [--duration 8] [--workers 1] [--size drag=1500] [--out FILE.json]
 
 Prints a Markdown table per family and writes every row to ``--out`` (JSON).
 """
@@ -55,9 +57,10 @@ GRAVITY_DAMPING = 60.0
 FAMILIES = tuple(SIZES)
 
 
-def record(family: str, seed: int, duration: float):
-    """The record of one family and seed (reference implementations, 0.05 deg noise)."""
-    size = SIZES[family]
+def record(family: str, seed: int, duration: float, size: float | None = None):
+    """The record of one family and seed (reference implementations, 0.05 deg noise);
+    ``size`` overrides the family's :data:`SIZES` entry."""
+    size = SIZES[family] if size is None else size
     if family == "drag":
         return outside_record("quadratic_drag", size, seed=seed, duration=duration,
                               noise_deg=NOISE)
@@ -116,9 +119,11 @@ def judge(family: str, res: Any) -> tuple[bool, str]:
     return ok and (family == "clean" or at_noise), what
 
 
-def run(family: str, seed: int, duration: float, workers: int) -> dict[str, Any]:
-    """One loop: the row of the study."""
-    ds = record(family, seed, duration)
+def run(family: str, seed: int, duration: float, workers: int,
+        size: float | None = None) -> dict[str, Any]:
+    """One loop: the row of the study (``size`` overrides the family's :data:`SIZES`)."""
+    size = SIZES[family] if size is None else size
+    ds = record(family, seed, duration, size)
     t0 = time.perf_counter()
     ex = None
     if workers > 1:
@@ -135,7 +140,7 @@ def run(family: str, seed: int, duration: float, workers: int) -> dict[str, Any]
     ok, what = judge(family, res)
     js = res.to_json()
     return {
-        "family": family, "seed": seed, "size": SIZES[family], "duration": duration,
+        "family": family, "seed": seed, "size": size, "duration": duration,
         "success": ok, "chosen": js["chosen"],
         "expressions": [s.get("expression", "") for s in js["steps"]
                         if s["accepted"] and s.get("discovered")],
@@ -148,6 +153,15 @@ def run(family: str, seed: int, duration: float, workers: int) -> dict[str, Any]
         "final_test": (js.get("test") or {}).get("rmse"),
         "stop": js["settings"]["stop"], "seconds": time.perf_counter() - t0,
         "what": what,
+        # Where each round started against the noise (selection and estimation parts).
+        "levels": [{"sel_ratio": lv["ratio"], "sel_noise": lv["noise"],
+                    "est_ratio": lv["estimation"]["ratio"]}
+                   for lv in js["settings"]["noise_levels"]],
+        # What competed and why it lost (the loop's reasons).
+        "steps": [{k: s.get(k) for k in ("round", "action", "effect", "entry", "expression",
+                                         "accepted", "reason")}
+                  | {"val_rmse": s["val"]["rmse"], "criterion": s["criterion"]}
+                  for s in js["steps"]],
     }
 
 
@@ -158,12 +172,35 @@ def _seeds(text: str) -> list[int]:
     return [int(s) for s in text.split(",") if s]
 
 
+def _sizes(text: str | None) -> dict[str, float]:
+    """``--size family=value[,family=value]`` as a dictionary (checked)."""
+    out: dict[str, float] = {}
+    for item in (text or "").split(","):
+        if not item:
+            continue
+        fam, eq, val = item.partition("=")
+        if not eq or fam not in FAMILIES:
+            raise ValueError(f"give family=value with a family of {', '.join(FAMILIES)}, "
+                             f"got {item!r}")
+        try:
+            v = float(val)
+        except ValueError:
+            raise ValueError(f"{fam}: the size must be a number, got {val!r}") from None
+        if not (v >= 0 and v < float("inf")) or (fam != "clean" and v == 0):
+            raise ValueError(f"{fam}: the size must be finite and positive, got {val!r}")
+        out[fam] = v
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--seeds", default="1-5")
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--size", default=None,
+                    help="family=value[,...]: the size of a family instead of SIZES "
+                         "(e.g. drag=1500)")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     fams = [f for f in args.families.split(",") if f]
@@ -174,12 +211,16 @@ def main() -> None:
         seeds = _seeds(args.seeds)
     except ValueError:
         ap.error(f"--seeds: give 'a-b' or 'a,b,c', got {args.seeds!r}")
+    try:
+        sizes = {**SIZES, **_sizes(args.size)}
+    except ValueError as e:
+        ap.error(f"--size: {e}")
     if args.out:
         check_output_path(args.out, overwrite=True)
     rows: list[dict[str, Any]] = []
     for fam in fams:
         for seed in seeds:
-            row = run(fam, seed, args.duration, args.workers)
+            row = run(fam, seed, args.duration, args.workers, sizes[fam])
             rows.append(row)
             print(f"{fam} seed {seed}: {'ok' if row['success'] else 'MISS'} chose "
                   f"{row['what']}; test {row['final_test']:.4g}; {row['seconds']:.0f} s",
@@ -193,7 +234,7 @@ def main() -> None:
         rs = [r for r in rows if r["family"] == fam]
         tests = sorted(r["final_test"] / NOISE for r in rs)
         secs = sorted(r["seconds"] for r in rs)
-        print(f"| {fam} | {SIZES[fam]:g} | {len(rs)} | {sum(r['success'] for r in rs)}/"
+        print(f"| {fam} | {sizes[fam]:g} | {len(rs)} | {sum(r['success'] for r in rs)}/"
               f"{len(rs)} | {'; '.join(r['what'] for r in rs)} | "
               f"{tests[len(tests) // 2]:.2f} | {secs[len(secs) // 2]:.0f} |")
 

@@ -41,8 +41,9 @@ How (sparse fit through the simulator)
 
     ``"threshold"`` (default)
         sequential thresholding through the simulator: fit all screened terms,
-        drop every term whose coefficient's 95 % interval contains 0
-        (``|a|/sd < 1.96``), refit, until none is dropped;
+        drop terms whose coefficient's 95 % interval contains 0 (``|a|/sd < 1.96``),
+        refit, until none is dropped; those with ``|a|/sd < 1`` go together, of the
+        others only the weakest per refit (collinear terms share their evidence);
     ``"l1"``
         an L1 (lasso) path on the first-order problem gives nested supports of
         sizes ``1..max_terms``; each is refitted through the simulator and the
@@ -138,6 +139,10 @@ __all__ = [
 SPARSITY_METHODS: tuple[str, ...] = ("threshold", "l1")
 #: |coefficient|/sd below which sequential thresholding drops a term (95 % CI contains 0).
 T_DROP = 1.96
+#: |coefficient|/sd below which a term is dropped together with every other such term
+#: (one standard error holds 0: no evidence); between this and :data:`T_DROP` only the
+#: weakest term goes per refit, because collinear terms share their evidence.
+T_WEAK = 1.0
 #: Quantile of |q| where a hinge knot starts.
 KNOT_QUANTILE = 0.6
 #: Other variables whose best first-order term also leads a fitted form of an entry's
@@ -997,20 +1002,33 @@ def _sparse_threshold(fitter: Any, scr: EntryScreen, index: int, cur: FitResult,
                       cur_prob: Problem, cur_free: list[str], criterion: str,
                       say: Callable[[str], None]) -> tuple[_Fitted | None, list[str]]:
     log: list[str] = []
-    term = _term_for(scr, scr.picked, scr.beta, index, cur_prob.model, fitter.data)
+    support = list(scr.picked)  # candidate indices of the term's terms, in order
+    term = _term_for(scr, support, scr.beta, index, cur_prob.model, fitter.data)
     best: _Fitted | None = None
+    crit_cur = getattr(fitter, "crit_cur", math.inf)
     while term.terms:
         f = _refit(fitter, term, cur_prob.model, cur, cur_free, criterion)
         if f is None:
             log.append(f"{', '.join(term.terms)}: refit failed")
             if len(term.terms) == 1:
                 break
+            support = support[1:]
             term = _with_values(term, list(range(1, len(term.terms))), {})
             continue
         t = _t_values(f)
         log.append(f"{', '.join(term.terms)}: |a|/sd {np.round(t, 1).tolist()}, "
                    f"{criterion.upper()} {f.crit:.1f}, val RMSE {f.val_rmse:.4g}")
         say("    " + log[-1])
+        if not f.crit < crit_cur and len(support) > 1:
+            # Worse than no term at all: the search from this start failed (collinear
+            # first-order coefficients that cancel), its t-values say nothing. The
+            # pursuit's last pick goes and the rest starts again from first order.
+            support = support[:-1]
+            beta, *_ = np.linalg.lstsq(scr.S[:, support], scr.r, rcond=None)
+            term = _term_for(scr, support, beta, index, cur_prob.model, fitter.data)
+            log.append("worse than no term: the last pick dropped, refitted from first "
+                       "order")
+            continue
         # A size threshold relative to the largest term (STLSQ's) was tried and
         # dropped the true term beside a large compensating one (two-tank record):
         # significance alone decides.
@@ -1018,6 +1036,14 @@ def _sparse_threshold(fitter: Any, scr: EntryScreen, index: int, cur: FitResult,
         if len(keep) == len(term.terms):
             best = f
             break
+        # Terms with no evidence (t < T_WEAK) go together; of the rest below T_DROP only
+        # the weakest: two collinear terms (a velocity cube and a pressure term that steady
+        # motion makes equivalent) each look insignificant beside the other, and dropping
+        # both at once lost the true term of a drag record to a leftover input term.
+        weak = [j for j in range(len(term.terms)) if t[j] < T_WEAK]
+        drop = set(weak) if weak else {int(np.argmin(t))}
+        keep = [j for j in range(len(term.terms)) if j not in drop]
+        support = [support[j] for j in keep]
         term = _with_values(term, keep, f.result.values)
     return best, log
 
@@ -1203,7 +1229,8 @@ class Discovery:
     noise_tol : float
         The loop's tolerance of the noise level: an entry's fitted forms (its first-order
         picks, and those led by other variables, :func:`variable_forms`) are told apart by
-        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it.
+        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it; at a state's
+        rate, a tied form holding a term of that state alone is preferred.
     """
 
     def __init__(self, fitter: Any, cur: FitResult, cur_prob: Any, cur_free: list[str], *,
@@ -1361,8 +1388,15 @@ class Discovery:
             return None, log, scr
         if len(got) == 1:
             return got[0][0], log, got[0][1]
+        # In a tie, a form in the state whose rate the term enters is kept: in steady
+        # motion a velocity drag equals a pressure (or valve-current) term through the
+        # model's own torque balance, and the criterion alone chose the pressure form on
+        # a drag record by 3 of about 500 BIC units (docs/diagnosis.md).
+        own = scr.entry.removeprefix("rate:") if scr.entry.startswith("rate:") else None
+        prefer = [own is not None and any(_parse(t)[1] == [own] for t in f.term.terms)
+                  for f, _ in got]
         i = tie_break([(f.val_rmse, f.crit) for f, _ in got], self._sel_noise(),
-                      self.noise_tol)
+                      self.noise_tol, prefer=prefer)
         log.append(f"of {len(got)} fitted forms, the tie rule kept "
                    f"{', '.join(got[i][0].term.terms)}")
         self.say("    " + log[-1])

@@ -976,7 +976,9 @@ class LoopOptions:
     seed : int
         Seed of every global search.
     margin : float
-        Required relative fall of the selection RMSE (0.1: at least 10 %).
+        Required relative fall of the selection RMSE (0.1: at least 10 %), unless it
+        falls to the selection residual's noise level
+        (:func:`~hhra_phys.selection.acceptance`).
     noise_tol : float, optional
         Tolerance of the noise level: the loop stops when the selection RMSE is
         within ``(1 + noise_tol)`` of the selection residual's noise level (or that
@@ -1203,7 +1205,8 @@ def augment(
     Notes
     -----
     A candidate is accepted when, on the selection part, its RMSE falls by at
-    least ``margin``, the information criterion on estimation falls, and the
+    least ``margin`` (or to the noise level), the information criterion on estimation
+    falls, and the
     selection variance it removes exceeds the noise allowance; of the acceptable
     candidates of a round (every kind) the one :func:`~hhra_phys.selection.choose` picks
     is added (:mod:`hhra_phys.selection`). The loop stops when a round accepts

@@ -117,3 +117,16 @@ def test_table2(tmp_path):
         assert res["f7"][method]["mean"] == pytest.approx(-1.0316285, abs=1e-3)
     again = _call("table2.py", "--out", str(prefix), "--runs", "1", cwd=tmp_path)
     assert again.returncode == 2  # an existing output is never replaced
+
+
+@pytest.mark.parametrize(("size", "says"), [
+    ("drag=abc", "drag: the size must be a number, got 'abc'"),
+    ("drg=5", "give family=value with a family of"),
+    ("gravity=-3", "gravity: the size must be finite and positive"),
+])
+def test_one_loop_size_is_checked_before_any_loop(tmp_path, size, says):
+    out = tmp_path / "rows.json"
+    proc = _call("one_loop.py", "--families", "drag", "--seeds", "1", "--size", size,
+                 "--out", str(out), cwd=tmp_path)
+    assert proc.returncode == 2 and "--size" in proc.stderr and says in proc.stderr
+    assert not out.exists()  # refused before any loop ran or any row was written

@@ -158,6 +158,19 @@ def test_tie_break_follows_choose_on_bare_fits():
         tie_break([], NOISE, TOL)
 
 
+def test_tie_break_keeps_a_preferred_fit_only_in_a_tie():
+    # the drag record: a pressure form (lower BIC) tied with a velocity form (preferred)
+    fits = [(0.05192, -5979.4), (0.05145, -5976.1)]
+    assert tie_break(fits, 0.0573, 0.068) == 0
+    assert tie_break(fits, 0.0573, 0.068, prefer=[False, True]) == 1
+    # no preferred fit among the tied: the criterion decides as before
+    assert tie_break(fits, 0.0573, 0.068, prefer=[False, False]) == 0
+    # a preferred fit clearly worse on selection is not tied: it does not win
+    assert tie_break([(0.05, 0.0), (0.09, -100.0)], NOISE, TOL, prefer=[False, True]) == 0
+    with pytest.raises(ParameterError, match="prefer has 1 entries for 2 fits"):
+        tie_break(fits, NOISE, TOL, prefer=[True])
+
+
 @pytest.mark.parametrize(("n", "tol"), [(400, 0.0684), (1200, 0.0400), (2, 0.7321)])
 def test_noise_tolerance_from_the_sample_count(n, tol):
     # sqrt(1 + 2*sqrt(2/n)) - 1 by hand: 400 -> sqrt(1.14142) - 1
