@@ -82,7 +82,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--iters", type=positive_int, default=200,
                    help="base fit iterations (default 200, as hhra-phys fit)")
     p.add_argument("--margin", type=float, default=0.1,
-                   help="required relative fall of the selection RMSE (default 0.1)")
+                   help="required relative fall of the selection RMSE (default 0.1), unless "
+                        "the candidate brings it to the noise level")
     p.add_argument("--noise-tol", type=float, default=None,
                    help="tolerance of the noise level (default: from the selection "
                         "part's length, hhra_phys.selection.noise_tolerance; see "
