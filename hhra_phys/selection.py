@@ -37,6 +37,7 @@ from hhra_phys.result import FitResult
 __all__ = [
     "NOISE_TOL",
     "NOISE_Z",
+    "DECISIVE_CRITERION",
     "noise_tolerance",
     "METRIC_KEYS",
     "Step",
@@ -59,6 +60,11 @@ NOISE_TOL = 0.15
 
 #: Standard errors of a residual's mean square that :func:`noise_tolerance` grants.
 NOISE_Z = 2.0
+
+#: Difference of the information criterion that overrides :func:`choose`'s preference for
+#: a sensor effect among tied candidates: above 10 BIC units the evidence is "very strong"
+#: on the usual scale (a Bayes factor above about 150), below it the preference decides.
+DECISIVE_CRITERION = 10.0
 
 METRIC_KEYS = ("rmse", "vaf", "mse", "itae")
 
@@ -268,8 +274,10 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     it (on a dead-zone record a discovered ``u += ... relu(u - c)`` tied with the library
     dead zone and won by BIC: the same physics, with a shape searched among many); and a
     sensor effect (``Step.sensor``) tied with candidates that change the dynamics is chosen
-    over them (on a record with a drifting encoder a biased valve tied with the drift and
-    won by 5 units of BIC: physics added for a sensor's fault, docs/measuring.md).
+    over them unless one of them has a criterion lower by more than
+    :data:`DECISIVE_CRITERION` (on a record with a drifting encoder a biased valve tied with
+    the drift and won by 5 units of BIC: physics added for a sensor's fault,
+    docs/measuring.md; on a two-tank record a true side inflow beat a level offset by 12.3).
     Measured on reference records (docs/diagnosis.md): among resonant modes the criterion
     chose the true one 6 of 6 times where the lowest selection error chose an input-mode
     stand-in once in 3.
@@ -316,8 +324,14 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
                     for c in tied if all(c is not k for k in kept)})
     # A sensor's explanation tied with a change of the dynamics is kept: the record cannot
     # tell them apart (a drifting encoder and a biased valve leave the same trend), and
-    # only the dynamics change would alter the model a controller is designed on.
-    sensors = [c for c in kept if c[0].sensor] or kept
+    # only the dynamics change would alter the model a controller is designed on. A prior,
+    # so it yields to decisive evidence: a change of the dynamics whose criterion is lower
+    # by more than DECISIVE_CRITERION (a two-tank side inflow against a level offset, 12.3).
+    sensors = [c for c in kept if c[0].sensor]
+    others = [c for c in kept if not c[0].sensor]
+    if not sensors or (others and min(c[0].criterion for c in others)
+                       < min(c[0].criterion for c in sensors) - DECISIVE_CRITERION):
+        sensors = kept
     why_not.update({id(c[0]): f"{level}, a change of the dynamics tied with a sensor effect"
                     for c in kept if all(c is not k for k in sensors)})
     why_not.update({id(c[0]): f"{level}, higher {criterion.upper()}" for c in sensors})

@@ -130,6 +130,13 @@ def test_a_sensor_effect_keeps_a_tie_with_a_change_of_the_dynamics():
     drift2 = _step("sensor_drift", 0.080, -5952.1)
     drift2.sensor = True
     assert choose([(drift2, 2), (valve2, 1)], NOISE, TOL)[0] is valve2
+    # decisive evidence for the dynamics (criterion lower by more than 10) overrides it:
+    # the two-tank side inflow against a level offset
+    inflow = _step("side_inflow", 0.05102, -4783.5)
+    offset = _step("sensor_offset", 0.05212, -4771.2)
+    offset.sensor = True
+    assert choose([(offset, 1), (inflow, 2)], NOISE, TOL)[0] is inflow
+    assert "higher BIC" in offset.reason
     # among sensor effects the criterion decides as before
     off = _step("sensor_offset", 0.0525, -5960.0)
     off.sensor = True
