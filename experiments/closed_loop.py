@@ -106,6 +106,12 @@ def run_case(effects: dict[str, dict[str, float]], seed: int, duration: float,
         "removed": res.settings.get("removed", []),
         "backward_steps": [{"round": s.round, "effect": s.effect, "action": s.action,
                             "reason": s.reason} for s in res.steps if s.action != "add"],
+        # Every step's outcome and reason, so a changed figure can be traced to the rule.
+        "steps": [{"round": s.round, "effect": s.effect, "action": s.action,
+                   "accepted": s.accepted, "val_rmse": s.val.get("rmse"),
+                   "val_rmse_before": s.val_rmse_before, "reason": s.reason}
+                  for s in res.steps],
+        "skipped": res.skipped,
         "rounds": len(res.diagnoses),
         "first_chosen": res.chosen[0] if res.chosen else None,
         "noise_levels": res.settings.get("noise_levels"),
