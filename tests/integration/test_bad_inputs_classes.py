@@ -342,6 +342,10 @@ def test_an_unforeseen_error_is_one_line_and_exit_1(d, capsys, monkeypatch) -> N
 CTRL_C_IN_IMPORTS = textwrap.dedent("""
     import importlib.abc, os, signal, sys, time
 
+    # A terminal's Ctrl-C reaches Python's handler; a suite started in the background of a
+    # non-interactive shell inherits SIGINT ignored, and the child would never see it.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
     class CtrlCOnCasadi(importlib.abc.MetaPathFinder):  # a user's Ctrl-C mid-import
         def find_spec(self, name, path=None, target=None):
             if name == "casadi":
