@@ -300,6 +300,11 @@ def _kind(effect: str) -> str:
     return "sensor" if cls is not None and getattr(cls, "sensor", False) else "effect"
 
 
+def _shallow(v: Any) -> Any:
+    """A list or dict copied one level deep (a loop path's own containers), else ``v``."""
+    return list(v) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v
+
+
 def _lookahead(executor: Executor) -> int | None:
     """Library refits handed to ``executor`` ahead of the round: one per local worker.
 
@@ -1343,13 +1348,11 @@ class _Loop:
              "at_noise")
 
     def _snapshot(self) -> dict[str, Any]:
-        return {k: (list(v) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v)
-                for k in self._PATH for v in [getattr(self, k)]}
+        return {k: _shallow(getattr(self, k)) for k in self._PATH}
 
     def _restore(self, state: Mapping[str, Any]) -> None:
         for k, v in state.items():
-            setattr(self, k, list(v) if isinstance(v, list) else
-                    dict(v) if isinstance(v, dict) else v)
+            setattr(self, k, _shallow(v))
 
     def _remember_branch(self, rnd: int, best: Step, tried: list[tuple[Step, Any]],
                          noise: float) -> None:
@@ -1506,9 +1509,8 @@ class _Loop:
         noise_est = float(level["estimation"]["noise"])
         # One stream of refits per library kind, each in queue order, so that a settled
         # kind's rest is cancelled without holding back the other kind's refits.
-        order = [item for _, kind, item in queue if kind in _LIBRARY_KINDS]
-        library = {kind: self._library_refits([j for j in order if _kind(j.effect) == kind])
-                   for kind in _LIBRARY_KINDS}
+        library = {k: self._library_refits([item for _, kind, item in queue if kind == k])
+                   for k in _LIBRARY_KINDS}
         tried: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
