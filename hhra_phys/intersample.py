@@ -11,7 +11,9 @@ gives the loop what it needs to test the other assumptions under its one rule:
 
 * :func:`hold_signature`: the evidence on a fitted model's residual, the sub-sample
   shift ``lead`` (samples) that best aligns the simulated output with the measured
-  one and the share of the residual variance that shift explains;
+  one and the share of the residual variance that shift explains, and the
+  ``curvature`` a straight line leaves where the input moved smoothly (no shift, an
+  error along the output's second difference);
 * :func:`hold_suspected`: whether that evidence is worth trying candidates;
 * :func:`other_holds`: the behaviours to try (every one but the record's);
 * :func:`refit_with_hold`: the same model, free set, fixed values and boxes refitted
@@ -21,7 +23,8 @@ gives the loop what it needs to test the other assumptions under its one rule:
   RMSE, information criterion, noise allowance). The candidate has the same
   parameters as the current model, so the criterion changes only through the fit.
 
-Usage after the base fit (what :func:`hhra_phys.loop.augment` does)::
+Usage after the base fit and in every round while the record's own behaviour holds
+(what :func:`hhra_phys.loop.augment` does)::
 
     sig = hold_signature(problem.data.y, problem.simulate_values(values))
     if hold_suspected(sig):
@@ -59,13 +62,23 @@ __all__ = [
     "refit_with_hold",
     "LEAD_MIN",
     "EXPLAINED_MIN",
+    "CURVATURE_MIN",
+    "CURVATURE_MAX",
 ]
 
 #: Smallest sub-sample shift [samples] :func:`hold_suspected` calls a signature (a wrong
 #: hold of a record sampled near its bandwidth leaves 0.2 to 0.5).
 LEAD_MIN = 0.1
-#: Smallest share of the residual variance the shift must explain.
+#: Smallest share of the residual variance the shift (or the curvature) must explain.
 EXPLAINED_MIN = 0.05
+#: Range of the curvature coefficient [samples^2] :func:`hold_suspected` calls a
+#: signature. Two interpolations of a smooth input differ by about ``c T^2 u''``: the
+#: straight line against the true curve ``c = -1/12`` (its mean loss ``(w T)^2 / 12``),
+#: a held input ``-1/24`` beside its half-sample lag; half the smaller one is the least
+#: worth a refit. A coefficient of order one or more is no interpolation's (the residual
+#: of a missing effect correlates with the output's curvature at any size).
+CURVATURE_MIN = 1.0 / 48.0
+CURVATURE_MAX = 0.25
 
 
 def other_hold(kind: str) -> str:
@@ -89,7 +102,11 @@ def hold_signature(y: np.ndarray, y_sim: np.ndarray) -> dict[str, float]:
 
     The residual ``r = y - y_sim`` is regressed on the simulated output's central
     difference ``d_k = (y_sim[k+1] - y_sim[k-1]) / 2``: ``y(k) ~ y_sim(k + lead)``
-    to first order.
+    to first order. Separately it is regressed on the second difference
+    ``c_k = y_sim[k+1] - 2 y_sim[k] + y_sim[k-1]`` beside ``y_sim`` itself: an input
+    interpolated by the wrong curve between samples (a straight line where it moved
+    smoothly) reaches the output as ``y ~ y_sim + curvature * c``, and a fitted gain
+    absorbs the part along ``y_sim``, so only the rest is evidence.
 
     Parameters
     ----------
@@ -102,7 +119,11 @@ def hold_signature(y: np.ndarray, y_sim: np.ndarray) -> dict[str, float]:
         ``lead`` [samples]: > 0 when the measured output is ahead of the simulation (what
         holding an input that moved between samples does, about +0.5 before the fit
         absorbs part of it); ``explained``: share of the residual's variance the shift
-        explains (0..1); ``rmse_after_shift``: residual RMSE left after it.
+        explains (0..1); ``rmse_after_shift``: residual RMSE left after it;
+        ``curvature`` [samples^2]: the second difference's coefficient (about -1/12 when
+        the input moved smoothly but is read as linear between samples);
+        ``curvature_explained``: share of the residual variance it explains beside the
+        gain (0..1).
     """
     y = np.asarray(y, dtype=float)
     ys = np.asarray(y_sim, dtype=float)
@@ -113,11 +134,27 @@ def hold_signature(y: np.ndarray, y_sim: np.ndarray) -> dict[str, float]:
     d = 0.5 * (ys[2:] - ys[:-2])
     dd, rr = float(d @ d), float(r @ r)
     if not (np.isfinite(dd) and np.isfinite(rr)) or dd == 0.0 or rr == 0.0:
-        return {"lead": 0.0, "explained": 0.0, "rmse_after_shift": math.sqrt(rr / r.size)}
+        return {"lead": 0.0, "explained": 0.0, "rmse_after_shift": math.sqrt(rr / r.size),
+                "curvature": 0.0, "curvature_explained": 0.0}
     lead = float(r @ d) / dd
     left = r - lead * d
     return {"lead": lead, "explained": float(1.0 - (left @ left) / rr),
-            "rmse_after_shift": math.sqrt(float(left @ left) / r.size)}
+            "rmse_after_shift": math.sqrt(float(left @ left) / r.size),
+            **_curvature(r, ys)}
+
+
+def _curvature(r: np.ndarray, ys: np.ndarray) -> dict[str, float]:
+    """The second difference's coefficient in ``r ~ a y_sim + curvature c`` (least squares)."""
+    c = ys[2:] - 2.0 * ys[1:-1] + ys[:-2]
+    a = np.column_stack([ys[1:-1], c])
+    if not np.all(np.isfinite(a)) or float(c @ c) == 0.0:
+        return {"curvature": 0.0, "curvature_explained": 0.0}
+    coef, *_ = np.linalg.lstsq(a, r, rcond=None)
+    left = r - a @ coef
+    both = 1.0 - float(left @ left) / float(r @ r)
+    g = float(r @ ys[1:-1]) / max(float(ys[1:-1] @ ys[1:-1]), np.finfo(float).tiny)
+    gain_only = 1.0 - float((r - g * ys[1:-1]) @ (r - g * ys[1:-1])) / float(r @ r)
+    return {"curvature": float(coef[1]), "curvature_explained": max(both - gain_only, 0.0)}
 
 
 def hold_suspected(signature: Mapping[str, float], lead_min: float = LEAD_MIN,
@@ -125,11 +162,15 @@ def hold_suspected(signature: Mapping[str, float], lead_min: float = LEAD_MIN,
     """Whether a :func:`hold_signature` points at the wrong inter-sample behaviour.
 
     A shift of at least ``lead_min`` samples (either sign) explaining at least
-    ``explained_min`` of the residual variance. Only a reason to *try* the other hold:
-    the loop's rule decides.
+    ``explained_min`` of the residual variance, or a curvature coefficient of an
+    interpolation's size (:data:`CURVATURE_MIN` to :data:`CURVATURE_MAX`, either sign)
+    explaining as much. Only a reason to *try* the other holds: the loop's rule decides.
     """
-    return (abs(float(signature.get("lead", 0.0))) >= lead_min
-            and float(signature.get("explained", 0.0)) >= explained_min)
+    shifted = (abs(float(signature.get("lead", 0.0))) >= lead_min
+               and float(signature.get("explained", 0.0)) >= explained_min)
+    curved = (CURVATURE_MIN <= abs(float(signature.get("curvature", 0.0))) <= CURVATURE_MAX
+              and float(signature.get("curvature_explained", 0.0)) >= explained_min)
+    return shifted or curved
 
 
 @dataclass
@@ -178,7 +219,9 @@ class HoldCandidate:
         return (f"inter-sample behaviour {self.was} -> {self.kind} (no physics changed: same "
                 f"model and parameters); the measured output leads the {self.was} fit's by "
                 f"{s.get('lead', 0.0):+.2f} samples, a shift explaining "
-                f"{100 * s.get('explained', 0.0):.0f} % of its residual")
+                f"{100 * s.get('explained', 0.0):.0f} % of its residual, and its curvature "
+                f"term is {s.get('curvature', 0.0):+.3f} samples^2, explaining "
+                f"{100 * s.get('curvature_explained', 0.0):.0f} % beside the gain")
 
     @property
     def reason(self) -> str:

@@ -60,6 +60,13 @@ from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import MAX_WIDEN_DECADES, FitOptions, at_edges, fit_problem, widened_box
 from hhra_phys.interrupt import map_stopping
+from hhra_phys.intersample import (
+    HoldCandidate,
+    hold_signature,
+    hold_suspected,
+    other_holds,
+    refit_with_hold,
+)
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
 from hhra_phys.multi import RecordSet, pooled_score, split_records
@@ -1056,13 +1063,18 @@ class LoopOptions:
         loop stopped at 7.4 x the noise (docs/diagnosis.md). ``settings["revisited"]``
         says what ran and which path was kept.
     intersample : bool
-        After the base fit (one record), when its residual carries the signature of the
-        wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`),
-        refit the same model with each other one (:func:`~hhra_phys.intersample.
-        refit_with_hold`) and judge each by the same rule (:mod:`hhra_phys.selection`);
-        the one :func:`~hhra_phys.selection.choose` picks is kept, and every later fit and
-        score uses it. Each is a :class:`Step` named ``"intersample:<kind>"``, which
-        changes no physics and adds no parameter.
+        After the base fit and in every round (one record), while the record's own
+        behaviour holds, when the current fit's residual carries the signature of the
+        wrong inter-sample behaviour (:func:`hhra_phys.intersample.hold_suspected`: a
+        sub-sample shift, or the curvature a straight line leaves under a smooth input,
+        which shows only once the model's own error is below it), refit the same model
+        with each other one (:func:`~hhra_phys.intersample.refit_with_hold`) and judge
+        each by the same rule (:mod:`hhra_phys.selection`) beside the round's other
+        candidates; the one :func:`~hhra_phys.selection.choose` picks is kept (tied, it is
+        preferred like a sensor effect: it describes the measurement), and every later fit
+        and score uses it. Each is a :class:`Step` named ``"intersample:<kind>"`` marked
+        ``sensor``, which changes no physics, adds no parameter and no effect; a path
+        changes the behaviour once.
     """
 
     split: float = 0.5
@@ -1240,6 +1252,7 @@ class _Loop:
         self.tol = (noise_tolerance(sel.n) if opts.noise_tol is None
                     else float(opts.noise_tol))
         self.data, self.est, self.sel, self.held = data, est, sel, held
+        self.hold_changed = False  # a path changes the records' hold at most once
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
         if model is None:
             from hhra_phys.models.hhra import HHRAModel
@@ -1290,17 +1303,14 @@ class _Loop:
         say(f"  base: est RMSE {cur.metrics['est']['rmse']:.4g}, "
             f"selection RMSE {cur.metrics['val']['rmse']:.4g}")
         self.held_base = self.held  # the base is scored on the test part with its own hold
-        if o.intersample and not isinstance(self.est, RecordSet):
-            self._hold()
+        self._hold()
         self.est_range = _output_range(self.cur_prob, _free_values(self.cur_prob, self.cur),
                                        None)
 
     def _hold(self) -> None:
-        """The other inter-sample behaviours, judged and chosen by the one rule."""
-        hold = _hold_candidates(self.cur, self.cur_prob, self.sel, self.o.margin, self.tol,
-                                self.o.criterion, self.say)
-        self.steps.extend(step for step, _ in hold)
-        won = [(step, c) for step, c in hold if step.accepted]
+        """The other inter-sample behaviours after the base fit, judged and chosen by the
+        one rule."""
+        won = self._round_holds(0)
         if not won:
             return
         for step, _ in won:
@@ -1308,10 +1318,31 @@ class _Loop:
         noise = float(selection_noise(self.cur_prob, self.cur, self.sel)["noise"])
         best_step, cand = choose(won, noise, self.tol, self.o.criterion)
         self.say(f"  accepted {best_step.effect}")
+        self._take_hold(cand)
+
+    def _round_holds(self, rnd: int) -> list[tuple[Step, Any]]:
+        """The acceptable other inter-sample behaviours of round ``rnd`` (0: after the
+        base fit); none once this path changed the hold, for several records, or when the
+        current fit's residual shows no sign of a wrong one. Every refit is a step."""
+        if not self._holds_open():
+            return []
+        hold = _hold_candidates(self.cur, self.cur_prob, self.sel, self.o.margin, self.tol,
+                                self.o.criterion, self.say, rnd)
+        self.steps.extend(step for step, _ in hold)
+        return [(step, c) for step, c in hold if step.accepted]
+
+    def _holds_open(self) -> bool:
+        """Whether the other inter-sample behaviours are still candidates of this path."""
+        return (self.o.intersample and not self.hold_changed
+                and not isinstance(self.est, RecordSet))
+
+    def _take_hold(self, cand: Any) -> None:
+        """Continue with ``cand``'s inter-sample behaviour: every record part and fit."""
         self.est, self.sel, self.held = cand.records(self.est, self.sel, self.held)
         self.data = self.data.with_intersample(cand.kind)
         self.cfg = replace(self.cfg, est=self.est, sel=self.sel, data=self.data)
         self.cur, self.cur_prob = cand.result, cand.problem
+        self.hold_changed = True
 
     # -- rounds -----------------------------------------------------------------------------
     def run(self) -> LoopResult:
@@ -1345,7 +1376,7 @@ class _Loop:
     # What a path of rounds changes; a snapshot of these is a path's state.
     _PATH = ("steps", "chosen", "diagnoses", "warnings", "skipped", "dropped", "levels",
              "settled", "names", "cur", "cur_prob", "cur_free", "cfg", "discover", "stop",
-             "at_noise")
+             "at_noise", "data", "est", "sel", "held", "hold_changed")
 
     def _snapshot(self) -> dict[str, Any]:
         return {k: _shallow(getattr(self, k)) for k in self._PATH}
@@ -1417,7 +1448,7 @@ class _Loop:
         """One round; the reason the loop stops, or None to go on."""
         say, o = self.say, self.o
         remaining = [n for n in self.names if n not in self.chosen and n not in self.dropped]
-        if not remaining and not self.discover:
+        if not remaining and not self.discover and not self._holds_open():
             return "no candidates left"
         level, at_noise = noise_stop(self.cur_prob, self.cur, self.sel, self.tol)
         self.levels.append(level)
@@ -1426,10 +1457,14 @@ class _Loop:
             stop = _noise_stop_text(level, self.tol)
             say(f"round {rnd}: {stop}; stop")
             return stop
+        # The record's inter-sample behaviour is a candidate of every round, judged by
+        # the same rule: a straight line's error under a smooth input shows only once
+        # the model's own error is below it (docs/measuring.md).
+        holds = self._round_holds(rnd)
         queue, jobs, disc = self._queue(rnd, remaining)
-        if not queue:
+        if not queue and not holds:
             return "no candidates left"
-        tried = self._refit_all(rnd, queue, jobs, disc, level)
+        tried = holds + (self._refit_all(rnd, queue, jobs, disc, level) if queue else [])
         if not tried:
             say(f"round {rnd}: nothing accepted; stop")
             return "no candidate accepted"
@@ -1577,8 +1612,13 @@ class _Loop:
         return step, fitted, veto
 
     def _accept(self, rnd: int, best_step: Step, payload: Any) -> None:
-        """Add the chosen candidate, polish the model, then the backward step."""
+        """Add the chosen candidate, polish the model, then the backward step (another
+        inter-sample behaviour: continue with its records and refit; no effect added)."""
         o, cfg = self.o, self.cfg
+        if isinstance(payload, HoldCandidate):
+            self._take_hold(payload)
+            self.say(f"round {rnd}: accepted {best_step.effect}")
+            return
         self.chosen.append(best_step.effect)
         if isinstance(payload, tuple):
             # Rebuild the accepted fit here from its values (wherever it ran), so the
@@ -1645,16 +1685,12 @@ class _Loop:
 
 
 def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,
-                     criterion: str, say: Callable[[str], None]) -> list[tuple[Step, Any]]:
-    """The other inter-sample behaviours as candidates (:mod:`hhra_phys.intersample`),
-    each judged by :func:`acceptance`; none when the base fit shows no sign of them."""
-    from hhra_phys.intersample import (
-        hold_signature,
-        hold_suspected,
-        other_holds,
-        refit_with_hold,
-    )
-
+                     criterion: str, say: Callable[[str], None], rnd: int = 0,
+                     ) -> list[tuple[Step, Any]]:
+    """The other inter-sample behaviours as candidates (:mod:`hhra_phys.intersample`) of
+    round ``rnd``, each judged by :func:`acceptance`; none when the fit ``cur`` shows no
+    sign of them. Each step is marked ``sensor``: it describes the measurement (what the
+    input did between samples), not the dynamics, and :func:`choose` keeps it when tied."""
     sig = hold_signature(prob.data.y, prob.simulate_values(_free_values(prob, cur)))
     if not hold_suspected(sig):
         return []
@@ -1666,11 +1702,11 @@ def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float,
         t0 = time.perf_counter()
         cand = refit_with_hold(cur, prob, sel, kind=kind)
         res = cand.result
-        step = Step(0, cand.name, {"signature": cand.signature, "changes_physics": False},
+        step = Step(rnd, cand.name, {"signature": cand.signature, "changes_physics": False},
                     dict(res.values), {k: list(v) for k, v in res.ci95.items()},
                     dict(res.metrics["est"]), dict(res.metrics["val"]),
                     information_criterion(res, criterion), crit_cur, rmse_cur,
-                    seconds=time.perf_counter() - t0)
+                    seconds=time.perf_counter() - t0, sensor=True)
         # Passing the rule marks it acceptable; augment keeps the one choose picks.
         step.accepted = judge(step, rmse_cur, crit_cur, noise, margin, tol, criterion)
         step.reason = f"{cand.evidence}; {step.reason}"

@@ -215,7 +215,8 @@ class Step:
     #: ``"mode:..."``; empty when it changes no equation).
     entry: str = ""
     #: The candidate describes the measurement (a sensor's offset or drift,
-    #: :attr:`hhra_phys.parts.Effect.sensor`), not the dynamics.
+    #: :attr:`hhra_phys.parts.Effect.sensor`, or the input's inter-sample behaviour,
+    #: :mod:`hhra_phys.intersample`), not the dynamics.
     sensor: bool = False
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.

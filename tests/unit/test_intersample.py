@@ -364,3 +364,75 @@ def test_the_loop_tries_the_other_hold_by_its_rule(truth) -> None:
     assert out.final.settings["intersample"] == "foh" and out.chosen == []
     assert out.test_scores["final"]["rmse"] < 2 * noise < out.test_scores["base"]["rmse"] / 3
 
+
+
+def test_a_straight_line_under_a_smooth_input_leaves_its_curvature() -> None:
+    """The right model read as foh where the input moved smoothly: the residual's curvature
+    term is near the straight line's -1/12 samples^2 and suspected; read right, it is not;
+    a missing effect's residual (of order one against the curvature) is not called one."""
+    from hhra_phys.intersample import (
+        CURVATURE_MAX,
+        EXPLAINED_MIN,
+        hold_signature,
+        hold_suspected,
+    )
+    from hhra_phys.models.resonator import make_model
+
+    fs, w = 90.0, 2 * np.pi * 10.0
+    m = make_model(w_n=w, zeta=0.05)
+    p = np.array([1.0, w, 0.05])
+    for seed in (3, 4, 5):
+        rng = np.random.default_rng(seed)
+        u = np.convolve(rng.standard_normal(1500), np.ones(3) / 3, "same")
+        y = Simulator(m, fs=fs, intersample="cubic").simulate(u, p)
+        y = y + 0.005 * np.std(y) * rng.standard_normal(u.size)
+        # The linear reading, its gain error taken up as a fit would (least squares).
+        y_lin = Simulator(m, fs=fs, intersample="foh").simulate(u, p)
+        y_lin = y_lin * float(y @ y_lin) / float(y_lin @ y_lin)
+        sig = hold_signature(y, y_lin)
+        assert -0.12 < sig["curvature"] < -0.05, sig
+        assert sig["curvature_explained"] > 0.5 and hold_suspected(sig), sig
+        assert abs(sig["lead"]) < 0.1  # no shift: the lead alone would not call it
+        y_right = Simulator(m, fs=fs, intersample="cubic").simulate(u, p)
+        right = hold_signature(y, y_right)
+        assert not hold_suspected(right), right
+        # A residual that follows the output's curvature at order one (a missing inertia,
+        # say) is model error, not an interpolation: not suspected whatever it explains.
+        d2 = np.r_[0.0, y_right[2:] - 2 * y_right[1:-1] + y_right[:-2], 0.0]
+        other = hold_signature(y + 3 * CURVATURE_MAX * d2, y_right)
+        assert other["curvature"] > 2 * CURVATURE_MAX, other
+        assert other["curvature_explained"] > 1.5 * EXPLAINED_MIN, other  # above the bar
+        assert not hold_suspected(other), other
+
+
+@pytest.mark.parametrize("seed", [21, 23])
+def test_a_round_takes_the_other_hold_once_the_model_is_right(seed) -> None:
+    """A smooth input read as foh under a large sensor offset: the base residual is the
+    offset's, so nothing points at the hold; once round 1 took the offset, the straight
+    line's error is what is left, and round 2 takes the cubic behaviour by the rule (a step
+    marked ``sensor``, no effect added), ending at the noise."""
+    from hhra_phys.loop import augment
+    from hhra_phys.models.resonator import make_model
+
+    rng = np.random.default_rng(seed)
+    fs, w = 90.0, 2 * np.pi * 10.0
+    u = np.convolve(rng.standard_normal(1600), np.ones(3) / 3, "same")
+    m = make_model(w_n=w, zeta=0.05)
+    y = Simulator(m, fs=fs, intersample="cubic").simulate(u, np.array([1.0, w, 0.05]))
+    noise = 0.01 * np.std(y)
+    ds = Dataset.from_arrays(u, y + 0.5 * np.std(y) + noise * rng.standard_normal(u.size),
+                             fs=fs).with_intersample("foh")
+    out = augment(ds, m, candidates=["sensor_offset"], discover=False, pop_size=12,
+                  max_iter=15)
+    assert out.chosen == ["sensor_offset"]
+    steps = {(s.round, s.effect): s for s in out.steps}
+    assert (0, "intersample:cubic") not in steps and steps[(1, "sensor_offset")].accepted
+    hold = steps[(2, "intersample:cubic")]
+    assert hold.accepted and hold.sensor and "curvature term" in hold.reason
+    assert not steps[(2, "intersample:zoh")].accepted
+    assert out.final.settings["intersample"] == "cubic"
+    assert out.test_scores["final"]["rmse"] < 1.15 * noise
+    # Read with the right behaviour there is nothing to try.
+    right = augment(ds.with_intersample("cubic"), m, candidates=["sensor_offset"],
+                    discover=False, pop_size=12, max_iter=15)
+    assert not [s for s in right.steps if s.effect.startswith("intersample:")]

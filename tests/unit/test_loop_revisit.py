@@ -38,6 +38,8 @@ def _loop(revisit: bool = True) -> _Loop:
     loop.cur, loop.cur_prob, loop.cur_free, loop.cfg = _Res(0.93, 0.68, 6), None, [], None
     loop.discover, loop.stop, loop.at_noise = True, "", False
     loop.branch, loop.revisited = None, None
+    loop.data = loop.est = loop.sel = loop.held = None  # the records (a path may change their hold)
+    loop.hold_changed = False
     return loop
 
 
@@ -71,6 +73,7 @@ def _paths(loop: _Loop, first: tuple[float, float, int], alt: tuple[float, float
             loop.steps.append(Step(rnd + 1, alt_effects[0], {}, {}, {}, {}, {}, 0.0, 0.0, 0.0,
                                    accepted=True, reason="accepted: ..."))
             loop.cur, loop.stop = _Res(*alt), "max_effects"
+            loop.data, loop.hold_changed = "the records read as cubic", True  # a hold step
     loop._accept, loop._rounds = accept, rounds
 
 
@@ -84,6 +87,7 @@ def test_the_path_from_the_given_effect_is_kept_when_it_ends_better():
     loop._revisit()
     assert loop.chosen == ["asymmetric_valve", "input_delay", "valve_saturation"]
     assert loop.revisited["kept"] == "alternative" and loop.revisited["round"] == 1
+    assert loop.hold_changed and loop.data == "the records read as cubic"  # kept with it
     kept = {s.effect: s for s in loop.steps}
     assert kept["asymmetric_valve"].accepted
     assert kept["asymmetric_valve"].reason == ("accepted on revisiting round 1: "
@@ -109,6 +113,8 @@ def test_the_first_path_stays_when_the_alternative_is_not_better():
     assert loop.revisited["kept"] == "first"
     assert loop.revisited["alternative_path"]["chosen"] == ["asymmetric_valve", "input_delay"]
     assert term.accepted and any("revisited round 1" in n for n in term.notes)
+    # the path not kept changed the records' hold: the first path's records are back
+    assert loop.data is None and loop.hold_changed is False
 
 
 def test_a_tie_goes_to_the_criterion():
