@@ -1313,8 +1313,6 @@ class _Loop:
         won = self._round_holds(0)
         if not won:
             return
-        for step, _ in won:
-            step.accepted = False  # choose marks the one kept
         noise = float(selection_noise(self.cur_prob, self.cur, self.sel)["noise"])
         best_step, cand = choose(won, noise, self.tol, self.o.criterion)
         self.say(f"  accepted {best_step.effect}")
@@ -1329,7 +1327,10 @@ class _Loop:
         hold = _hold_candidates(self.cur, self.cur_prob, self.sel, self.o.margin, self.tol,
                                 self.o.criterion, self.say, rnd)
         self.steps.extend(step for step, _ in hold)
-        return [(step, c) for step, c in hold if step.accepted]
+        won = [(step, c) for step, c in hold if step.accepted]
+        for step, _ in won:
+            step.accepted = False  # acceptable; choose marks the one kept
+        return won
 
     def _holds_open(self) -> bool:
         """Whether the other inter-sample behaviours are still candidates of this path."""

@@ -275,7 +275,7 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     it (on a dead-zone record a discovered ``u += ... relu(u - c)`` tied with the library
     dead zone and won by BIC: the same physics, with a shape searched among many); and a
     sensor effect (``Step.sensor``) tied with candidates that change the dynamics is chosen
-    over them unless one of them has a criterion lower by more than
+    over them unless a given (not discovered) one has a criterion lower by more than
     :data:`DECISIVE_CRITERION` (on a record with a drifting encoder a biased valve tied with
     the drift and won by 5 units of BIC: physics added for a sensor's fault,
     docs/measuring.md; on a two-tank record a true side inflow beat a level offset by 12.3).
@@ -328,9 +328,12 @@ def choose(candidates: Sequence[tuple[Step, T]], noise: float, noise_tol: float,
     # only the dynamics change would alter the model a controller is designed on. A prior,
     # so it yields to decisive evidence: a change of the dynamics whose criterion is lower
     # by more than DECISIVE_CRITERION (a two-tank side inflow against a level offset, 12.3).
+    # Only a given change can be decisive: a discovered term's criterion charges its
+    # coefficients, not the search over shapes (as above), and on a resonator read as
+    # foh a three-term output feedthrough beat the right inter-sample behaviour by 17.7.
     sensors = [c for c in kept if c[0].sensor]
-    others = [c for c in kept if not c[0].sensor]
-    if not sensors or (others and min(c[0].criterion for c in others)
+    given = [c for c in kept if not c[0].sensor and not c[0].discovered]
+    if not sensors or (given and min(c[0].criterion for c in given)
                        < min(c[0].criterion for c in sensors) - DECISIVE_CRITERION):
         sensors = kept
     why_not.update({id(c[0]): f"{level}, a change of the dynamics tied with a sensor effect"

@@ -145,6 +145,32 @@ def test_a_sensor_effect_keeps_a_tie_with_a_change_of_the_dynamics():
     assert choose([(drift3, 1), (off, 2)], NOISE, TOL)[0] is off
 
 
+def test_only_a_given_change_of_the_dynamics_is_decisive_against_a_sensor_effect():
+    from hhra_phys.discover import DiscoveredStep
+
+    # a resonator read as foh: the other inter-sample behaviour (marked sensor) tied with a
+    # discovered output feedthrough whose BIC is lower by 17.7; the search over shapes is
+    # not charged, so the measurement's explanation is kept
+    hold = _step("intersample:cubic", 0.04885, -6426.9)
+    hold.sensor = True
+    term = DiscoveredStep(2, "discovered_output_2", {}, {}, {}, {"rmse": 0.04859},
+                          {"rmse": 0.04859}, -6444.6, 0.0, 1.0, reason="r", entry="output")
+    assert choose([(term, 1), (hold, 2)], NOISE, TOL)[0] is hold
+    assert "tied with a sensor effect" in term.reason
+    # a given change with the same evidence is decisive (more than 10 lower), as before
+    given = _step("output_feedthrough", 0.04859, -6444.6)
+    hold2 = _step("intersample:cubic", 0.04885, -6426.9)
+    hold2.sensor = True
+    assert choose([(hold2, 2), (given, 1)], NOISE, TOL)[0] is given
+    # with a decisive given change among them, the criterion decides among all tied
+    term2 = DiscoveredStep(2, "discovered_output_2", {}, {}, {}, {"rmse": 0.0486},
+                           {"rmse": 0.0486}, -6450.0, 0.0, 1.0, reason="r", entry="output")
+    given2 = _step("output_feedthrough", 0.04859, -6444.6)
+    hold3 = _step("intersample:cubic", 0.04885, -6426.9)
+    hold3.sensor = True
+    assert choose([(hold3, 2), (given2, 1), (term2, 3)], NOISE, TOL)[0] is term2
+
+
 def test_sensor_flag_round_trips_through_json():
     from hhra_phys.loop import _step_from_json
 
