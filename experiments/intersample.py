@@ -165,6 +165,14 @@ def hhra_signatures() -> None:
          reference_record(seed=1, duration=8.0, effects={"input_delay": {"delay": 2.0}})),
         ("reference rig, current linear between samples, seed 3",
          reference_record(seed=3, duration=8.0, intersample="foh").with_intersample("zoh")),
+        # Missing effects: their residuals follow the output's curvature at order one.
+        ("reference rig, dead zone 0.1 mA, seed 1",
+         reference_record(seed=1, duration=8.0, effects={"valve_deadzone": {"i_dead": 0.1}})),
+        ("reference rig, backlash 1.5 deg, seed 1",
+         reference_record(seed=1, duration=8.0, effects={"backlash": {"play": 1.5}})),
+        ("reference rig, Coulomb friction 30, seed 2",
+         reference_record(seed=2, duration=8.0,
+                          effects={"coulomb_friction": {"g_coulomb": 30.0}})),
     )
     for name, ds in records:
         res = fit(ds, pop_size=20, max_iter=20, seed=0)
@@ -173,7 +181,9 @@ def hhra_signatures() -> None:
                            for n in pr.free_names])
         sig = hold_signature(pr.data.y, pr.simulate_values(values))
         print(f"{name}: lead {sig['lead']:+.3f} samples, explains "
-              f"{100 * sig['explained']:.1f} %, suspected {hold_suspected(sig)}, "
+              f"{100 * sig['explained']:.1f} %; curvature {sig['curvature']:+.3f} samples^2, "
+              f"explains {100 * sig['curvature_explained']:.2f} %; suspected "
+              f"{hold_suspected(sig)}, "
               f"selection RMSE {res.metrics['val']['rmse']:.4f} deg", flush=True)
 
 
