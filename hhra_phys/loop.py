@@ -1253,6 +1253,7 @@ class _Loop:
                     else float(opts.noise_tol))
         self.data, self.est, self.sel, self.held = data, est, sel, held
         self.hold_changed = False  # a path changes the records' hold at most once
+        self.hold_tried: Any = None  # the fit the hold candidates were last tried on
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
         if model is None:
             from hhra_phys.models.hhra import HHRAModel
@@ -1324,6 +1325,7 @@ class _Loop:
         current fit's residual shows no sign of a wrong one. Every refit is a step."""
         if not self._holds_open():
             return []
+        self.hold_tried = self.cur
         hold = _hold_candidates(self.cur, self.cur_prob, self.sel, self.o.margin, self.tol,
                                 self.o.criterion, self.say, rnd)
         self.steps.extend(step for step, _ in hold)
@@ -1333,9 +1335,11 @@ class _Loop:
         return won
 
     def _holds_open(self) -> bool:
-        """Whether the other inter-sample behaviours are still candidates of this path."""
+        """Whether the other inter-sample behaviours are still candidates of this path: not
+        once it changed the hold, not for several records, and not again on the fit they
+        were last tried on (the same refits; round 1 starts from the base fit)."""
         return (self.o.intersample and not self.hold_changed
-                and not isinstance(self.est, RecordSet))
+                and not isinstance(self.est, RecordSet) and self.cur is not self.hold_tried)
 
     def _take_hold(self, cand: Any) -> None:
         """Continue with ``cand``'s inter-sample behaviour: every record part and fit."""
@@ -1377,7 +1381,7 @@ class _Loop:
     # What a path of rounds changes; a snapshot of these is a path's state.
     _PATH = ("steps", "chosen", "diagnoses", "warnings", "skipped", "dropped", "levels",
              "settled", "names", "cur", "cur_prob", "cur_free", "cfg", "discover", "stop",
-             "at_noise", "data", "est", "sel", "held", "hold_changed")
+             "at_noise", "data", "est", "sel", "held", "hold_changed", "hold_tried")
 
     def _snapshot(self) -> dict[str, Any]:
         return {k: _shallow(getattr(self, k)) for k in self._PATH}

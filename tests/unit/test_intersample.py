@@ -436,3 +436,29 @@ def test_a_round_takes_the_other_hold_once_the_model_is_right(seed) -> None:
     right = augment(ds.with_intersample("cubic"), m, candidates=["sensor_offset"],
                     discover=False, pop_size=12, max_iter=15)
     assert not [s for s in right.steps if s.effect.startswith("intersample:")]
+
+
+def test_the_hold_candidates_are_not_refitted_on_the_same_fit() -> None:
+    """Round 1 starts from the base fit: the refits refused after it are not repeated
+    (the same fit gives the same numbers); a new fit opens them again, a changed hold,
+    several records or ``intersample=False`` close them."""
+    from hhra_phys.loop import LoopOptions, _Loop
+    from hhra_phys.multi import RecordSet
+
+    rng = np.random.default_rng(0)
+    ds = Dataset.from_arrays(rng.standard_normal(50), rng.standard_normal(50), fs=10.0)
+    loop = object.__new__(_Loop)
+    loop.o, loop.est, loop.hold_changed = LoopOptions(), ds, False
+    base, nxt = object(), object()
+    loop.cur, loop.hold_tried = base, None
+    assert loop._holds_open()
+    loop.hold_tried = base  # tried (and refused) after the base fit
+    assert not loop._holds_open() and loop._round_holds(1) == []
+    loop.cur = nxt  # a round accepted something
+    assert loop._holds_open()
+    loop.hold_changed = True
+    assert not loop._holds_open()
+    loop.hold_changed, loop.est = False, RecordSet([ds, ds])
+    assert not loop._holds_open()
+    loop.o, loop.est = LoopOptions(intersample=False), ds
+    assert not loop._holds_open()

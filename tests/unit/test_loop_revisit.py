@@ -39,7 +39,7 @@ def _loop(revisit: bool = True) -> _Loop:
     loop.discover, loop.stop, loop.at_noise = True, "", False
     loop.branch, loop.revisited = None, None
     loop.data = loop.est = loop.sel = loop.held = None  # the records (a path may change their hold)
-    loop.hold_changed = False
+    loop.hold_changed, loop.hold_tried = False, None
     return loop
 
 
