@@ -67,7 +67,7 @@ from hhra_phys.options import with_overrides
 from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
-from hhra_phys.refine import CompiledLeastSquares
+from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -404,13 +404,16 @@ def _values(res: FitResult) -> dict[str, float]:
 
 
 def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
-         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None) -> FitResult:
+         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None,
+         stall: bool = True) -> FitResult:
     # A warm start seeds the first population with the problem's start values
     # (the previous fit); the base fit is not seeded. Each record is scored on its
-    # own selection part.
+    # own selection part. A refit that is judged (capped at ipopt_iter) stops where
+    # IPOPT's iterate stalls (refine.STALL_ITER); a polish (stall=False) runs on.
     opts = FitOptions(optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
                       seed=cfg.seed, seed_population=warm, split=cfg.split,
-                      refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter})
+                      refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter,
+                                      "stall_iter": STALL_ITER if stall else 0})
     return fit_problem(problem, as_records(cfg.sel), options=opts,
                        records=as_records(cfg.data))
 
@@ -916,7 +919,7 @@ def _backward_step(cfg: _Settings, cur: FitResult, cur_prob: Problem, cur_free: 
     step.reason = "removed (proposed now it would not be accepted): " + step.reason
     # Polished like an accepted candidate before the next round.
     prob = _problem(cfg, p2.model, free_r, {}, _values(r2), r2.x0)
-    res = _run(cfg, prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+    res = _run(cfg, prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
     say(f"round {rnd}: removed {step.effect}")
     return res, prob, free_r, steps, step.effect
 
@@ -1596,7 +1599,7 @@ class _Loop:
         # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one is
         # polished to convergence before the next round.
         self.cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
-        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
         self.cur_free = list(free_c)
         self.say(f"round {rnd}: accepted {best_step.effect}")
         if o.backward and len(self.chosen) >= 2:

@@ -31,8 +31,9 @@ from hhra_phys import interrupt
 from hhra_phys.errors import ParameterError
 from hhra_phys.problem import Problem, RecordProblem
 
-#: IPOPT stops once its iterate has moved less than :data:`STALL_STEP` in every fitting
-#: coordinate for this many consecutive iterations (:func:`refine_ipopt`, ``stall_iter``).
+#: Consecutive iterations without a move of more than :data:`STALL_STEP` in any fitting
+#: coordinate after which the diagnosis loop's candidate refits stop IPOPT
+#: (:func:`refine_ipopt`'s ``stall_iter``; off by default).
 STALL_ITER = 5
 #: Largest change of a fitting coordinate (decades for a log-scaled parameter, half-box
 #: widths for a linear one) per iteration that counts as not moving.
@@ -298,7 +299,7 @@ def refine_ipopt(
     tol: float = 1e-8,
     verbose: bool = False,
     derivatives: Literal["compiled", "casadi"] = "compiled",
-    stall_iter: int = STALL_ITER,
+    stall_iter: int = 0,
     stall_step: float = STALL_STEP,
 ) -> Stage:
     """Refine with IPOPT through ``casadi.nlpsol``.
@@ -334,14 +335,17 @@ def refine_ipopt(
         shooting always use the symbolic graph.
     stall_iter : int
         Stop (single shooting) once the iterate has moved less than ``stall_step`` in
-        every fitting coordinate for this many consecutive iterations (0: never). Such
+        every fitting coordinate for this many consecutive iterations (0, default: never;
+        the diagnosis loop's candidate refits use :data:`STALL_ITER`). Such
         iterations are a line search cut down to steps of ``1e-7`` and less: the cost
         is flat there to its rounding (a converged fit whose tolerance the rounding of
         a 5000-sample sum cannot meet) or has a kink the Gauss-Newton model does not
         see, and each of them costs up to 20-27 cost evaluations (the backlash refit of
         ``benchmarks/bench_candidates.py``, seed 2: 400 of 506 in its ROS4 x 8 run,
         the objective the same to 8 digits over its last 25 iterations). The stage's
-        ``info["stalled"]`` says whether it stopped so.
+        ``info["stalled"]`` says whether it stopped so. Plain fits keep running: the
+        stop moves a converged optimum by up to about ``1e-5`` in fitting coordinates,
+        which after the loop's base fit was enough to change what discovery proposed.
     stall_step : float
         Largest per-iteration change of a fitting coordinate that counts as not moving.
 
