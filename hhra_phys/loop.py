@@ -58,7 +58,14 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import MAX_WIDEN_DECADES, FitOptions, at_edges, fit_problem, widened_box
+from hhra_phys.fit import (
+    MAX_WIDEN_DECADES,
+    WIDEN_MIN_GAIN,
+    FitOptions,
+    at_edges,
+    fit_problem,
+    widened_box,
+)
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.metrics import score
 from hhra_phys.model import Model
@@ -668,7 +675,8 @@ def refit_candidate(job: _Job) -> _Outcome:
         # the box, not the data, stopped it (a gravity load found at a third of its size on
         # an actuator damped beyond the base box, which a stand-in then made up for). Its
         # side is widened and the candidate searched again, as often as a fit widens
-        # (MAX_WIDEN_DECADES); kept when it fits estimation better.
+        # (MAX_WIDEN_DECADES); kept when it fits estimation better, and, as a fit's
+        # widening, not widened further once a widening gains less than WIDEN_MIN_GAIN.
         widened_notes = [f"{n}'s first-order estimate {first[n]:.4g} lies beyond its box; "
                          f"box opened to [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in boxes.items()]
         for _ in range(MAX_WIDEN_DECADES):
@@ -678,7 +686,8 @@ def refit_candidate(job: _Job) -> _Outcome:
             cfg_w = replace(cfg, default_bounds={**cfg.default_bounds, **boxes, **wide})
             p2w, r2w = _search_candidate(cfg_w, model_c, searched, fixed, all_free, job, pop,
                                          iters, first)
-            gain = float(r2.metrics["est"]["mse"]) - float(r2w.metrics["est"]["mse"])
+            mse = float(r2.metrics["est"]["mse"])
+            gain = mse - float(r2w.metrics["est"]["mse"])
             widened_notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
                               f"and the candidate searched again"
                               + ("" if gain > 0 else " (no better: kept as it was)")
@@ -687,6 +696,8 @@ def refit_candidate(job: _Job) -> _Outcome:
                 break
             boxes.update(wide)
             p2, r2 = p2w, r2w
+            if gain < WIDEN_MIN_GAIN * mse:
+                break  # kept, but a further decade would buy less still (fit.widen_boxes' stop)
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
         return _Outcome(None, error=f"its refit failed: {type(exc).__name__}: {exc}")
     crit = information_criterion(r2, cfg.criterion)
