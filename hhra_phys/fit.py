@@ -151,7 +151,7 @@ class FitOptions:
         Further optimiser options (``F``, ``w``, ...).
     refine_options : dict, optional
         Keyword arguments for the refiners (``hessian``, ``shooting``, ``max_iter``,
-        ``max_eval`` ...), applied to those that accept them.
+        ``stall_iter``, ``max_eval`` ...), applied to those that accept them.
     start : dict, optional
         Starting values (physical units) for the global search's first population
         and for ``optimizer="none"``.
@@ -781,7 +781,8 @@ def _search_and_refine(
     ropts = dict(refine_options or {})
     for name in _refiner_names(refine):
         if name == "ipopt":
-            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose", "stall_iter",
+                    "stall_step")
             st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
         else:
             keys = ("max_eval", "xtol_rel", "ftol_rel")
@@ -834,7 +835,8 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
         return problem, z
     new = problem.with_simulator(sim)
     ropts = dict(refine_options or {})
-    keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose")
+    keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose", "stall_iter",
+            "stall_step")
     st = refine_ipopt(new, z, **{k: val for k, val in ropts.items() if k in keys})
     st.name += f" (accuracy: {sim.method} x {sim.substeps})"
     stages.append(st)

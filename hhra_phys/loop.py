@@ -58,7 +58,14 @@ from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
 from hhra_phys.effects import EFFECTS, effect_name, make_effect
 from hhra_phys.errors import ParameterError
-from hhra_phys.fit import MAX_WIDEN_DECADES, FitOptions, at_edges, fit_problem, widened_box
+from hhra_phys.fit import (
+    MAX_WIDEN_DECADES,
+    WIDEN_MIN_GAIN,
+    FitOptions,
+    at_edges,
+    fit_problem,
+    widened_box,
+)
 from hhra_phys.interrupt import map_stopping
 from hhra_phys.intersample import (
     HoldCandidate,
@@ -74,7 +81,7 @@ from hhra_phys.options import with_overrides
 from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
-from hhra_phys.refine import CompiledLeastSquares
+from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -411,13 +418,16 @@ def _values(res: FitResult) -> dict[str, float]:
 
 
 def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
-         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None) -> FitResult:
+         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None,
+         stall: bool = True) -> FitResult:
     # A warm start seeds the first population with the problem's start values
     # (the previous fit); the base fit is not seeded. Each record is scored on its
-    # own selection part.
+    # own selection part. A refit that is judged (capped at ipopt_iter) stops where
+    # IPOPT's iterate stalls (refine.STALL_ITER); a polish (stall=False) runs on.
     opts = FitOptions(optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
                       seed=cfg.seed, seed_population=warm, split=cfg.split,
-                      refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter})
+                      refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter,
+                                      "stall_iter": STALL_ITER if stall else 0})
     return fit_problem(problem, as_records(cfg.sel), options=opts,
                        records=as_records(cfg.data))
 
@@ -672,7 +682,8 @@ def refit_candidate(job: _Job) -> _Outcome:
         # the box, not the data, stopped it (a gravity load found at a third of its size on
         # an actuator damped beyond the base box, which a stand-in then made up for). Its
         # side is widened and the candidate searched again, as often as a fit widens
-        # (MAX_WIDEN_DECADES); kept when it fits estimation better.
+        # (MAX_WIDEN_DECADES); kept when it fits estimation better, and, as a fit's
+        # widening, not widened further once a widening gains less than WIDEN_MIN_GAIN.
         widened_notes = [f"{n}'s first-order estimate {first[n]:.4g} lies beyond its box; "
                          f"box opened to [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in boxes.items()]
         for _ in range(MAX_WIDEN_DECADES):
@@ -682,7 +693,8 @@ def refit_candidate(job: _Job) -> _Outcome:
             cfg_w = replace(cfg, default_bounds={**cfg.default_bounds, **boxes, **wide})
             p2w, r2w = _search_candidate(cfg_w, model_c, searched, fixed, all_free, job, pop,
                                          iters, first)
-            gain = float(r2.metrics["est"]["mse"]) - float(r2w.metrics["est"]["mse"])
+            mse = float(r2.metrics["est"]["mse"])
+            gain = mse - float(r2w.metrics["est"]["mse"])
             widened_notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
                               f"and the candidate searched again"
                               + ("" if gain > 0 else " (no better: kept as it was)")
@@ -691,6 +703,8 @@ def refit_candidate(job: _Job) -> _Outcome:
                 break
             boxes.update(wide)
             p2, r2 = p2w, r2w
+            if gain < WIDEN_MIN_GAIN * mse:
+                break  # kept, but a further decade would buy less still (fit.widen_boxes' stop)
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
         return _Outcome(None, error=f"its refit failed: {type(exc).__name__}: {exc}")
     crit = information_criterion(r2, cfg.criterion)
@@ -923,7 +937,7 @@ def _backward_step(cfg: _Settings, cur: FitResult, cur_prob: Problem, cur_free: 
     step.reason = "removed (proposed now it would not be accepted): " + step.reason
     # Polished like an accepted candidate before the next round.
     prob = _problem(cfg, p2.model, free_r, {}, _values(r2), r2.x0)
-    res = _run(cfg, prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+    res = _run(cfg, prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
     say(f"round {rnd}: removed {step.effect}")
     return res, prob, free_r, steps, step.effect
 
@@ -1641,7 +1655,7 @@ class _Loop:
         # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one is
         # polished to convergence before the next round.
         self.cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
-        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER)
+        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
         self.cur_free = list(free_c)
         self.say(f"round {rnd}: accepted {best_step.effect}")
         if o.backward and len(self.chosen) >= 2:

@@ -18,6 +18,7 @@ from hhra_phys.parameters import Parameter
 from hhra_phys.parts import Context, Part
 from hhra_phys.problem import Problem
 from hhra_phys.refine import (
+    STALL_ITER,
     CompiledLeastSquares,
     least_squares_cost,
     refine_ipopt,
@@ -130,6 +131,24 @@ def test_refiners_reach_the_minimum_from_a_perturbed_start(refine_case, refiner)
         groups = problem.from_z(st.z)[: len(GROUPS)]
         np.testing.assert_allclose(groups, problem.from_z(reference.z)[: len(GROUPS)], rtol=1e-4)
     assert st.nfev > 0 and st.seconds > 0
+
+
+def test_ipopt_stops_where_its_iterate_stalls(refine_case):
+    """At the minimum with a tolerance no sum of squares can meet, IPOPT's line search only
+    cuts its steps; with ``stall_iter`` it stops once the iterate has not moved for that
+    many iterations, at the same cost, with fewer evaluations than running to ``max_iter``
+    (the default, ``stall_iter=0``).
+    """
+    problem, _, reference = refine_case
+    kw = {"tol": 1e-30, "max_iter": 40}
+    st = refine_ipopt(problem, reference.z, stall_iter=STALL_ITER, **kw)
+    assert st.info["stalled"] and st.info["status"] == "Stalled"
+    assert st.info["iterations"] < 40
+    assert st.cost == pytest.approx(reference.cost, rel=1e-9)
+    off = refine_ipopt(problem, reference.z, **kw)
+    assert not off.info["stalled"] and off.info["status"] != "Stalled"
+    assert off.nfev > st.nfev
+    assert off.cost == pytest.approx(st.cost, rel=1e-9)
 
 
 def test_fixed_parameters_stay_fixed(noisy):
