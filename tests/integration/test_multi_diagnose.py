@@ -91,7 +91,10 @@ def test_whole_validation_records_are_the_test_part():
         augment([a, b], base=res.base, **TINY)
 
 
-def _drag_loop():
+@pytest.fixture(scope="module")
+def drag_loop():
+    """One loop on the drag records, shared by the two tests that read it (deterministic
+    from its seed: computing it once gives both the same result as running it twice)."""
     from hhra_phys.reference.outside import outside_record
 
     recs = [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
@@ -101,11 +104,11 @@ def _drag_loop():
                        pop_size=20, max_iter=30, discover_kw={"entries": ["rate:omega"]})
 
 
-def test_several_records_and_validation_run_discovery():
+def test_several_records_and_validation_run_discovery(drag_loop):
     """Velocity-squared damping (outside the library) in two records, a third as the
     validation record: discovery screens the records and fits a term at the velocity's
     rate to both (per-record initial states), judged by the one rule."""
-    res = _drag_loop()
+    res = drag_loop
     d = res.to_json()
     tried = [s for s in d["steps"] if s["discovered"]]
     assert tried and all(s["entry"] == "rate:omega" for s in tried)
@@ -113,12 +116,12 @@ def test_several_records_and_validation_run_discovery():
     assert d["final"]["test"]["rmse"] <= d["base"]["test"]["rmse"] * (1 + 1e-9)
 
 
-def test_several_records_and_validation_accept_the_outside_term():
+def test_several_records_and_validation_accept_the_outside_term(drag_loop):
     """The validation record (the test part) confirms the discovered term. With the one fit
     path the base fit widens g_damping (0.0849 -> 0.0625 deg on selection); the term's
     further gain is then judged with the tolerance the selection part's length justifies
     (under the flat 15 % it was refused)."""
-    d = _drag_loop().to_json()
+    d = drag_loop.to_json()
     acc = [s for s in d["steps"] if s["accepted"]]
     assert len(acc) == 1 and acc[0]["discovered"] and acc[0]["entry"] == "rate:omega"
     assert d["chosen"] == [acc[0]["effect"]]
