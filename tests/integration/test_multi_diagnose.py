@@ -29,14 +29,22 @@ def _short(seed: int, duration: float, fs: float = 250.0, **kw):
     return reference_record(seed=seed, duration=duration, fs=fs, noise_deg=0.05, levels=4, **kw)
 
 
-# two candidate refits at two sample rates: about 15 s on a loaded machine
-def test_records_of_different_lengths_and_rates_layout_and_pooling():
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
+@pytest.fixture(scope="module")
+def friction_pair():
+    """Two records of different lengths and sample rates with a friction (so that a round
+    runs) and the tiny loop on both: (a, b, result), read by the layout and figure tests."""
+    friction = {"coulomb_friction": {"g_coulomb": 30.0}}
     a = _short(3, 3.0, effects=friction)
     b = _short(4, 2.5, fs=200.0, amplitude=0.6, effects=friction)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         res = augment([a, b], seed=0, **TINY)
+    return a, b, res
+
+
+# two candidate refits at two sample rates: about 15 s on a loaded machine
+def test_records_of_different_lengths_and_rates_layout_and_pooling(friction_pair):
+    a, b, res = friction_pair
     d = res.to_json()
     for key in ("base", "final", "chosen", "steps", "test", "skipped"):
         assert key in d
@@ -128,17 +136,14 @@ def test_several_records_and_validation_accept_the_outside_term(drag_loop):
     assert d["final"]["test"]["rmse"] < 0.8 * d["base"]["test"]["rmse"]
 
 
-def test_python_figures_of_several_records(tmp_path):
-    """The loop's figures draw a several-record result; a comparison's output plot refuses it."""
+def test_python_figures_of_several_records(tmp_path, friction_pair):
+    """The loop's figures draw a several-record result (here of two sample rates); a
+    comparison's output plot refuses it."""
     from hhra_phys.compare import plot_outputs, run_comparison
     from hhra_phys.diagnose import plot_loop_residuals
     from hhra_phys.errors import ParameterError
 
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
-    a, b = _short(11, 3.0, effects=friction), _short(12, 2.5, amplitude=0.6, effects=friction)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment([a, b], seed=0, **TINY)
+    a, b, res = friction_pair
     paths = plot_loop_residuals(res, [a, b], str(tmp_path / "before.png"),
                                 str(tmp_path / "after.png"))
     assert paths == [str(tmp_path / "before.png"), str(tmp_path / "after.png")]
