@@ -29,17 +29,75 @@ def _short(seed: int, duration: float, fs: float = 250.0, **kw):
     return reference_record(seed=seed, duration=duration, fs=fs, noise_deg=0.05, levels=4, **kw)
 
 
-@pytest.fixture(scope="module")
-def friction_pair():
-    """Two records of different lengths and sample rates with a friction (so that a round
-    runs) and the tiny loop on both: (a, b, result), read by the layout and figure tests."""
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}
-    a = _short(3, 3.0, effects=friction)
-    b = _short(4, 2.5, fs=200.0, amplitude=0.6, effects=friction)
+FRICTION = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
+
+
+def _pair_records():
+    """Two records of different lengths and sample rates with a friction."""
+    return (_short(3, 3.0, effects=FRICTION),
+            _short(4, 2.5, fs=200.0, amplitude=0.6, effects=FRICTION))
+
+
+def _drag_records():
+    """Velocity-squared damping (outside the library): two records and a validation one."""
+    from hhra_phys.reference.outside import outside_record
+
+    return [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
+
+
+def _loop(data, kw):
+    """``augment(data, **kw)`` without its RuntimeWarnings (run in a worker process)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment([a, b], seed=0, **TINY)
-    return a, b, res
+        return augment(data, **kw)
+
+
+def _jobs() -> dict[str, tuple]:
+    """The loops of this module whose tests read only what a result keeps through a
+    process boundary (its JSON and fitted values; not the fit's ``problem``): name ->
+    (data, keywords)."""
+    drag = _drag_records()
+    one = _short(5, 3.0, effects=FRICTION)
+    return {
+        "drag": (drag[:2], {"validation": [drag[2]], "seed": 1, "candidates": [],
+                            "max_effects": 1, "pop_size": 20, "max_iter": 30,
+                            "discover_kw": {"entries": ["rate:omega"]}}),
+        "one": (one, {"seed": 0, **TINY}),
+        "listed": ([one], {"seed": 0, **TINY}),
+    }
+
+
+#: The loops each test reads.
+_NEEDS = {
+    "test_several_records_and_validation_run_discovery": ("drag",),
+    "test_several_records_and_validation_accept_the_outside_term": ("drag",),
+    "test_a_list_of_one_record_is_that_record": ("one", "listed"),
+}
+
+
+@pytest.fixture(scope="module")
+def loops(request, loop_workers):
+    """The loops the selected tests read, started together on the session's two worker
+    processes (pytest itself uses one core of the 2-core CI machine; the loops are
+    reproducible from their seeds, so a worker's result is the in-process one). Each is
+    computed once for every test that reads it."""
+    selected = {item.originalname for item in request.session.items
+                if item.module.__name__ == request.module.__name__}
+    wanted = {job for name in selected for job in _NEEDS.get(name, ())}
+    futures = {name: loop_workers.submit(_loop, *job) for name, job in _jobs().items()
+               if name in wanted}
+    yield futures
+    for fut in futures.values():
+        fut.cancel()  # a loop no test waited for (a failed test's): not started
+
+
+@pytest.fixture(scope="module")
+def friction_pair(loops):
+    """The tiny loop on the two friction records: (a, b, result), read by the layout and
+    figure tests. In this process (the layout test reads the fit's problem), while the
+    workers run ``loops``."""
+    a, b = _pair_records()
+    return a, b, _loop([a, b], {"seed": 0, **TINY})
 
 
 # two candidate refits at two sample rates: about 15 s on a loaded machine
@@ -100,16 +158,10 @@ def test_whole_validation_records_are_the_test_part():
 
 
 @pytest.fixture(scope="module")
-def drag_loop():
+def drag_loop(loops):
     """One loop on the drag records, shared by the two tests that read it (deterministic
     from its seed: computing it once gives both the same result as running it twice)."""
-    from hhra_phys.reference.outside import outside_record
-
-    recs = [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return augment(recs[:2], validation=[recs[2]], seed=1, candidates=[], max_effects=1,
-                       pop_size=20, max_iter=30, discover_kw={"entries": ["rate:omega"]})
+    return loops["drag"].result()
 
 
 def test_several_records_and_validation_run_discovery(drag_loop):
@@ -261,13 +313,9 @@ def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root
     assert all(r["test_rmse"] < 1.15 * 0.05 for r in found), rows
 
 
-def test_a_list_of_one_record_is_that_record():
+def test_a_list_of_one_record_is_that_record(loops):
     """One record given alone or as a list of one: the same loop, the same numbers."""
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}
-    a = _short(5, 3.0, effects=friction)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        one, listed = (augment(x, seed=0, **TINY).to_json() for x in (a, [a]))
+    one, listed = (loops[k].result().to_json() for k in ("one", "listed"))
     assert listed["chosen"] == one["chosen"]
     for part in ("base", "final"):
         assert listed[part]["val"] == one[part]["val"]
