@@ -81,8 +81,8 @@ def loops(request, loop_workers):
     processes (pytest itself uses one core of the 2-core CI machine; the loops are
     reproducible from their seeds, so a worker's result is the in-process one). Each is
     computed once for every test that reads it."""
-    selected = {item.originalname for item in request.session.items
-                if item.module.__name__ == request.module.__name__}
+    selected = {getattr(item, "originalname", None) for item in request.session.items
+                if getattr(item, "module", None) is request.module}
     wanted = {job for name in selected for job in _NEEDS.get(name, ())}
     futures = {name: loop_workers.submit(_loop, *job) for name, job in _jobs().items()
                if name in wanted}

@@ -104,8 +104,10 @@ def _drift_loop(seed: int) -> tuple[list[str], list[tuple[str, str, bool]]]:
 def drift_loops(request, loop_workers):
     """The selected seeds' loops started together, one per worker process (the two
     cores of the CI machine, where pytest itself uses one); each test waits for its own."""
+    name = "test_a_drifting_encoder_adds_no_physics_to_the_loop"
     seeds = {item.callspec.params["seed"] for item in request.session.items
-             if item.originalname == "test_a_drifting_encoder_adds_no_physics_to_the_loop"}
+             if getattr(item, "module", None) is request.module
+             and getattr(item, "originalname", None) == name}
     return {seed: loop_workers.submit(_drift_loop, seed) for seed in sorted(seeds)}
 
 
