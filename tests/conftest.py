@@ -56,6 +56,19 @@ def loop_workers():
         yield pool
 
 
+def _in_background(item) -> bool:
+    """Whether ``item`` reads a command its module lists in ``BACKGROUND``."""
+    table = getattr(getattr(item, "module", None), "BACKGROUND", None) or {}
+    return getattr(item, "originalname", None) in table
+
+
+def pytest_collection_modifyitems(items):
+    """The tests that read a background command run last (in their order), so that their
+    commands run beside the whole suite instead of making their tests wait."""
+    items[:] = [i for i in items if not _in_background(i)] + [i for i in items
+                                                                if _in_background(i)]
+
+
 class _Background:
     """A ``python -m hhra_phys`` command started at the session's start (see ``background``)."""
 
@@ -95,18 +108,23 @@ def background(request, tmp_path_factory):
     """Long CLI runs started when the session starts, in their own process.
 
     A test module may declare ``BACKGROUND = {"test name": [arguments of hhra-phys]}``
-    (``{out}`` in an argument is the run's own empty folder); when that test is selected,
-    the command starts with the session and the test reads ``background[name].result()``.
-    pytest runs the tests on one core: on the 2-core CI machine such a run uses the other
-    while the rest of the suite runs (the same command, the same assertions).
+    (``{out}`` in an argument is the run's own empty folder; or a function of that folder
+    that writes the command's inputs there and returns its arguments); when that test is
+    selected,
+    the command starts with the session and the test, moved to the end of the run
+    (``pytest_collection_modifyitems``), reads ``background[name].result()``. pytest runs
+    the tests on one core: on the 2-core CI machine such a run uses the other while the
+    rest of the suite runs (the same command, the same assertions).
     """
     jobs: dict[str, _Background] = {}
     for item in request.session.items:
-        table = getattr(getattr(item, "module", None), "BACKGROUND", None) or {}
         name = getattr(item, "originalname", None)
-        if name in table and name not in jobs:
+        if _in_background(item) and name not in jobs:
             out = tmp_path_factory.mktemp("background")
-            jobs[name] = _Background([a.format(out=out) for a in table[name]], out)
+            spec = item.module.BACKGROUND[name]
+            # a callable writes the command's inputs into its folder and gives its arguments
+            argv = spec(out) if callable(spec) else [a.format(out=out) for a in spec]
+            jobs[name] = _Background(argv, out)
     yield jobs
     for job in jobs.values():
         job.stop()
