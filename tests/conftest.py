@@ -110,11 +110,11 @@ def background(request, tmp_path_factory):
     A test module may declare ``BACKGROUND = {"test name": [arguments of hhra-phys]}``
     (``{out}`` in an argument is the run's own empty folder; or a function of that folder
     that writes the command's inputs there and returns its arguments); when that test is
-    selected,
-    the command starts with the session and the test, moved to the end of the run
-    (``pytest_collection_modifyitems``), reads ``background[name].result()``. pytest runs
-    the tests on one core: on the 2-core CI machine such a run uses the other while the
-    rest of the suite runs (the same command, the same assertions).
+    selected, the command starts with the session and the test, moved to the end of the
+    run (``pytest_collection_modifyitems``), reads ``background[name].result()``. pytest
+    runs the tests on one core: on the 2-core CI machine such a run uses the other while
+    the rest of the suite runs (the same command, the same assertions). What is still
+    running when the session ends is killed.
     """
     jobs: dict[str, _Background] = {}
     for item in request.session.items:
