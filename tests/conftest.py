@@ -54,3 +54,77 @@ def loop_workers():
 
     with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
         yield pool
+
+
+def _in_background(item) -> bool:
+    """Whether ``item`` reads a command its module lists in ``BACKGROUND``."""
+    table = getattr(getattr(item, "module", None), "BACKGROUND", None) or {}
+    return getattr(item, "originalname", None) in table
+
+
+def pytest_collection_modifyitems(items):
+    """The tests that read a background command run last (in their order), so that their
+    commands run beside the whole suite instead of making their tests wait."""
+    items[:] = [i for i in items if not _in_background(i)] + [i for i in items
+                                                                if _in_background(i)]
+
+
+class _Background:
+    """A ``python -m hhra_phys`` command started at the session's start (see ``background``)."""
+
+    def __init__(self, argv: list[str], out: Path):
+        import subprocess
+        import sys
+
+        self.out = out
+        # files, not pipes: a long run's output never fills a pipe nobody reads yet
+        self._stdout = open(out / "stdout.txt", "w+")
+        self._stderr = open(out / "stderr.txt", "w+")
+        env = dict(os.environ, MPLBACKEND="Agg")
+        self.proc = subprocess.Popen([sys.executable, "-m", "hhra_phys", *argv], cwd=out,
+                                     stdout=self._stdout, stderr=self._stderr, env=env)
+
+    def result(self, timeout: float = 900.0) -> tuple[int, str, str]:
+        """Wait for the command: (exit code, stdout, stderr)."""
+        code = self.proc.wait(timeout=timeout)
+        texts = []
+        for f in (self._stdout, self._stderr):
+            f.seek(0)
+            texts.append(f.read())
+            f.close()
+        return code, texts[0], texts[1]
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        for f in (self._stdout, self._stderr):
+            if not f.closed:
+                f.close()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def background(request, tmp_path_factory):
+    """Long CLI runs started when the session starts, in their own process.
+
+    A test module may declare ``BACKGROUND = {"test name": [arguments of hhra-phys]}``
+    (``{out}`` in an argument is the run's own empty folder; or a function of that folder
+    that writes the command's inputs there and returns its arguments); when that test is
+    selected, the command starts with the session and the test, moved to the end of the
+    run (``pytest_collection_modifyitems``), reads ``background[name].result()``. pytest
+    runs the tests on one core: on the 2-core CI machine such a run uses the other while
+    the rest of the suite runs (the same command, the same assertions). What is still
+    running when the session ends is killed.
+    """
+    jobs: dict[str, _Background] = {}
+    for item in request.session.items:
+        name = getattr(item, "originalname", None)
+        if _in_background(item) and name not in jobs:
+            out = tmp_path_factory.mktemp("background")
+            spec = item.module.BACKGROUND[name]
+            # a callable writes the command's inputs into its folder and gives its arguments
+            argv = spec(out) if callable(spec) else [a.format(out=out) for a in spec]
+            jobs[name] = _Background(argv, out)
+    yield jobs
+    for job in jobs.values():
+        job.stop()

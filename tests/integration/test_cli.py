@@ -1,4 +1,5 @@
-"""The command-line interface, run in-process with small settings."""
+"""The command-line interface, run in-process with small settings (the demo in a process
+of its own, started with the session: ``BACKGROUND``)."""
 
 from __future__ import annotations
 
@@ -54,10 +55,16 @@ def test_fit_on_a_csv_writes_json_and_plot(tmp_path, capsys):
     assert "unknown parameter 'bogus'" in capsys.readouterr().err
 
 
-def test_demo_quick_runs_end_to_end(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--quick", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+#: The demo (the longest of these runs) starts with the session in its own process
+#: (tests/conftest.py, ``background``); its test reads the outcome.
+BACKGROUND = {"test_demo_quick_runs_end_to_end": ["demo", "--quick", "--out", "{out}/demo"]}
+
+
+def test_demo_quick_runs_end_to_end(background):
+    run = background["test_demo_quick_runs_end_to_end"]
+    code, text, err = run.result()
+    assert code == 0, err[-3000:]
+    out = run.out / "demo"
     assert "physical H-GWO+IPOPT" in text and "in CI" in text
     from hhra_phys.cli.demo import hidden_effect
 

@@ -132,25 +132,40 @@ def _found(js, signal):
             and (final <= base / 3 or final <= 1.5 * NOISE))
 
 
-def _cli(tmp_path, term, size, seed):
-    """``hhra-phys diagnose --effects none --max-effects 1`` on an outside-term record
-    (record and search seed ``seed``, as in experiments/discover.py): the JSON and the
-    report's paths."""
-    from hhra_phys.cli import main
+def _cli_args(folder, term, size, seed):
+    """Write an outside-term record into ``folder``: the arguments of ``hhra-phys diagnose
+    --effects none --max-effects 1`` on it (record and search seed ``seed``, as in
+    experiments/discover.py), JSON and report written to ``folder``."""
     from hhra_phys.data import save
 
-    data = tmp_path / f"rec{seed}.csv"
+    data = folder / f"rec{seed}.csv"
     save(outside_record(term, size, seed=seed, noise_deg=NOISE), data)
-    out, rep = tmp_path / f"d{seed}.json", tmp_path / f"d{seed}.md"
-    assert main(["diagnose", str(data), "--json", str(out), "--report", str(rep),
-                 "--effects", "none", "--max-effects", "1", "--pop", "20", "--iters", "30",
-                 "--seed", str(seed)]) == 0
-    return json.loads(out.read_text()), rep
+    return ["diagnose", str(data), "--json", str(folder / f"d{seed}.json"), "--report",
+            str(folder / f"d{seed}.md"), "--effects", "none", "--max-effects", "1", "--pop",
+            "20", "--iters", "30", "--seed", str(seed)]
 
 
-def test_outside_library_term_is_discovered_by_the_cli(tmp_path):
+def _cli(tmp_path, term, size, seed):
+    """The diagnose of :func:`_cli_args`, in this process: the JSON and the report's path."""
+    from hhra_phys.cli import main
+
+    assert main(_cli_args(tmp_path, term, size, seed)) == 0
+    return json.loads((tmp_path / f"d{seed}.json").read_text()), tmp_path / f"d{seed}.md"
+
+
+#: The CLI's drag run starts with the session in its own process (tests/conftest.py,
+#: ``background``); its test reads the outcome.
+BACKGROUND = {"test_outside_library_term_is_discovered_by_the_cli":
+              lambda folder: _cli_args(folder, "quadratic_drag", 400.0, 3)}
+
+
+def test_outside_library_term_is_discovered_by_the_cli(background):
     """The CLI's contract on the drag record, seed 3 (the claim held on 5 of 5 seeds)."""
-    js, rep = _cli(tmp_path, "quadratic_drag", 400.0, 3)
+    run = background["test_outside_library_term_is_discovered_by_the_cli"]
+    code, _, err = run.result()
+    assert code == 0, err[-3000:]
+    tmp_path = run.out
+    js, rep = json.loads((tmp_path / "d3.json").read_text()), tmp_path / "d3.md"
     found = [s for s in js["steps"] if s["effect"].startswith("discovered_")]
     accepted = [s for s in found if s["accepted"]]
     assert len(accepted) == 1, [s["reason"] for s in found]

@@ -29,14 +29,80 @@ def _short(seed: int, duration: float, fs: float = 250.0, **kw):
     return reference_record(seed=seed, duration=duration, fs=fs, noise_deg=0.05, levels=4, **kw)
 
 
-# two candidate refits at two sample rates: about 15 s on a loaded machine
-def test_records_of_different_lengths_and_rates_layout_and_pooling():
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
-    a = _short(3, 3.0, effects=friction)
-    b = _short(4, 2.5, fs=200.0, amplitude=0.6, effects=friction)
+FRICTION = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
+
+
+def _pair_records():
+    """Two records of different lengths and sample rates with a friction."""
+    return (_short(3, 3.0, effects=FRICTION),
+            _short(4, 2.5, fs=200.0, amplitude=0.6, effects=FRICTION))
+
+
+def _drag_records():
+    """Velocity-squared damping (outside the library): two records and a validation one."""
+    from hhra_phys.reference.outside import outside_record
+
+    return [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
+
+
+def _loop(data, kw):
+    """``augment(data, **kw)`` without its RuntimeWarnings (run in a worker process)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment([a, b], seed=0, **TINY)
+        return augment(data, **kw)
+
+
+def _jobs() -> dict[str, tuple]:
+    """The loops of this module whose tests read only what a result keeps through a
+    process boundary (its JSON and fitted values; not the fit's ``problem``): name ->
+    (data, keywords)."""
+    drag = _drag_records()
+    one = _short(5, 3.0, effects=FRICTION)
+    return {
+        "drag": (drag[:2], {"validation": [drag[2]], "seed": 1, "candidates": [],
+                            "max_effects": 1, "pop_size": 20, "max_iter": 30,
+                            "discover_kw": {"entries": ["rate:omega"]}}),
+        "one": (one, {"seed": 0, **TINY}),
+        "listed": ([one], {"seed": 0, **TINY}),
+    }
+
+
+#: The loops each test reads.
+_NEEDS = {
+    "test_several_records_and_validation_run_discovery": ("drag",),
+    "test_several_records_and_validation_accept_the_outside_term": ("drag",),
+    "test_a_list_of_one_record_is_that_record": ("one", "listed"),
+}
+
+
+@pytest.fixture(scope="module")
+def loops(request, loop_workers):
+    """The loops the selected tests read, started together on the session's two worker
+    processes (pytest itself uses one core of the 2-core CI machine; the loops are
+    reproducible from their seeds, so a worker's result is the in-process one). Each is
+    computed once for every test that reads it."""
+    selected = {getattr(item, "originalname", None) for item in request.session.items
+                if getattr(item, "module", None) is request.module}
+    wanted = {job for name in selected for job in _NEEDS.get(name, ())}
+    futures = {name: loop_workers.submit(_loop, *job) for name, job in _jobs().items()
+               if name in wanted}
+    yield futures
+    for fut in futures.values():
+        fut.cancel()  # a loop no test waited for (a failed test's): not started
+
+
+@pytest.fixture(scope="module")
+def friction_pair(loops):
+    """The tiny loop on the two friction records: (a, b, result), read by the layout and
+    figure tests. In this process (the layout test reads the fit's problem), while the
+    workers run ``loops``."""
+    a, b = _pair_records()
+    return a, b, _loop([a, b], {"seed": 0, **TINY})
+
+
+# two candidate refits at two sample rates: about 15 s on a loaded machine
+def test_records_of_different_lengths_and_rates_layout_and_pooling(friction_pair):
+    a, b, res = friction_pair
     d = res.to_json()
     for key in ("base", "final", "chosen", "steps", "test", "skipped"):
         assert key in d
@@ -91,21 +157,18 @@ def test_whole_validation_records_are_the_test_part():
         augment([a, b], base=res.base, **TINY)
 
 
-def _drag_loop():
-    from hhra_phys.reference.outside import outside_record
-
-    recs = [outside_record("quadratic_drag", 1500.0, seed=s, duration=4.0) for s in (1, 2, 3)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return augment(recs[:2], validation=[recs[2]], seed=1, candidates=[], max_effects=1,
-                       pop_size=20, max_iter=30, discover_kw={"entries": ["rate:omega"]})
+@pytest.fixture(scope="module")
+def drag_loop(loops):
+    """One loop on the drag records, shared by the two tests that read it (deterministic
+    from its seed: computing it once gives both the same result as running it twice)."""
+    return loops["drag"].result()
 
 
-def test_several_records_and_validation_run_discovery():
+def test_several_records_and_validation_run_discovery(drag_loop):
     """Velocity-squared damping (outside the library) in two records, a third as the
     validation record: discovery screens the records and fits a term at the velocity's
     rate to both (per-record initial states), judged by the one rule."""
-    res = _drag_loop()
+    res = drag_loop
     d = res.to_json()
     tried = [s for s in d["steps"] if s["discovered"]]
     assert tried and all(s["entry"] == "rate:omega" for s in tried)
@@ -113,29 +176,26 @@ def test_several_records_and_validation_run_discovery():
     assert d["final"]["test"]["rmse"] <= d["base"]["test"]["rmse"] * (1 + 1e-9)
 
 
-def test_several_records_and_validation_accept_the_outside_term():
+def test_several_records_and_validation_accept_the_outside_term(drag_loop):
     """The validation record (the test part) confirms the discovered term. With the one fit
     path the base fit widens g_damping (0.0849 -> 0.0625 deg on selection); the term's
     further gain is then judged with the tolerance the selection part's length justifies
     (under the flat 15 % it was refused)."""
-    d = _drag_loop().to_json()
+    d = drag_loop.to_json()
     acc = [s for s in d["steps"] if s["accepted"]]
     assert len(acc) == 1 and acc[0]["discovered"] and acc[0]["entry"] == "rate:omega"
     assert d["chosen"] == [acc[0]["effect"]]
     assert d["final"]["test"]["rmse"] < 0.8 * d["base"]["test"]["rmse"]
 
 
-def test_python_figures_of_several_records(tmp_path):
-    """The loop's figures draw a several-record result; a comparison's output plot refuses it."""
+def test_python_figures_of_several_records(tmp_path, friction_pair):
+    """The loop's figures draw a several-record result (here of two sample rates); a
+    comparison's output plot refuses it."""
     from hhra_phys.compare import plot_outputs, run_comparison
     from hhra_phys.diagnose import plot_loop_residuals
     from hhra_phys.errors import ParameterError
 
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}  # so that a round runs
-    a, b = _short(11, 3.0, effects=friction), _short(12, 2.5, amplitude=0.6, effects=friction)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = augment([a, b], seed=0, **TINY)
+    a, b, res = friction_pair
     paths = plot_loop_residuals(res, [a, b], str(tmp_path / "before.png"),
                                 str(tmp_path / "after.png"))
     assert paths == [str(tmp_path / "before.png"), str(tmp_path / "after.png")]
@@ -253,13 +313,9 @@ def test_two_records_find_the_hidden_friction_with_a_narrower_interval(repo_root
     assert all(r["test_rmse"] < 1.15 * 0.05 for r in found), rows
 
 
-def test_a_list_of_one_record_is_that_record():
+def test_a_list_of_one_record_is_that_record(loops):
     """One record given alone or as a list of one: the same loop, the same numbers."""
-    friction = {"coulomb_friction": {"g_coulomb": 30.0}}
-    a = _short(5, 3.0, effects=friction)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        one, listed = (augment(x, seed=0, **TINY).to_json() for x in (a, [a]))
+    one, listed = (loops[k].result().to_json() for k in ("one", "listed"))
     assert listed["chosen"] == one["chosen"]
     for part in ("base", "final"):
         assert listed[part]["val"] == one[part]["val"]

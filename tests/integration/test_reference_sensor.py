@@ -79,11 +79,16 @@ def test_intervals_under_coloured_noise_come_from_its_noise_model():
     assert not any("coloured" in w for w in white.warnings)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_a_drifting_encoder_adds_no_physics_to_the_loop(seed):
-    """On these drift records a valve bias or a load ties with the drift (or settles the
-    round first when ranked above it); the loop must still try the sensor's explanation
-    and keep it, never the physics (both took these records before the sensor kind)."""
+#: The drift records on which the loop once took the physics (the test below).
+DRIFT_SEEDS = (1, 2)
+
+
+def _drift_loop(seed: int) -> tuple[list[str], list[tuple[str, str, bool]]]:
+    """The loop on one drift record: its choice and its steps' (effect, action, sensor).
+
+    Module level so that a worker process runs it (the loop is the same there: it is
+    reproducible from its seed).
+    """
     import warnings
 
     from hhra_phys.loop import augment
@@ -92,8 +97,28 @@ def test_a_drifting_encoder_adds_no_physics_to_the_loop(seed):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         res = augment(ds, seed=seed, max_effects=2, pop_size=20, max_iter=30)
-    assert set(res.chosen) <= {"sensor_drift", "sensor_offset"}, res.chosen
-    tried = {s.effect for s in res.steps if s.action == "add"}
+    return res.chosen, [(s.effect, s.action, s.sensor) for s in res.steps]
+
+
+@pytest.fixture(scope="module")
+def drift_loops(request, loop_workers):
+    """The selected seeds' loops started together, one per worker process (the two
+    cores of the CI machine, where pytest itself uses one); each test waits for its own."""
+    name = "test_a_drifting_encoder_adds_no_physics_to_the_loop"
+    seeds = {item.callspec.params["seed"] for item in request.session.items
+             if getattr(item, "module", None) is request.module
+             and getattr(item, "originalname", None) == name}
+    return {seed: loop_workers.submit(_drift_loop, seed) for seed in sorted(seeds)}
+
+
+@pytest.mark.parametrize("seed", DRIFT_SEEDS)
+def test_a_drifting_encoder_adds_no_physics_to_the_loop(seed, drift_loops):
+    """On these drift records a valve bias or a load ties with the drift (or settles the
+    round first when ranked above it); the loop must still try the sensor's explanation
+    and keep it, never the physics (both took these records before the sensor kind)."""
+    chosen, steps = drift_loops[seed].result()
+    assert set(chosen) <= {"sensor_drift", "sensor_offset"}, chosen
+    tried = {effect for effect, action, _ in steps if action == "add"}
     assert "sensor_drift" in tried
-    drift = [s for s in res.steps if s.effect == "sensor_drift"]
-    assert all(s.sensor for s in drift)
+    drift = [sensor for effect, _, sensor in steps if effect == "sensor_drift"]
+    assert all(drift)

@@ -103,6 +103,8 @@ def test_loop_finds_the_users_effect_and_nothing_on_clean_records():
 
 
 def test_cli_fits_and_diagnoses_the_users_model(tmp_path):
+    # The loop's base search at 20 x 30 (not the CLI's 100 x 200): side_inflow chosen and
+    # coulomb_friction skipped on records of seeds 0-4 at this size (2026-11-26).
     data = two_tank.simulate_record(seed=1)
     csv = tmp_path / "tanks.csv"
     np.savetxt(csv, np.column_stack([data.t, data.u, data.y]), delimiter=",",
@@ -119,8 +121,9 @@ def test_cli_fits_and_diagnoses_the_users_model(tmp_path):
     diag_json = tmp_path / "diag.json"
     proc = subprocess.run([*env_cmd, "diagnose", str(csv), "--model", spec, "--effects-from",
                            str(HERE / "user_models" / "two_tank.py"), "--effects",
-                           ",".join(CANDIDATES), "--max-effects", "1", "--json",
-                           str(diag_json)], capture_output=True, text=True, timeout=600)
+                           ",".join(CANDIDATES), "--max-effects", "1", "--pop", "20",
+                           "--iters", "30", "--json", str(diag_json)],
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(diag_json.read_text())
     assert out["chosen"] == ["side_inflow"]
