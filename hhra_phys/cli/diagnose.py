@@ -101,6 +101,11 @@ def register(subparsers: Any) -> None:
                         "effect (by default, when the loop then ends above the noise level, the "
                         "path from that effect is followed too and the better final model by "
                         "the rule is kept)")
+    p.add_argument("--keep-intersample", action="store_true",
+                   help="never change the record's inter-sample behaviour (by default, when a "
+                        "fit's residual shows the signature of a wrong one, the other "
+                        "behaviours are candidates that change no physics, after the base fit "
+                        "and in every round; docs/measuring.md)")
     p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
                    help="sparsity rule of the discovery (default threshold)")
     add_cluster_arguments(p, "the candidate refits", default="auto")
@@ -173,6 +178,7 @@ def _augment(args: argparse.Namespace) -> Any:
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
+            intersample=not args.keep_intersample,
         )
     res.warnings.extend(data_warnings)
     for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON

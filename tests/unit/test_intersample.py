@@ -462,3 +462,28 @@ def test_the_hold_candidates_are_not_refitted_on_the_same_fit() -> None:
     assert not loop._holds_open()
     loop.o, loop.est = LoopOptions(intersample=False), ds
     assert not loop._holds_open()
+
+
+def test_cli_keep_intersample_forbids_the_hold_candidates(tmp_path) -> None:
+    """`diagnose --keep-intersample`: a record whose input moved linearly, read as held,
+    keeps its hold (no `intersample:` step); without the flag the loop changes it."""
+    from hhra_phys.cli import main
+    from hhra_phys.models.resonator import make_model
+
+    rng = np.random.default_rng(21)
+    fs, w = 90.0, 2 * np.pi * 10.0
+    u = np.convolve(rng.standard_normal(1600), np.ones(3) / 3, "same")
+    y = Simulator(make_model(w_n=w), fs=fs, intersample="foh").simulate(
+        u, np.array([1.0, w, 0.05]))
+    y = y + 0.01 * np.std(y) * rng.standard_normal(u.size)
+    save(Dataset.from_arrays(u, y, fs=fs, input_unit="V", output_unit="V"), tmp_path / "r.csv")
+    common = [str(tmp_path / "r.csv"), "--model", "hhra_phys.models.resonator:make_model",
+              "--effects", "none", "--no-discover", "--pop", "12", "--iters", "15",
+              "--workers", "1"]
+    runs = {}
+    for name, extra in (("kept", ["--keep-intersample"]), ("free", [])):
+        out = tmp_path / f"{name}.json"
+        assert main(["diagnose", *common, *extra, "--json", str(out)]) == 0
+        runs[name] = [s["effect"] for s in json.loads(out.read_text())["steps"]]
+    assert not [e for e in runs["kept"] if e.startswith("intersample:")]
+    assert "intersample:foh" in runs["free"]
