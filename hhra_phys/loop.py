@@ -649,6 +649,41 @@ def _candidate_model(job: _Job) -> tuple[Model, list[str], Any]:
     return job.model.with_parts(eff), [p.name for p in eff.parameters], eff
 
 
+def _widen_candidate(search: Callable[[Mapping[str, tuple[float, float]]],
+                                      tuple[Problem, FitResult]],
+                     boxes: dict[str, tuple[float, float]], all_free: Sequence[str],
+                     notes: list[str]) -> tuple[Problem, FitResult]:
+    """A candidate's search (``search(boxes)``), widened where it ends at a box edge.
+
+    A parameter (the effect's or the base's) that ends at the edge of its guessed box: the
+    box, not the data, stopped it (a gravity load found at a third of its size on an
+    actuator damped beyond the base box, which a stand-in then made up for). Its side is
+    widened and the candidate searched again, as often as a fit widens
+    (MAX_WIDEN_DECADES); kept when it fits estimation better, and, as a fit's widening, not
+    widened further once a widening gains less than WIDEN_MIN_GAIN. ``boxes`` (the boxes
+    opened so far) is updated with the kept widenings, ``notes`` with what was done.
+    """
+    p2, r2 = search(boxes)
+    for _ in range(MAX_WIDEN_DECADES):
+        wide = _edge_boxes(p2, r2, all_free)
+        if not wide:
+            break
+        p2w, r2w = search({**boxes, **wide})
+        mse = float(r2.metrics["est"]["mse"])
+        gain = mse - float(r2w.metrics["est"]["mse"])
+        notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
+                  f"and the candidate searched again"
+                  + ("" if gain > 0 else " (no better: kept as it was)")
+                  for n, (lo, hi) in wide.items()]
+        if not gain > 0:
+            break
+        boxes.update(wide)
+        p2, r2 = p2w, r2w
+        if gain < WIDEN_MIN_GAIN * mse:
+            break  # kept, but a further decade would buy less still (fit.widen_boxes' stop)
+    return p2, r2
+
+
 def refit_candidate(job: _Job) -> _Outcome:
     """Add one effect to the current model, refit and score it on the selection part.
 
@@ -676,35 +711,15 @@ def refit_candidate(job: _Job) -> _Outcome:
         first, boxes = _first_order_start(job, model_c, new)
         if boxes:
             cfg = replace(cfg, default_bounds={**cfg.default_bounds, **boxes})
-        p2, r2 = _search_candidate(cfg, model_c, searched, fixed, all_free, job, pop, iters,
-                                   first)
-        # A parameter (the effect's or the base's) that ends at the edge of its guessed box:
-        # the box, not the data, stopped it (a gravity load found at a third of its size on
-        # an actuator damped beyond the base box, which a stand-in then made up for). Its
-        # side is widened and the candidate searched again, as often as a fit widens
-        # (MAX_WIDEN_DECADES); kept when it fits estimation better, and, as a fit's
-        # widening, not widened further once a widening gains less than WIDEN_MIN_GAIN.
         widened_notes = [f"{n}'s first-order estimate {first[n]:.4g} lies beyond its box; "
                          f"box opened to [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in boxes.items()]
-        for _ in range(MAX_WIDEN_DECADES):
-            wide = _edge_boxes(p2, r2, all_free)
-            if not wide:
-                break
-            cfg_w = replace(cfg, default_bounds={**cfg.default_bounds, **boxes, **wide})
-            p2w, r2w = _search_candidate(cfg_w, model_c, searched, fixed, all_free, job, pop,
-                                         iters, first)
-            mse = float(r2.metrics["est"]["mse"])
-            gain = mse - float(r2w.metrics["est"]["mse"])
-            widened_notes += [f"{n} ended at its box edge; box widened to [{lo:.4g}, {hi:.4g}] "
-                              f"and the candidate searched again"
-                              + ("" if gain > 0 else " (no better: kept as it was)")
-                              for n, (lo, hi) in wide.items()]
-            if not gain > 0:
-                break
-            boxes.update(wide)
-            p2, r2 = p2w, r2w
-            if gain < WIDEN_MIN_GAIN * mse:
-                break  # kept, but a further decade would buy less still (fit.widen_boxes' stop)
+
+        def search(boxes_now: Mapping[str, tuple[float, float]]) -> tuple[Problem, FitResult]:
+            cfg_b = replace(cfg, default_bounds={**cfg.default_bounds, **boxes_now})
+            return _search_candidate(cfg_b, model_c, searched, fixed, all_free, job, pop,
+                                     iters, first)
+
+        p2, r2 = _widen_candidate(search, boxes, all_free, widened_notes)
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
         return _Outcome(None, error=f"its refit failed: {type(exc).__name__}: {exc}")
     crit = information_criterion(r2, cfg.criterion)

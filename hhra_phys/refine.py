@@ -353,12 +353,7 @@ def refine_ipopt(
     -------
     Stage
     """
-    if derivatives not in ("compiled", "casadi"):
-        raise ParameterError(f"derivatives must be 'compiled' or 'casadi', got {derivatives!r}")
-    if hessian not in ("gauss-newton", "exact", "lbfgs"):
-        raise ParameterError(f"hessian must be 'gauss-newton', 'exact' or 'lbfgs', got {hessian!r}")
-    if shooting not in ("single", "multiple"):
-        raise ParameterError(f"shooting must be 'single' or 'multiple', got {shooting!r}")
+    _check_ipopt_choices(derivatives, hessian, shooting)
     t0 = time.perf_counter()
     z0 = np.asarray(z0, dtype=float)
     bz = problem.bounds_z()
@@ -399,6 +394,16 @@ def refine_ipopt(
     return _ipopt_stage(problem, z0, cost_before, np.array(sol["x"]).ravel(), stats,
                         t0, hessian=hessian, shooting="single",
                         derivatives="compiled" if use_compiled else "casadi", stalled=stalled)
+
+
+def _check_ipopt_choices(derivatives: str, hessian: str, shooting: str) -> None:
+    """:func:`refine_ipopt`'s named choices, each checked before any work."""
+    if derivatives not in ("compiled", "casadi"):
+        raise ParameterError(f"derivatives must be 'compiled' or 'casadi', got {derivatives!r}")
+    if hessian not in ("gauss-newton", "exact", "lbfgs"):
+        raise ParameterError(f"hessian must be 'gauss-newton', 'exact' or 'lbfgs', got {hessian!r}")
+    if shooting not in ("single", "multiple"):
+        raise ParameterError(f"shooting must be 'single' or 'multiple', got {shooting!r}")
 
 
 class _Stall(ca.Callback):
