@@ -731,6 +731,12 @@ def _may_widen(par: Any, side: str, first_box: tuple[float, float]) -> bool:
     return bool(abs(np.log10(edge / first)) < MAX_WIDEN_DECADES - 0.5)
 
 
+#: The ``refine_options`` :func:`~hhra_phys.refine.refine_ipopt` takes (the fit's IPOPT
+#: stages, the accuracy check's included).
+_IPOPT_KEYS = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose", "stall_iter",
+               "stall_step")
+
+
 def _search_and_refine(
     problem: Any,
     optimizer: str,
@@ -781,9 +787,7 @@ def _search_and_refine(
     ropts = dict(refine_options or {})
     for name in _refiner_names(refine):
         if name == "ipopt":
-            keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose", "stall_iter",
-                    "stall_step")
-            st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in keys})
+            st = refine_ipopt(problem, z, **{k: v for k, v in ropts.items() if k in _IPOPT_KEYS})
         else:
             keys = ("max_eval", "xtol_rel", "ftol_rel")
             st = refine_nlopt(problem, z, algorithm=name.split(":", 1)[1],
@@ -835,9 +839,7 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
         return problem, z
     new = problem.with_simulator(sim)
     ropts = dict(refine_options or {})
-    keys = ("hessian", "shooting", "segments", "max_iter", "tol", "verbose", "stall_iter",
-            "stall_step")
-    st = refine_ipopt(new, z, **{k: val for k, val in ropts.items() if k in keys})
+    st = refine_ipopt(new, z, **{k: val for k, val in ropts.items() if k in _IPOPT_KEYS})
     st.name += f" (accuracy: {sim.method} x {sim.substeps})"
     stages.append(st)
     return new, st.z

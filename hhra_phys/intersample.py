@@ -245,7 +245,8 @@ class HoldCandidate:
 
 def refit_with_hold(result: FitResult, problem: Problem, selection: Dataset | None = None,
                     kind: str | None = None, refine: str = "ipopt", max_iter: int = 200,
-                    seed: int | None = 0) -> HoldCandidate:
+                    seed: int | None = 0, signature: Mapping[str, float] | None = None,
+                    ) -> HoldCandidate:
     """Refit the current model with the other inter-sample behaviour (module docstring).
 
     Parameters
@@ -266,6 +267,9 @@ def refit_with_hold(result: FitResult, problem: Problem, selection: Dataset | No
         Its iteration limit.
     seed : int or None
         Seed passed to the fit.
+    signature : dict, optional
+        :func:`hold_signature` of ``result`` on the estimation part when the caller has
+        it (the loop computed it to decide whether to try); computed here otherwise.
 
     Returns
     -------
@@ -282,7 +286,8 @@ def refit_with_hold(result: FitResult, problem: Problem, selection: Dataset | No
         raise ParameterError(f"intersample must be one of {', '.join(INTERSAMPLE)}, got {kind!r}")
     values = np.array([result.values[n] if n in result.values else result.x0_param(n)
                        for n in problem.free_names])
-    signature = hold_signature(est.y, problem.simulate_values(values))
+    signature = (dict(signature) if signature is not None
+                 else hold_signature(est.y, problem.simulate_values(values)))
     est2 = est.with_intersample(kind)
     sel2 = None if selection is None else selection.with_intersample(kind)
     start = {n: float(v) for n, v in zip(problem.free_names, values, strict=True)}

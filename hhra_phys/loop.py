@@ -1420,8 +1420,9 @@ class _Loop:
             setattr(self, k, _shallow(v))
 
     def _remember_branch(self, rnd: int, best: Step, tried: list[tuple[Step, Any]],
-                         noise: float) -> None:
-        """Before ``best`` is accepted: keep the path of the best given effect it beat."""
+                         noise: float, judged: Mapping[int, str] | None = None) -> None:
+        """Before ``best`` is accepted: keep the path of the best given effect it beat
+        (``judged``: each step's reason before :func:`choose` added its verdict)."""
         if not self.o.revisit or self.branch is not None or not best.discovered:
             return
         given = [(s, p) for s, p in tried if not s.discovered]
@@ -1429,8 +1430,10 @@ class _Loop:
             return
         k = tie_break([(float(s.val.get("rmse", math.inf)), s.criterion) for s, _ in given],
                       noise, self.tol)
-        self.branch = {"round": rnd, "step": given[k][0], "payload": given[k][1],
-                       "instead_of": best, "noise": noise, "state": self._snapshot()}
+        step = given[k][0]
+        self.branch = {"round": rnd, "step": step, "payload": given[k][1],
+                       "instead_of": best, "noise": noise, "state": self._snapshot(),
+                       "judged": (judged or {}).get(id(step), step.reason)}
 
     def _revisit(self) -> None:
         """Follow the path of the given effect a discovered candidate won over; keep the
@@ -1451,8 +1454,7 @@ class _Loop:
             f"{rnd} from {alt.effect}; following the path from {alt.effect}")
         alt.accepted, was.accepted = True, False
         # its reason said why it lost the round to `was`; what it was judged on stays
-        judged = alt.reason.split(f" than {was.effect}): ", 1)[-1]
-        alt.reason = f"accepted on revisiting round {rnd}: {judged}"
+        alt.reason = f"accepted on revisiting round {rnd}: {br['judged']}"
         self._accept(rnd, alt, br["payload"])
         self._rounds(rnd)
         alt_sel = float(self.cur.metrics["val"]["rmse"])
@@ -1502,8 +1504,9 @@ class _Loop:
         if not tried:
             say(f"round {rnd}: nothing accepted; stop")
             return "no candidate accepted"
+        judged = {id(s): s.reason for s, _ in tried}  # choose prefixes each with its verdict
         best_step, payload = choose(tried, float(level["noise"]), self.tol, o.criterion)
-        self._remember_branch(rnd, best_step, tried, float(level["noise"]))
+        self._remember_branch(rnd, best_step, tried, float(level["noise"]), judged)
         self._accept(rnd, best_step, payload)
         return None
 
@@ -1734,7 +1737,7 @@ def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float,
     out = []
     for kind in other_holds(prob.data.intersample):
         t0 = time.perf_counter()
-        cand = refit_with_hold(cur, prob, sel, kind=kind)
+        cand = refit_with_hold(cur, prob, sel, kind=kind, signature=sig)
         res = cand.result
         step = Step(rnd, cand.name, {"signature": cand.signature, "changes_physics": False},
                     dict(res.values), {k: list(v) for k, v in res.ci95.items()},

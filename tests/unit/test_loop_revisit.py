@@ -54,7 +54,9 @@ def _round_one(loop: _Loop) -> tuple[DiscoveredStep, Step]:
                  reason="acceptable, not chosen (a higher selection error than "
                         "discovered_input_1): selection RMSE 0.928 -> 0.722")
     loop.steps += [term, valve]
-    loop._remember_branch(1, term, [(term, "T"), (valve, "V")], NOISE)
+    # the reasons as judged, before choose added its verdicts (what _round hands over)
+    judged = {id(term): "selection ...", id(valve): "selection RMSE 0.928 -> 0.722"}
+    loop._remember_branch(1, term, [(term, "T"), (valve, "V")], NOISE, judged)
     return term, valve
 
 

@@ -27,9 +27,10 @@ NOISE = 0.05
 TOL = 0.15
 
 
-def _step(name: str, sel: float, crit: float, est: float | None = None) -> Step:
+def _step(name: str, sel: float, crit: float, est: float | None = None,
+          sensor: bool = False) -> Step:
     return Step(1, name, {}, {}, {}, {"rmse": est if est is not None else sel},
-                {"rmse": sel}, crit, 0.0, 1.0, reason="r")
+                {"rmse": sel}, crit, 0.0, 1.0, reason="r", sensor=sensor)
 
 
 def test_lowest_selection_wins_when_the_others_are_clearly_worse():
@@ -121,27 +122,22 @@ def test_a_sensor_effect_keeps_a_tie_with_a_change_of_the_dynamics():
     # the drift record's round: the valve bias has the lower BIC, the drift the lower
     # selection error, the two within the allowance: the sensor's explanation is kept
     valve = _step("asymmetric_valve", 0.05273, -5957.1)
-    drift = _step("sensor_drift", 0.05246, -5952.1)
-    drift.sensor = True
+    drift = _step("sensor_drift", 0.05246, -5952.1, sensor=True)
     assert choose([(valve, 1), (drift, 2)], NOISE, TOL)[0] is drift
     assert "tied with a sensor effect" in valve.reason
     # a dynamics change clearly better on selection still wins
     valve2 = _step("asymmetric_valve", 0.050, -5957.1)
-    drift2 = _step("sensor_drift", 0.080, -5952.1)
-    drift2.sensor = True
+    drift2 = _step("sensor_drift", 0.080, -5952.1, sensor=True)
     assert choose([(drift2, 2), (valve2, 1)], NOISE, TOL)[0] is valve2
     # decisive evidence for the dynamics (criterion lower by more than 10) overrides it:
     # the two-tank side inflow against a level offset
     inflow = _step("side_inflow", 0.05102, -4783.5)
-    offset = _step("sensor_offset", 0.05212, -4771.2)
-    offset.sensor = True
+    offset = _step("sensor_offset", 0.05212, -4771.2, sensor=True)
     assert choose([(offset, 1), (inflow, 2)], NOISE, TOL)[0] is inflow
     assert "higher BIC" in offset.reason
     # among sensor effects the criterion decides as before
-    off = _step("sensor_offset", 0.0525, -5960.0)
-    off.sensor = True
-    drift3 = _step("sensor_drift", 0.0524, -5952.1)
-    drift3.sensor = True
+    off = _step("sensor_offset", 0.0525, -5960.0, sensor=True)
+    drift3 = _step("sensor_drift", 0.0524, -5952.1, sensor=True)
     assert choose([(drift3, 1), (off, 2)], NOISE, TOL)[0] is off
 
 
@@ -151,31 +147,27 @@ def test_only_a_given_change_of_the_dynamics_is_decisive_against_a_sensor_effect
     # a resonator read as foh: the other inter-sample behaviour (marked sensor) tied with a
     # discovered output feedthrough whose BIC is lower by 17.7; the search over shapes is
     # not charged, so the measurement's explanation is kept
-    hold = _step("intersample:cubic", 0.04885, -6426.9)
-    hold.sensor = True
+    hold = _step("intersample:cubic", 0.04885, -6426.9, sensor=True)
     term = DiscoveredStep(2, "discovered_output_2", {}, {}, {}, {"rmse": 0.04859},
                           {"rmse": 0.04859}, -6444.6, 0.0, 1.0, reason="r", entry="output")
     assert choose([(term, 1), (hold, 2)], NOISE, TOL)[0] is hold
     assert "tied with a sensor effect" in term.reason
     # a given change with the same evidence is decisive (more than 10 lower), as before
     given = _step("output_feedthrough", 0.04859, -6444.6)
-    hold2 = _step("intersample:cubic", 0.04885, -6426.9)
-    hold2.sensor = True
+    hold2 = _step("intersample:cubic", 0.04885, -6426.9, sensor=True)
     assert choose([(hold2, 2), (given, 1)], NOISE, TOL)[0] is given
     # with a decisive given change among them, the criterion decides among all tied
     term2 = DiscoveredStep(2, "discovered_output_2", {}, {}, {}, {"rmse": 0.0486},
                            {"rmse": 0.0486}, -6450.0, 0.0, 1.0, reason="r", entry="output")
     given2 = _step("output_feedthrough", 0.04859, -6444.6)
-    hold3 = _step("intersample:cubic", 0.04885, -6426.9)
-    hold3.sensor = True
+    hold3 = _step("intersample:cubic", 0.04885, -6426.9, sensor=True)
     assert choose([(hold3, 2), (given2, 1), (term2, 3)], NOISE, TOL)[0] is term2
 
 
 def test_sensor_flag_round_trips_through_json():
     from hhra_phys.loop import _step_from_json
 
-    s = _step("sensor_drift", 0.05, -1.0)
-    s.sensor = True
+    s = _step("sensor_drift", 0.05, -1.0, sensor=True)
     assert _step_from_json(s.to_json()).sensor is True
     assert _step_from_json(_step("gravity_load", 0.05, -1.0).to_json()).sensor is False
 
