@@ -1,0 +1,138 @@
+"""``hhra-phys fit`` and ``hhra-phys diagnose`` on several records, this checkout beside others.
+
+The cost issue's side-by-side measurement: each record is written once (the independent
+reference implementation, :func:`hhra_phys.reference.reference_record`, 20 s at 250 Hz),
+then each command runs on it as a subprocess under every checkout in turn (this one first,
+then each ``--against`` folder, a checkout of another commit: ``git worktree add --detach
+DIR COMMIT``), so the load of the machine falls alike on all. Each checkout has its own
+compiled-code cache, warmed by one unrecorded run of each command first. Per run: CPU
+seconds (the command's and every process it waited for: workers, the C compiler) beside
+wall seconds, and the score the command reports (fit: validation RMSE; diagnose: the final
+model's test RMSE and the chosen effects).
+
+    python benchmarks/bench_cost.py --commands fit --set fit [--against ../old]
+    python benchmarks/bench_cost.py --commands fit,diagnose --set diagnose --json OUT.json
+
+``--set fit``: three records with an effect the base model lacks (a dead zone, sharp
+Coulomb friction, an input delay) and two clean ones. ``--set diagnose``: dead zones of
+two sizes, Coulomb friction, an input delay, clean.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from hhra_phys.data import save_csv
+from hhra_phys.reference import reference_record
+
+#: (name, seed, hidden effects) of each record set.
+SETS: dict[str, list[tuple[str, int, dict[str, dict[str, float]]]]] = {
+    "fit": [("deadzone", 1, {"valve_deadzone": {"i_dead": 0.1}}),
+            ("friction", 2, {"coulomb_friction": {"g_coulomb": 30.0}}),
+            ("delay", 3, {"input_delay": {"delay": 4.0}}),
+            ("clean", 4, {}),
+            ("clean", 5, {})],
+    "diagnose": [("deadzone-small", 1, {"valve_deadzone": {"i_dead": 0.05}}),
+                 ("deadzone-large", 2, {"valve_deadzone": {"i_dead": 0.15}}),
+                 ("friction", 3, {"coulomb_friction": {"g_coulomb": 30.0}}),
+                 ("delay", 4, {"input_delay": {"delay": 4.0}}),
+                 ("clean", 5, {})],
+}
+
+
+def _run(cmd: list[str], env: dict[str, str]) -> tuple[float, float, int]:
+    """Wall and CPU seconds of ``cmd`` (CPU: it and the processes it waited for), exit code."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    rc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL,
+                        stderr=subprocess.DEVNULL).returncode
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), rc
+
+
+def _score(command: str, out: Path) -> dict[str, object]:
+    """What the command's JSON says of the fit's quality."""
+    try:
+        d = json.loads(out.read_text())
+    except (OSError, ValueError):
+        return {"error": "no JSON"}
+    if command == "fit":
+        return {"val_rmse": d["val"]["rmse"]}
+    return {"test_rmse": d["final"]["test"]["rmse"], "val_rmse": d["final"]["val"]["rmse"],
+            "chosen": d["chosen"]}
+
+
+def _command(command: str, rec: Path, out: Path, extra: list[str]) -> list[str]:
+    cmd = [sys.executable, "-m", "hhra_phys.cli", command, str(rec), "--json", str(out),
+           "--overwrite"]
+    return cmd + (["--quiet"] if command == "fit" else []) + extra
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--commands", default="fit", help="comma-separated: fit, diagnose")
+    ap.add_argument("--set", default="fit", choices=sorted(SETS), dest="records")
+    ap.add_argument("--against", action="append", default=[],
+                    help="another checkout's folder (repeatable)")
+    ap.add_argument("--only", default="", help="comma-separated record indices (0-based)")
+    ap.add_argument("--extra", default="", help="extra options for every command")
+    ap.add_argument("--json", help="write the rows here")
+    args = ap.parse_args()
+    here = str(Path(__file__).resolve().parents[1])
+    trees = [here] + [str(Path(a).resolve()) for a in args.against]
+    commands = [c for c in args.commands.split(",") if c]
+    recs = SETS[args.records]
+    if args.only:
+        recs = [recs[int(i)] for i in args.only.split(",")]
+    rows = []
+    load0 = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = []
+        for name, seed, eff in recs:
+            p = Path(tmp, f"{name}-{seed}.csv")
+            save_csv(reference_record(seed=seed, duration=20.0, effects=eff or None), p)
+            paths.append(p)
+        envs = {}
+        for k, tree in enumerate(trees):
+            env = dict(os.environ, PYTHONPATH=tree, HHRA_PHYS_CACHE=str(Path(tmp, f"cache{k}")))
+            envs[tree] = env
+            for c in commands:  # warm the compiled-code cache, unrecorded
+                _run(_command(c, paths[0], Path(tmp, "warm.json"), args.extra.split()), env)
+        for (name, seed, _), rec in zip(recs, paths, strict=True):
+            for c in commands:
+                for k, tree in enumerate(trees):
+                    out = Path(tmp, f"out{k}.json")
+                    out.unlink(missing_ok=True)
+                    wall, cpu, rc = _run(_command(c, rec, out, args.extra.split()), envs[tree])
+                    row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
+                           "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": rc,
+                           **_score(c, out)}
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
+    print(f"\nload average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
+    for c in commands:
+        for tree in trees[1:]:
+            mine = [r for r in rows if r["command"] == c and r["tree"] == here]
+            theirs = [r for r in rows if r["command"] == c and r["tree"] == tree]
+            for a, b in zip(mine, theirs, strict=True):
+                print(f"{c} {a['record']:16s} CPU {a['cpu_s']:7.1f} / {b['cpu_s']:7.1f} = "
+                      f"{a['cpu_s'] / b['cpu_s']:.2f}x; wall {a['wall_s'] / b['wall_s']:.2f}x")
+            print(f"{c} total CPU {sum(r['cpu_s'] for r in mine):.1f} / "
+                  f"{sum(r['cpu_s'] for r in theirs):.1f} = "
+                  f"{sum(r['cpu_s'] for r in mine) / sum(r['cpu_s'] for r in theirs):.2f}x "
+                  f"(against {tree})")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"load_start": load0, "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
