@@ -49,14 +49,26 @@ SETS: dict[str, list[tuple[str, int, dict[str, dict[str, float]]]]] = {
 
 
 def _run(cmd: list[str], env: dict[str, str]) -> tuple[float, float, int]:
-    """Wall and CPU seconds of ``cmd`` (CPU: it and the processes it waited for), exit code."""
+    """Wall and CPU seconds of ``cmd`` (CPU: it and the processes it waited for), exit code.
+
+    Runs in the cache's folder: ``python -m`` puts the working directory first on the
+    path, so a run from a checkout would import that checkout whatever PYTHONPATH says.
+    """
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    rc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL,
-                        stderr=subprocess.DEVNULL).returncode
+    rc = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                        cwd=Path(env["HHRA_PHYS_CACHE"]).parent).returncode
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), rc
+
+
+def _commit(tree: str) -> str:
+    """The checkout's commit (with ``+`` when its working tree differs from it)."""
+    def git(*a: str) -> str:
+        return subprocess.run(["git", "-C", tree, *a], capture_output=True,
+                              text=True).stdout.strip()
+    return git("rev-parse", "--short", "HEAD") + ("+" if git("status", "--porcelain") else "")
 
 
 def _score(command: str, out: Path) -> dict[str, object]:
@@ -103,7 +115,9 @@ def main() -> None:
             paths.append(p)
         envs = {}
         for k, tree in enumerate(trees):
-            env = dict(os.environ, PYTHONPATH=tree, HHRA_PHYS_CACHE=str(Path(tmp, f"cache{k}")))
+            Path(tmp, f"run{k}").mkdir()
+            env = dict(os.environ, PYTHONPATH=tree,
+                       HHRA_PHYS_CACHE=str(Path(tmp, f"run{k}", "cache")))
             envs[tree] = env
             for c in commands:  # warm the compiled-code cache, unrecorded
                 _run(_command(c, paths[0], Path(tmp, "warm.json"), args.extra.split()), env)
@@ -114,7 +128,8 @@ def main() -> None:
                     out.unlink(missing_ok=True)
                     wall, cpu, rc = _run(_command(c, rec, out, args.extra.split()), envs[tree])
                     row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
-                           "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": rc,
+                           "commit": _commit(tree), "wall_s": round(wall, 2),
+                           "cpu_s": round(cpu, 2), "exit": rc,
                            **_score(c, out)}
                     rows.append(row)
                     print(json.dumps(row), flush=True)
