@@ -176,7 +176,8 @@ class LoopResult:
         ``base`` and ``final`` hold ``est`` (estimation), ``val`` (the selection part,
         which chose the effects; the key keeps its old name) and ``test`` (the
         untouched test part) scores; ``test`` at top level is the final model's test
-        score, ``steps``, ``chosen``, ``skipped`` as before. ``fits`` holds the base
+        score, ``steps``, ``chosen``, ``skipped`` as before; ``stopped_by_budget``
+        whether :attr:`LoopOptions.budget` ended the loop early. ``fits`` holds the base
         and final fits whole (:meth:`FitResult.to_json <hhra_phys.result.FitResult.to_json>`,
         with the derived quantities), ``test_scores`` and ``loop_warnings`` what
         :meth:`from_json` needs besides.
@@ -218,6 +219,7 @@ class LoopResult:
                                          if w not in self.warnings],
             "skipped": dict(self.skipped),
             "settings": self.settings,
+            "stopped_by_budget": bool(self.settings.get("stopped_by_budget", False)),
             "fits": {"base": self.base.to_json(), "final": self.final.to_json()},
             "test_scores": self.test_scores,
             "loop_warnings": list(self.warnings),
@@ -1122,6 +1124,16 @@ class LoopOptions:
         and score uses it. Each is a :class:`Step` named ``"intersample:<kind>"`` marked
         ``sensor``, which changes no physics, adds no parameter and no effect; a path
         changes the behaviour once.
+    budget : float, optional
+        Wall-clock seconds the loop may take (default: no limit). Checked before every
+        round and every candidate's refit: once spent, the round refits nothing more,
+        chooses among what it refitted, and the loop ends at the best model so far (no
+        backward step, no revisit); ``settings["stopped_by_budget"]`` and a warning say
+        so, with what was not refitted. The base fit always runs whole; the estimate
+        printed after it says how long a round may take.
+    progress_bar : bool
+        A progress bar per round on standard error, naming the candidate being refitted
+        and how many remain (shown on a terminal only; the CLI turns it on).
     """
 
     split: float = 0.5
@@ -1151,6 +1163,8 @@ class LoopOptions:
     backward: bool = True
     revisit: bool = True
     intersample: bool = True
+    budget: float | None = None
+    progress_bar: bool = False
 
     def validate(self) -> LoopOptions:
         """Check every setting; returns ``self``.
@@ -1169,6 +1183,10 @@ class LoopOptions:
         need(0 <= self.margin < 1, f"margin must be in [0, 1), got {self.margin}")
         need(self.noise_tol is None or self.noise_tol >= 0,
              f"noise_tol must be >= 0, got {self.noise_tol}")
+        need(self.budget is None or (isinstance(self.budget, (int, float))
+                                     and not isinstance(self.budget, bool)
+                                     and math.isfinite(self.budget) and self.budget > 0),
+             f"budget must be a number of seconds > 0, got {self.budget!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -1292,7 +1310,7 @@ class _Loop:
                  opts: LoopOptions, validation: Any, base: FitResult | None,
                  executor: Executor | None, progress: Callable[[str], None] | None) -> None:
         self.o, self.executor, self.base_given = opts, executor, base is not None
-        self.say = progress or (lambda s: None)
+        self.say = _around_bars(progress) if opts.progress_bar else (progress or _silent)
         self.t0 = time.perf_counter()
         data, est, sel, held = _loop_parts(data, opts.split, opts.test, validation, base)
         # Default: the tolerance the selection part's length justifies (selection.py).
@@ -1326,6 +1344,10 @@ class _Loop:
         self.branch: dict[str, Any] | None = None  # the path not taken (LoopOptions.revisit)
         self.revisited: dict[str, Any] | None = None
         self.at_noise = False
+        # Not path state (a revisit keeps them): whether the budget ended anything, and
+        # the candidates of the round it ended.
+        self.budget_spent = False
+        self.budget_left: list[str] = []
         self._fit_base(model, base)
 
     # -- base fit and inter-sample candidates -----------------------------------------------
@@ -1406,7 +1428,7 @@ class _Loop:
                          else None)
         try:
             self._rounds(0)
-            if self.branch is not None and not self.at_noise:
+            if self.branch is not None and not self.at_noise and not self._over_budget():
                 self._revisit()
         finally:
             if self.compiler is not None:
@@ -1419,6 +1441,11 @@ class _Loop:
         # One round per accepted candidate while nothing is removed; each removal
         # takes a name out of the candidates for good, so the loop ends.
         while len(self.chosen) < self.o.max_effects:
+            if self._over_budget():
+                self.stop, self.budget_spent = "budget", True
+                self.say(f"budget of {self.o.budget:g} s spent after "
+                         f"{time.perf_counter() - self.t0:.0f} s: stop at the model so far")
+                break
             rnd += 1
             stop = self._round(rnd)
             if stop:
@@ -1436,6 +1463,19 @@ class _Loop:
     def _restore(self, state: Mapping[str, Any]) -> None:
         for k, v in state.items():
             setattr(self, k, _shallow(v))
+
+    def _over_budget(self) -> bool:
+        """Whether the loop's wall-clock budget (:attr:`LoopOptions.budget`) is spent."""
+        return self.o.budget is not None and time.perf_counter() - self.t0 > self.o.budget
+
+    def _bar(self, rnd: int, n: int) -> Any:
+        """Round ``rnd``'s progress bar over its ``n`` candidates (a silent one unless
+        :attr:`LoopOptions.progress_bar`; on a terminal only)."""
+        from tqdm import tqdm
+
+        return tqdm(total=n, desc=f"round {rnd}", unit="candidate", leave=False,
+                    disable=None if self.o.progress_bar else True,
+                    bar_format="{desc}: {n}/{total} {bar} {elapsed}<{remaining} {postfix}")
 
     def _remember_branch(self, rnd: int, best: Step, tried: list[tuple[Step, Any]],
                          noise: float, judged: Mapping[int, str] | None = None) -> None:
@@ -1608,14 +1648,25 @@ class _Loop:
         tried: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
-        for _, kind, item in queue:
+        bar = self._bar(rnd, len(queue))
+        for k, (_, kind, item) in enumerate(queue):
+            name = item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}"
+            if self._over_budget():
+                self.budget_spent = True
+                self.budget_left = [n for _, kd, it in queue[k:] for n in
+                                    [it.effect if kd in _LIBRARY_KINDS
+                                     else f"discovery at {it.entry}"]]
+                self.say(f"  budget of {o.budget:g} s spent: not refitted this round: "
+                         f"{', '.join(self.budget_left)}")
+                break
+            bar.set_postfix_str(name, refresh=False)
+            bar.update(1)
             # Resonant modes are never skipped: a mode at one entry reaches the noise as a
             # stand-in for a mode at another (an output mode settled a load-mode record's
             # round before the load was refitted); the criterion tells them apart (choose).
             by = next((k for k in settlers if kind in _SETTLES[k]), None)
             if by is not None:
-                not_refitted.setdefault(by, []).append(
-                    item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}")
+                not_refitted.setdefault(by, []).append(name)
                 continue
             got = self._refit_one(kind, item, library, disc)
             if got is None:
@@ -1632,6 +1683,7 @@ class _Loop:
                 tried.append((step, payload))
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
+        bar.close()
         for stream in library.values():
             if hasattr(stream, "close"):
                 stream.close()  # cancels library refits queued but not started
@@ -1699,7 +1751,7 @@ class _Loop:
         self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
         self.cur_free = list(free_c)
         self.say(f"round {rnd}: accepted {best_step.effect}")
-        if o.backward and len(self.chosen) >= 2:
+        if o.backward and len(self.chosen) >= 2 and not self._over_budget():
             self.cur, self.cur_prob, self.cur_free, back, gone = _backward_step(
                 cfg, self.cur, self.cur_prob, self.cur_free, self.chosen, self.base_free, rnd,
                 o.margin, self.tol, o.cand_pop, o.cand_iter, self.say)
@@ -1722,6 +1774,13 @@ class _Loop:
                     f"selection output range [{vr[0]:.3g}, {vr[1]:.3g}] "
                     f"{data.output_unit or ''} (simulated) leaves the estimation range "
                     f"[{lo:.3g}, {hi:.3g}]: position-dependent effects are extrapolated there")
+        if self.budget_spent:
+            self.warnings.append(
+                f"the loop stopped at its budget of {o.budget:g} s (after "
+                f"{time.perf_counter() - self.t0:.0f} s): the model is the best so far, not "
+                "the loop's end" + (f"; not refitted in the last round: "
+                                    f"{', '.join(self.budget_left)}" if self.budget_left
+                                    else ""))
         test_scores = {"base": _test_score(self.base_prob, self.base_res, self.held_base),
                        "final": _test_score(cur_prob, cur, self.held)}
         settings = {
@@ -1734,7 +1793,9 @@ class _Loop:
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
-            "base_given": self.base_given, "stop": self.stop,
+            "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
+            "stopped_by_budget": self.budget_spent,
+            "not_refitted_by_budget": list(self.budget_left),
             "noise_levels": self.levels + [final_level],
             "seconds": time.perf_counter() - self.t0,
             "data": {"name": data.name, "n": data.n, "fs": data.fs, "n_est": self.est.n,
@@ -1742,6 +1803,22 @@ class _Loop:
         }
         return LoopResult(self.base_res, cur, self.steps, self.chosen, self.diagnoses,
                           final_diag, settings, self.warnings, self.skipped, test_scores)
+
+
+def _silent(text: str) -> None:
+    """The loop's progress callback when none is given."""
+
+
+def _around_bars(progress: Callable[[str], None] | None) -> Callable[[str], None]:
+    """``progress`` writing its lines around the round's progress bar (not through it)."""
+    from tqdm import tqdm
+
+    user = progress or _silent
+
+    def say(text: str) -> None:
+        with tqdm.external_write_mode():
+            user(text)
+    return say
 
 
 def _hold_candidates(cur: FitResult, prob: Problem, sel: Dataset, margin: float, tol: float,

@@ -10,6 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from hhra_phys.cli._common import (
+    _positive_float as positive_float,
+)
+from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
@@ -109,6 +112,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--discover-method", choices=("threshold", "l1"), default="threshold",
                    help="sparsity rule of the discovery (default threshold)")
     add_cluster_arguments(p, "the candidate refits", default="auto")
+    p.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
+                   help="wall-clock seconds the loop may take: once spent it refits nothing "
+                        "more and ends at the best model so far, saying so in the summary, "
+                        "the report and the JSON (settings.budget, stopped_by_budget)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 
@@ -178,7 +185,7 @@ def _augment(args: argparse.Namespace) -> Any:
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
-            intersample=not args.keep_intersample,
+            intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
         )
     res.warnings.extend(data_warnings)
     for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON
