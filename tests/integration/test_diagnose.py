@@ -101,6 +101,15 @@ def test_clean_record_adds_nothing():
     assert res.steps or "noise level" in res.settings["stop"]
 
 
+def test_a_spent_budget_ends_the_loop_at_the_base_with_a_warning():
+    res = _run(_record({"valve_deadzone": {"i_dead": 0.2}}), budget=1e-3)
+    assert res.chosen == [] and res.steps == []
+    assert res.settings["stop"] == "budget" and res.settings["budget"] == 1e-3
+    out = res.to_json()
+    assert out["stopped_by_budget"] and out["settings"]["stopped_by_budget"]
+    assert any("budget of 0.001 s" in w for w in out["warnings"])
+
+
 @pytest.mark.slow
 def test_loop_finds_each_hidden_effect_at_the_measured_rate(loop_workers):
     """Each library effect hidden alone: found, with the truth in the 95 % CI.

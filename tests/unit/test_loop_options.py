@@ -30,6 +30,9 @@ def test_overrides_apply_on_top_of_given_options():
         ("initial_state", "guess", "initial_state"),
         ("candidates", ["no_such_effect"], "no_such_effect"),
         ("discover_kw", {"n_entries": 2}, "n_entries"),
+        ("budget", 0, "budget"),
+        ("budget", float("inf"), "budget"),
+        ("budget", "60", "budget"),
     ],
 )
 def test_each_bad_setting_is_named(setting, value, words):

@@ -95,3 +95,19 @@ def test_sensor_effects_and_modes_spare_no_physics(kind):
     # the dead zone (at the noise) then spares the discovered term
     assert first in refitted and "valve_deadzone" in refitted
     assert "discovered_rate_p_1" not in refitted
+
+
+def test_a_spent_budget_ends_the_round_and_names_what_was_not_refitted():
+    loop, refitted = _loop({"valve_deadzone": ABOVE, "coulomb_friction": ABOVE,
+                            "discovered_rate_p_1": ABOVE})
+    loop.budget_spent, loop.budget_left = False, []
+    loop.o = LoopOptions(budget=5.0)
+    checks = iter([False, True, True])  # spent after the first refit
+    loop._over_budget = lambda: next(checks)
+    q = _queue(("effect", "valve_deadzone"), ("effect", "coulomb_friction"),
+               ("discovered", "discovered_rate_p_1"))
+    tried = loop._refit_all(1, q, [], None, LEVEL)
+    assert refitted == ["valve_deadzone"]
+    assert [s.effect for s, _ in tried] == ["valve_deadzone"]  # still chosen among
+    assert loop.budget_spent
+    assert loop.budget_left == ["coulomb_friction", "discovery at rate:p"]
