@@ -567,6 +567,13 @@ def widened_box(par: Any, side: str) -> tuple[float, float] | None:
     return None
 
 
+def _cost(problem: Any, z: np.ndarray) -> float:
+    """Least-squares cost ``0.5 sum r^2`` at ``z`` (``inf`` where the simulation fails)."""
+    r = problem.simulate_values(problem.from_z(np.asarray(z, dtype=float))) - problem.y
+    total = float(r @ r)
+    return 0.5 * total if np.isfinite(total) else np.inf
+
+
 def _cost_and_excess(problem: Any, z: np.ndarray) -> tuple[float, float]:
     """Least-squares cost ``0.5 sum r^2`` at ``z`` and the share of ``sum r^2`` above the noise.
 
@@ -677,6 +684,8 @@ def widen_boxes(
     for round_ in range(1, MAX_WIDEN_DECADES + 1):
         if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
+        if excess is None:
+            cost, excess = _cost_and_excess(problem, z)
         need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN
         box, changes = _sides_to_widen(problem, edges, _release_gains(problem, z, edges),
                                        origin, need, round_)
@@ -687,7 +696,7 @@ def widen_boxes(
         z, new_cost, confirmed = _widened_search(problem, problem.to_z(values), search,
                                                  f" (widened {round_})", cost, need,
                                                  stages, history)
-        _, excess = _cost_and_excess(problem, z)
+        excess = None  # the next round's (a noise-level estimate: only if there is one)
         gain = (cost - new_cost) / cost if cost > 0 else 0.0
         for c in changes:
             c["gain"] = float(gain)
@@ -720,13 +729,13 @@ def _widened_search(problem: Any, z0: np.ndarray,
     """
     z_loc, more, _ = search(problem, z_start=z0, label=label, global_search=False)
     stages.extend(more)
-    loc_cost = _cost_and_excess(problem, z_loc)[0] if more else np.inf
+    loc_cost = _cost(problem, z_loc) if more else np.inf
     if more and not (cost > 0 and (cost - loc_cost) / cost >= need):
         return z_loc, loc_cost, False
     z, more, hist = search(problem, z_start=z0, label=label)
     stages.extend(more)
     history.extend(hist)
-    new_cost = _cost_and_excess(problem, z)[0]
+    new_cost = _cost(problem, z)
     if loc_cost < new_cost:
         return z_loc, loc_cost, True
     return z, new_cost, True

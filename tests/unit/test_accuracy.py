@@ -130,3 +130,34 @@ def test_the_refined_simulator_keeps_the_inter_sample_behaviour(intersample):
     tight = base.accurate(u, p, 1e-6)
     assert tight is not base and tight.substeps > base.substeps
     assert tight.intersample == intersample
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_the_accuracy_shift_is_the_part_of_the_integration_error_the_parameters_follow(seed):
+    """``fit._accuracy_shift``: how far finer substeps move an optimum, in its own standard
+    deviations: none for the same simulator, more for coarser substeps, and at most the
+    whole change of the output over the residual variance (``|e|^2 / s^2``, computed here
+    from two plain simulations), on a fit at the noise and on one lacking an effect."""
+    import warnings
+
+    from hhra_phys.fit import _accuracy_shift, fit
+    from hhra_phys.problem import Problem
+    from hhra_phys.reference import reference_record
+
+    for eff in (None, {"valve_deadzone": {"i_dead": 0.15}}):
+        est = reference_record(seed=seed, duration=8.0, effects=eff).split(0.5)[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = fit(est, HHRAModel(), pop_size=20, max_iter=20, split=1.0, seed=1)
+        problems = {n: Problem(res.model, est, start=res.values,
+                               simulator=Simulator(res.model, fs=est.fs, substeps=n))
+                    for n in (1, 2, 8)}
+        z = problems[1].to_z(problems[1].start_values())
+        shift = {n: _accuracy_shift(problems[n], problems[8], z) for n in (1, 2)}
+        assert _accuracy_shift(problems[8], problems[8], z) == 0.0
+        assert 0 < shift[2] < shift[1]
+        v = problems[8].from_z(z)
+        e = problems[8].simulate_values(v) - problems[1].simulate_values(v)
+        r = problems[8].simulate_values(v) - problems[8].y
+        bound = float(e @ e) / (float(r @ r) / (r.size - problems[8].n_free))
+        assert shift[1] <= bound * (1 + 1e-9)
