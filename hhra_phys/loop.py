@@ -317,13 +317,13 @@ _LIBRARY_KINDS = ("effect", "sensor")
 _KIND_ORDER = {"effect": 0, "sensor": 0, "discovered": 1, "mode": 2}
 #: What a candidate at the noise level on both parts spares of the rest of its round
 #: (:func:`~hhra_phys.selection.round_settled`): its own kind, and after a library effect of
-#: the dynamics the discovered terms too (on the selection part they could at best tie
-#: with it, within the noise allowance: the named physics is kept before a stand-in).
-#: Sensor effects are refitted whatever settled the round (a sensor's drift and a biased
-#: valve leave the same trend: the tie rule needs both), and resonant modes are never
-#: skipped (a mode at one entry reaches the noise as a stand-in for a mode at another;
-#: the criterion tells them apart).
-_SETTLES = {"effect": ("effect", "discovered"), "sensor": ("sensor",),
+#: the dynamics all of discovery, terms and modes (on the selection part they could at best
+#: tie with it, within the noise allowance: the named physics is kept before a stand-in,
+#: and discovery's screening is not even run). Sensor effects are refitted whatever
+#: settled the round (a sensor's drift and a biased valve leave the same trend: the tie
+#: rule needs both); a discovered term or mode spares no mode (a mode at one entry reaches
+#: the noise as a stand-in for a mode at another; the criterion tells them apart).
+_SETTLES = {"effect": ("effect", "discovered", "mode"), "sensor": ("sensor",),
             "discovered": ("discovered",), "mode": ()}
 
 
@@ -1555,10 +1555,11 @@ class _Loop:
         # the same rule: a straight line's error under a smooth input shows only once
         # the model's own error is below it (docs/measuring.md).
         holds = self._round_holds(rnd)
-        queue, jobs, disc = self._queue(rnd, remaining)
-        if not queue and not holds:
+        queue, jobs = self._queue(rnd, remaining)
+        if not queue and not holds and not self.discover:
             return "no candidates left"
-        tried = holds + (self._refit_all(rnd, queue, jobs, disc, level) if queue else [])
+        tried = holds + (self._refit_all(rnd, queue, jobs, level)
+                         if queue or self.discover else [])
         if not tried:
             say(f"round {rnd}: nothing accepted; stop")
             return "no candidate accepted"
@@ -1569,8 +1570,10 @@ class _Loop:
         return None
 
     def _queue(self, rnd: int, remaining: list[str]
-               ) -> tuple[list[tuple[tuple[bool, int, float], str, Any]], list[_Job], Any]:
-        """Every candidate of the round, library and discovered, in one ranking."""
+               ) -> tuple[list[tuple[tuple[bool, int, float], str, Any]], list[_Job]]:
+        """The round's library candidates (effects of the dynamics and sensor effects) in
+        one ranking, and their refit jobs; discovery's come after them
+        (:meth:`_discovered`)."""
         o, cur, cur_prob = self.o, self.cur, self.cur_prob
         crit_cur = information_criterion(cur, o.criterion)
         rmse_cur = float(cur.metrics["val"]["rmse"])
@@ -1596,20 +1599,7 @@ class _Loop:
             queue += [((not job.evidence["identifiable"], _KIND_ORDER["effect"],
                         -float(job.evidence["score"])), _kind(job.effect), job)
                       for job in jobs]
-        disc = None
-        if self.discover:
-            disc = _discovery(self.cfg, cur, cur_prob, self.cur_free, rnd, o.criterion,
-                              o.discover_kw, self.say, self.skipped, self.tol)
-            if disc is None:
-                self.discover = False
-            else:
-                for prop in disc.proposals():
-                    kind = "mode" if str(prop.entry).startswith("mode:") else "discovered"
-                    queue.append(((False, _KIND_ORDER[kind], -prop.score), kind, prop))
-        # Library effects first, then discovered terms, then modes, each by score (stable:
-        # library order): physics before stand-ins, and the cheap refits first (see
-        # _KIND_ORDER), so a library effect that settles the round spares the searches.
-        queue.sort(key=lambda q: q[0])
+        queue.sort(key=lambda q: q[0])  # identifiable first, by score (stable: library order)
         if self.compiler is not None:
             for job in jobs:
                 try:
@@ -1618,23 +1608,41 @@ class _Loop:
                     continue
                 self.compiler.submit(_warm_compile, self.cfg, m_c, 2 * _search_size(
                     len(new) + len(job.previous), o.cand_pop, o.cand_iter)[0])
-        return queue, jobs, disc
+        return queue, jobs
+
+    def _discovered(self, rnd: int) -> tuple[Any, list[tuple[tuple[bool, int, float], str, Any]]]:
+        """The round's discovery (screened now) and its candidates: discovered terms, then
+        resonant modes, each by first-order score; ``(None, [])`` when the model cannot be
+        screened (discovery then ends for the loop)."""
+        o = self.o
+        disc = _discovery(self.cfg, self.cur, self.cur_prob, self.cur_free, rnd, o.criterion,
+                          o.discover_kw, self.say, self.skipped, self.tol)
+        if disc is None:
+            self.discover = False
+            return None, []
+        items = []
+        for prop in disc.proposals():
+            kind = "mode" if str(prop.entry).startswith("mode:") else "discovered"
+            items.append(((False, _KIND_ORDER[kind], -prop.score), kind, prop))
+        return disc, sorted(items, key=lambda q: q[0])
 
     def _refit_all(self, rnd: int, queue: list[tuple[tuple[bool, int, float], str, Any]],
-                   jobs: list[_Job], disc: Any, level: Mapping[str, Any]
-                   ) -> list[tuple[Step, Any]]:
-        """Refit the queue in order, judge each refit; the acceptable ones.
+                   jobs: list[_Job], level: Mapping[str, Any]) -> list[tuple[Step, Any]]:
+        """Refit the round's candidates in order, judge each refit; the acceptable ones.
 
-        A candidate at the noise level on both parts settles the round for what
+        The library's (``queue``) first, then, when discovery is on, the discovered terms
+        and modes (:meth:`_discovered`, screened once the library's are judged). A
+        candidate at the noise level on both parts settles the round for what
         :data:`_SETTLES` names: its own kind's later candidates, and after a library effect
-        of the dynamics the discovered terms too, are not refitted. Sensor effects go on
-        until one of their own settles, so that a library effect and a sensor's
-        explanation that each reach the noise meet in the tie rule
+        of the dynamics all of discovery (not even screened), are not refitted. Sensor
+        effects go on until one of their own settles, so that a library effect and a
+        sensor's explanation that each reach the noise meet in the tie rule
         (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round
         (a sensor's drift and a biased valve leave the same trend: ranked first, the valve
-        took drift records before the drift was refitted). Discovered resonant modes are
-        never skipped: a mode at one entry can reach the noise as a stand-in for the mode
-        at another, which the information criterion tells apart.
+        took drift records before the drift was refitted). A discovered term or mode that
+        settles the round does not spare the modes: a mode at one entry can reach the
+        noise as a stand-in for the mode at another, which the information criterion
+        tells apart.
         """
         o, say = self.o, self.say
         crit_cur = information_criterion(self.cur, o.criterion)
@@ -1648,8 +1656,23 @@ class _Loop:
         tried: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
+        queue = list(queue)
+        disc, screened = None, not self.discover
         bar = self._bar(rnd, len(queue))
-        for k, (_, kind, item) in enumerate(queue):
+        k = -1
+        while True:
+            k += 1
+            if k == len(queue) and not screened:
+                screened = True
+                if "effect" in settlers:
+                    not_refitted.setdefault("effect", []).append("discovery (not screened)")
+                else:
+                    disc, more = self._discovered(rnd)
+                    queue += more
+                    bar.total += len(more)
+            if k >= len(queue):
+                break
+            _, kind, item = queue[k]
             name = item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}"
             if self._over_budget():
                 self.budget_spent = True
@@ -1661,10 +1684,10 @@ class _Loop:
                 break
             bar.set_postfix_str(name, refresh=False)
             bar.update(1)
-            # Resonant modes are never skipped: a mode at one entry reaches the noise as a
-            # stand-in for a mode at another (an output mode settled a load-mode record's
-            # round before the load was refitted); the criterion tells them apart (choose).
-            by = next((k for k in settlers if kind in _SETTLES[k]), None)
+            # Modes are not spared by a discovered candidate: a mode at one entry reaches the
+            # noise as a stand-in for a mode at another (an output mode settled a load-mode
+            # record's round before the load was refitted); the criterion tells them apart.
+            by = next((s for s in settlers if kind in _SETTLES[s]), None)
             if by is not None:
                 not_refitted.setdefault(by, []).append(name)
                 continue
@@ -1689,7 +1712,7 @@ class _Loop:
                 stream.close()  # cancels library refits queued but not started
         for kind, rest in not_refitted.items():
             step = settlers[kind]
-            what = {"effect": "library effect or discovered term",
+            what = {"effect": "library effect, discovered term or mode",
                     "sensor": "sensor effect"}.get(kind, "discovered candidate")
             note = (f"leaves both parts at the noise level, so no later {what} can beat it "
                     f"by more than the noise allowance: not refitted this round: "

@@ -1,8 +1,9 @@
 """A round's order and what a settled round spares (``loop._KIND_ORDER``, ``loop._SETTLES``).
 
 The round is run by ``_Loop._refit_all`` on stand-in refits (no fits): each queued candidate
-returns a step with given selection and estimation RMSEs, and the test reads which were
-refitted and what the settling step's notes say.
+returns a step with given selection and estimation RMSEs, discovery hands over stand-in
+proposals, and the test reads which were refitted, whether discovery was screened at all,
+and what the settling step's notes say.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from hhra_phys.selection import Step
 NOISE = 0.05
 AT_NOISE = {"rmse": 0.0501}
 ABOVE = {"rmse": 0.09}
+LEVEL = {"noise": NOISE, "estimation": {"noise": NOISE}}
 
 
 class _Res:
@@ -29,12 +31,22 @@ class _Item:
         self.effect, self.entry = name, entry
 
 
-def _loop(outcomes: dict[str, dict[str, float]]) -> tuple[_Loop, list[str]]:
-    """A loop whose refits return a step at ``outcomes[name]`` (selection and estimation)."""
+def _items(*items: tuple[str, str]) -> list:
+    """Queue entries in the given order (first = best first-order score)."""
+    return [((False, _KIND_ORDER[kind], float(i)), kind,
+             _Item(name, name.split("_", 1)[1] if kind != "effect" else ""))
+            for i, (kind, name) in enumerate(items)]
+
+
+def _loop(outcomes: dict[str, dict[str, float]], discovered=()) -> tuple[_Loop, list[str]]:
+    """A loop whose refits return a step at ``outcomes[name]``; ``discovered``: the
+    discovered terms and modes its screening would propose (``refitted`` records
+    ``"screening"`` when it ran)."""
     loop = object.__new__(_Loop)
     loop.o, loop.tol, loop.say = LoopOptions(), 0.068, lambda s: None
     loop.steps, loop.settled, loop.names = [], [], []
-    loop.skipped, loop.cur = {}, _Res()
+    loop.skipped, loop.cur, loop.discover = {}, _Res(), bool(discovered)
+    loop.budget_spent, loop.budget_left = False, []
     refitted: list[str] = []
 
     def refit_one(kind, item, library, disc):
@@ -43,71 +55,76 @@ def _loop(outcomes: dict[str, dict[str, float]]) -> tuple[_Loop, list[str]]:
         step = Step(1, item.effect, {}, {}, {}, dict(out), dict(out), -1000.0, 0.0, 0.5)
         return step, item, ""
 
-    loop._refit_one = refit_one
+    def screened(rnd):
+        refitted.append("screening")
+        return None, _items(*discovered)
+
+    loop._refit_one, loop._discovered = refit_one, screened
     loop._library_refits = lambda jobs: iter(())
     return loop, refitted
 
 
-def _queue(*items: tuple[str, str]) -> list:
-    q = [((False, _KIND_ORDER[kind], float(i)), kind,
-          _Item(name, "rate:p" if kind == "discovered" else ""))
-         for i, (kind, name) in enumerate(items)]
-    return sorted(q, key=lambda x: x[0])
-
-
-LEVEL = {"noise": NOISE, "estimation": {"noise": NOISE}}
-
-
-def test_a_library_effect_at_the_noise_spares_the_discovered_terms_not_sensors_or_modes():
+def test_a_library_effect_at_the_noise_spares_all_of_discovery_but_not_sensors():
     loop, refitted = _loop({"valve_deadzone": AT_NOISE, "coulomb_friction": AT_NOISE,
-                            "discovered_rate_p_1": AT_NOISE, "sensor_drift": ABOVE,
-                            "discovered_mode_output_1": ABOVE})
-    q = _queue(("discovered", "discovered_rate_p_1"), ("effect", "valve_deadzone"),
-               ("mode", "discovered_mode_output_1"), ("sensor", "sensor_drift"),
+                            "sensor_drift": ABOVE},
+                           discovered=[("discovered", "discovered_rate_p_1"),
+                                       ("mode", "discovered_mode_output_1")])
+    q = _items(("effect", "valve_deadzone"), ("sensor", "sensor_drift"),
                ("effect", "coulomb_friction"))
-    tried = loop._refit_all(1, q, [], None, LEVEL)
-    # library (effects and sensors by score) first, then discovered, then modes
-    assert refitted == ["valve_deadzone", "sensor_drift", "discovered_mode_output_1"]
+    tried = loop._refit_all(1, q, [], LEVEL)
+    assert refitted == ["valve_deadzone", "sensor_drift"]  # not even screened
     assert [s.effect for s, _ in tried][0] == "valve_deadzone"
     assert loop.settled == [{"round": 1, "by": "valve_deadzone",
-                             "not_refitted": ["coulomb_friction", "discovery at rate:p"]}]
-    assert "library effect or discovered term" in loop.steps[0].notes[0]
+                             "not_refitted": ["coulomb_friction", "discovery (not screened)"]}]
+    assert "library effect, discovered term or mode" in loop.steps[0].notes[0]
 
 
-def test_a_discovered_term_at_the_noise_spares_only_discovered_terms():
+def test_discovery_comes_after_the_library_and_a_term_spares_terms_not_modes():
     loop, refitted = _loop({"valve_deadzone": ABOVE, "discovered_input_1": AT_NOISE,
-                            "discovered_rate_p_1": AT_NOISE, "discovered_mode_input_1": ABOVE})
-    q = _queue(("discovered", "discovered_input_1"), ("discovered", "discovered_rate_p_1"),
-               ("effect", "valve_deadzone"), ("mode", "discovered_mode_input_1"))
-    loop._refit_all(1, q, [], None, LEVEL)
-    assert refitted == ["valve_deadzone", "discovered_input_1", "discovered_mode_input_1"]
-    assert loop.settled[0]["by"] == "discovered_input_1"
+                            "discovered_rate_p_1": AT_NOISE, "discovered_mode_input_1": ABOVE},
+                           discovered=[("discovered", "discovered_input_1"),
+                                       ("discovered", "discovered_rate_p_1"),
+                                       ("mode", "discovered_mode_input_1")])
+    loop._refit_all(1, _items(("effect", "valve_deadzone")), [], LEVEL)
+    assert refitted == ["valve_deadzone", "screening", "discovered_input_1",
+                        "discovered_mode_input_1"]
+    assert loop.settled == [{"round": 1, "by": "discovered_input_1",
+                             "not_refitted": ["discovery at rate_p_1"]}]
 
 
 @pytest.mark.parametrize("kind", ["sensor", "mode"])
-def test_sensor_effects_and_modes_spare_no_physics(kind):
+def test_sensor_effects_and_modes_spare_no_library_physics(kind):
     first = "sensor_drift" if kind == "sensor" else "discovered_mode_output_1"
-    loop, refitted = _loop({first: AT_NOISE, "valve_deadzone": AT_NOISE,
-                            "discovered_rate_p_1": ABOVE})
-    q = _queue((kind, first), ("effect", "valve_deadzone"),
-               ("discovered", "discovered_rate_p_1"))
-    loop._refit_all(1, q, [], None, LEVEL)
-    # the dead zone (at the noise) then spares the discovered term
+    outcomes = {first: AT_NOISE, "valve_deadzone": AT_NOISE, "discovered_rate_p_1": ABOVE}
+    if kind == "sensor":
+        loop, refitted = _loop(outcomes, discovered=[("discovered", "discovered_rate_p_1")])
+        q = _items(("sensor", first), ("effect", "valve_deadzone"))
+    else:
+        loop, refitted = _loop(outcomes, discovered=[("mode", first)])
+        loop.discover = True
+        q = _items(("effect", "valve_deadzone"))
+        outcomes["valve_deadzone"] = ABOVE  # so that discovery runs
+    loop._refit_all(1, q, [], LEVEL)
     assert first in refitted and "valve_deadzone" in refitted
     assert "discovered_rate_p_1" not in refitted
 
 
+def test_a_round_without_library_candidates_still_screens_discovery():
+    loop, refitted = _loop({"discovered_input_1": ABOVE},
+                           discovered=[("discovered", "discovered_input_1")])
+    tried = loop._refit_all(1, [], [], LEVEL)
+    assert refitted == ["screening", "discovered_input_1"]
+    assert [s.effect for s, _ in tried] == ["discovered_input_1"]
+
+
 def test_a_spent_budget_ends_the_round_and_names_what_was_not_refitted():
-    loop, refitted = _loop({"valve_deadzone": ABOVE, "coulomb_friction": ABOVE,
-                            "discovered_rate_p_1": ABOVE})
-    loop.budget_spent, loop.budget_left = False, []
+    loop, refitted = _loop({"valve_deadzone": ABOVE, "coulomb_friction": ABOVE})
     loop.o = LoopOptions(budget=5.0)
     checks = iter([False, True, True])  # spent after the first refit
     loop._over_budget = lambda: next(checks)
-    q = _queue(("effect", "valve_deadzone"), ("effect", "coulomb_friction"),
-               ("discovered", "discovered_rate_p_1"))
-    tried = loop._refit_all(1, q, [], None, LEVEL)
+    q = _items(("effect", "valve_deadzone"), ("effect", "coulomb_friction"))
+    tried = loop._refit_all(1, q, [], LEVEL)
     assert refitted == ["valve_deadzone"]
     assert [s.effect for s, _ in tried] == ["valve_deadzone"]  # still chosen among
     assert loop.budget_spent
-    assert loop.budget_left == ["coulomb_friction", "discovery at rate:p"]
+    assert loop.budget_left == ["coulomb_friction"]
