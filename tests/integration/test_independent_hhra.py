@@ -15,12 +15,12 @@ the table; docs/model.md, "Numerical choices", has the numbers):
 * with the package's smoothing the two agree to the package's integration error, on every
   set (hydraulic resonance 0.4x to 2.5x the rig's, 60 deg swings): equations, hold and
   integrator are right;
-* against the exact orifice law the package differs by up to about 0.01 deg: the smoothed
+* against the exact orifice law the package differs by up to 0.013 deg: the smoothed
   signed root ``(sqrt(|z| + delta) - sqrt(delta))/(sqrt(1 + delta) - sqrt(delta))`` is off by
-  about ``sqrt(delta) (sqrt(z) - 1)``, i.e. 1e-3 of the flow when the drop ``z`` is small
-  (a heavily damped actuator moving fast runs near the supply pressure), and the angle
-  integrates that bias. It scales as ``sqrt(delta)``: the package's own valve with
-  ``sqrt_delta=1e-10`` agrees with the exact law to the integration error;
+  about ``sqrt(delta) (sqrt(z) - 1)``, i.e. up to 1e-3 of the full-drop flow ``g_valve |I|``
+  when the drop ``z`` is small (a heavily damped actuator moving fast runs near the supply
+  pressure), and the angle integrates that bias. It scales as ``sqrt(delta)``: the package's
+  own valve with ``sqrt_delta=1e-10`` is within about 1e-4 deg of the exact law;
 * the smoothed sign (``eps`` = 1e-3 mA) contributes at most 3e-5 deg at these currents.
 """
 
