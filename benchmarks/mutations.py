@@ -64,6 +64,11 @@ MODE_TESTS = "tests/integration/test_discover_mode.py"
 MULTI_TEST = "tests/integration/test_multi_diagnose.py"
 PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test_cylinder.py",
                  "tests/integration/test_fit.py")
+#: Issue 35's three areas: members' own initial states, the backward step's choice, the
+#: widening's release rule (unit tests of seconds; the fits of test_widen.py are not needed).
+X0_TESTS = ("tests/unit/test_vectorize.py",)
+BACKWARD_TESTS = ("tests/unit/test_loop_backward.py",)
+WIDEN_RULE_TESTS = ("tests/unit/test_widen_rule.py",)
 
 
 @dataclass(frozen=True)
@@ -665,6 +670,138 @@ MUTATIONS: tuple[Mutation, ...] = (
         "a, b = getattr(first, attr), getattr(ds, attr)",
         "a = b = getattr(first, attr)",
         (MULTI_TEST,),
+    ),
+    # -- issue 35: three rules mutations written outside the project got past -----------------
+    # Members starting from different states (per-member initial states across lanes). The old
+    # tests gave every member the same start, so any permutation of the starts passed.
+    _m(
+        "simd-x0-rows-reshaped",
+        "per-member initial states (n_pop, nx) laid out by a reshape instead of a transpose",
+        "X0 = x0a.T.copy()",
+        "X0 = x0a.reshape(nx, n_pop)",
+        X0_TESTS,
+    ),
+    _m(
+        "simd-x0-groups-lanes-swapped",
+        "vector code: member g*width + l's start packed as member l*groups + g",
+        "X.reshape(X.shape[0], groups, width).transpose(1, 0, 2).reshape(-1, width)",
+        "X.reshape(X.shape[0], width, groups).transpose(2, 0, 1).reshape(-1, width)",
+        X0_TESTS,
+    ),
+    _m(
+        "simd-x0-lanes-reversed",
+        "interleaved scalar lanes read their states in reverse lane order",
+        "xk, pk = x[:, lane], p[:, lane]",
+        "xk, pk = x[:, lanes - 1 - lane], p[:, lane]",
+        X0_TESTS,
+    ),
+    # Which accepted effect the backward step takes out: the removable one whose removal
+    # leaves the lowest selection RMSE, every effect before the newest checked.
+    _m(
+        "loop-backward-drops-largest",
+        "of the removable effects the backward step takes out the one leaving the highest RMSE",
+        "_, step, p2, r2, free_r = min(out, key=lambda t: t[0])",
+        "_, step, p2, r2, free_r = max(out, key=lambda t: t[0])",
+        BACKWARD_TESTS,
+    ),
+    _m(
+        "loop-backward-drops-first",
+        "the backward step takes out the first removable effect (in the order accepted)",
+        "_, step, p2, r2, free_r = min(out, key=lambda t: t[0])",
+        "_, step, p2, r2, free_r = out[0]",
+        BACKWARD_TESTS,
+    ),
+    _m(
+        "loop-backward-drops-last",
+        "the backward step takes out the last removable effect checked",
+        "_, step, p2, r2, free_r = min(out, key=lambda t: t[0])",
+        "_, step, p2, r2, free_r = out[-1]",
+        BACKWARD_TESTS,
+    ),
+    _m(
+        "loop-backward-drops-lowest-criterion",
+        "the backward step takes out the removable effect with the lowest criterion, not RMSE",
+        "_, step, p2, r2, free_r = min(out, key=lambda t: t[0])",
+        "_, step, p2, r2, free_r = min(out, key=lambda t: t[1].criterion_before)",
+        BACKWARD_TESTS,
+    ),
+    _m(
+        "loop-backward-checks-newest",
+        "the backward step checks the newest effect and skips the oldest",
+        "    for effect in chosen[:-1]:",
+        "    for effect in chosen[1:]:",
+        BACKWARD_TESTS,
+    ),
+    # The rule that lets a group out of its default box.
+    _m(
+        "widen-need-strict",
+        "a side is widened only when the predicted gain exceeds need (not reaches it)",
+        "new = widened_box(par, side) if predicted >= need else None",
+        "new = widened_box(par, side) if predicted > need else None",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-excess-limit-strict",
+        "a residual exactly at the excess limit counts as model error",
+        "need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN",
+        "need = WIDEN_MIN_GAIN if excess < WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-need-swapped",
+        "the clear gain asked while the residual is mostly noise, the small one otherwise",
+        "need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN",
+        "need = WIDEN_CLEAR_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_MIN_GAIN",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-release-inward-counts",
+        "a release whose step moves the group back inside its box still counts as a gain",
+        "gains.append((base - ssr) / total if outward and total > 0 else 0.0)",
+        "gains.append((base - ssr) / total if total > 0 else 0.0)",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-release-alone",
+        "the released group moves alone: the other free groups do not follow it",
+        "cols = [j for j in range(problem.n_free) if j not in held or j == i]",
+        "cols = [i]",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-limit-one-more-decade",
+        "a side may be widened once more at MAX_WIDEN_DECADES beyond the default box",
+        "return bool(abs(np.log10(edge / first)) < MAX_WIDEN_DECADES - 0.5)",
+        "return bool(abs(np.log10(edge / first)) <= MAX_WIDEN_DECADES)",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-limit-lower-unbounded",
+        "the decade limit without abs(): a lower side is widened without end",
+        "return bool(abs(np.log10(edge / first)) < MAX_WIDEN_DECADES - 0.5)",
+        "return bool(np.log10(edge / first) < MAX_WIDEN_DECADES - 0.5)",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-no-stop",
+        "rounds go on after a refit that gained less than WIDEN_MIN_GAIN",
+        "        if gain < WIDEN_MIN_GAIN:\n            break",
+        "        if gain < 0:\n            break",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-signed-zero-side",
+        "a signed lower side at zero is moved (to zero again: the sign check read as <= 0)",
+        'if side == "lower" and lo < 0:',
+        'if side == "lower" and lo <= 0:',
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-user-box",
+        "a box the user gave (not a default one) is widened like a default one",
+        "if name not in origin or name in box or not _may_widen(par, side, origin[name]):",
+        "if name in box or not _may_widen(par, side, origin.get(name, (par.lower, par.upper))):",
+        WIDEN_RULE_TESTS,
     ),
 )
 
