@@ -69,6 +69,7 @@ PROBLEM_TESTS = ("tests/integration/test_user_model.py", "tests/integration/test
 X0_TESTS = ("tests/unit/test_vectorize.py",)
 BACKWARD_TESTS = ("tests/unit/test_loop_backward.py",)
 WIDEN_RULE_TESTS = ("tests/unit/test_widen_rule.py",)
+SETTLE_TESTS = ("tests/unit/test_loop_settle.py",)
 
 
 @dataclass(frozen=True)
@@ -785,9 +786,37 @@ MUTATIONS: tuple[Mutation, ...] = (
     _m(
         "widen-no-stop",
         "rounds go on after a refit that gained less than WIDEN_MIN_GAIN",
-        "        if gain < WIDEN_MIN_GAIN:\n            break",
-        "        if gain < 0:\n            break",
+        "        if gain < WIDEN_MIN_GAIN or not confirmed:\n            break",
+        "        if gain < 0 or not confirmed:\n            break",
         WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-search-unchecked",
+        "a widening round searches the wider box whatever the refiners' check gained",
+        "    if more and not (cost > 0 and (cost - loc_cost) / cost >= need):",
+        "    if False:",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "widen-local-ignored",
+        "a confirmed round keeps the global search's optimum even where the local one is better",
+        "    if loc_cost < new_cost:\n        return z_loc, loc_cost, True",
+        "    if False:\n        return z_loc, loc_cost, True",
+        WIDEN_RULE_TESTS,
+    ),
+    _m(
+        "loop-settle-library-spares-only-library",
+        "a library effect at the noise level no longer spares discovery",
+        '_SETTLES = {"effect": ("effect", "discovered", "mode"), "sensor": ("sensor",),',
+        '_SETTLES = {"effect": ("effect",), "sensor": ("sensor",),',
+        SETTLE_TESTS,
+    ),
+    _m(
+        "loop-settle-sensor-spared",
+        "a library effect at the noise level spares the sensor effects too",
+        '_SETTLES = {"effect": ("effect", "discovered", "mode"), "sensor": ("sensor",),',
+        '_SETTLES = {"effect": ("effect", "sensor", "discovered", "mode"), "sensor": ("sensor",),',
+        SETTLE_TESTS,
     ),
     _m(
         "widen-signed-zero-side",

@@ -685,7 +685,7 @@ def widen_boxes(
         if not np.isfinite(cost) or not edges:
             break  # a diverged fit is not at an edge for a reason a wider box would fix
         if excess is None:
-            cost, excess = _cost_and_excess(problem, z)
+            excess = _cost_and_excess(problem, z)[1]
         need = WIDEN_MIN_GAIN if excess <= WIDEN_MAX_EXCESS else WIDEN_CLEAR_GAIN
         box, changes = _sides_to_widen(problem, edges, _release_gains(problem, z, edges),
                                        origin, need, round_)

@@ -1664,8 +1664,9 @@ class _Loop:
             k += 1
             if k == len(queue) and not screened:
                 screened = True
-                if "effect" in settlers:
-                    not_refitted.setdefault("effect", []).append("discovery (not screened)")
+                spares = [s for s in settlers if {"discovered", "mode"} <= set(_SETTLES[s])]
+                if spares:  # nothing of discovery could be refitted: not even screened
+                    not_refitted.setdefault(spares[0], []).append("discovery (not screened)")
                 else:
                     disc, more = self._discovered(rnd)
                     queue += more

@@ -206,18 +206,30 @@ def test_only_default_boxes_within_the_limit_are_widened():
 # --- widen_boxes: which ``need``, when to stop ---------------------------------------------------
 
 
-def _run_widen(monkeypatch, excess: float, gain: float, refit_costs: list[float]):
-    """widen_boxes with g_a at its upper edge, a release gain ``gain`` predicted every round,
-    the residual's excess over the noise ``excess`` and the refits' costs ``refit_costs``."""
+def _run_widen(monkeypatch, excess: float, gain: float, refit_costs: list[float],
+               local_costs: list[float] | None = None):
+    """widen_boxes with g_a at its upper edge (cost 1 there), a release gain ``gain``
+    predicted every round, the residual's excess over the noise ``excess`` and the global
+    refits' costs ``refit_costs``; ``local_costs``: the costs the refiners alone reach in
+    each round's check (None: no refiner ran, so the search runs unchecked). ``searches``
+    lists the global searches' labels."""
     problem = _two_groups()
-    costs = iter([1.0, *refit_costs])
+    costs, local = iter(refit_costs), iter(local_costs or [])
+    reached = {}
     monkeypatch.setattr(fitmod, "at_edges", lambda prob, z: [(0, "upper")])
-    monkeypatch.setattr(fitmod, "_cost_and_excess", lambda prob, z: (next(costs), excess))
+    monkeypatch.setattr(fitmod, "_cost_and_excess", lambda prob, z: (1.0, excess))
+    monkeypatch.setattr(fitmod, "_cost", lambda prob, z: reached["cost"])
     monkeypatch.setattr(fitmod, "_release_gains", lambda prob, z, edges: [gain] * len(edges))
     searches = []
 
-    def search(prob, z_start, label):
+    def search(prob, z_start, label, global_search=True):
+        if not global_search:
+            if local_costs is None:
+                return np.asarray(z_start, dtype=float), [], []
+            reached["cost"] = next(local)
+            return np.asarray(z_start, dtype=float), ["a refiner's stage"], []
         searches.append(label)
+        reached["cost"] = next(costs)
         return np.asarray(z_start, dtype=float), [], []
 
     out, _, widened = widen_boxes(problem, np.array([20.0, 5.0]), search, [], [])
@@ -257,3 +269,24 @@ def test_rounds_stop_at_the_decade_limit(monkeypatch):
     out, widened, searches = _run_widen(monkeypatch, 0.2, 0.3, [0.5, 0.25, 0.125, 0.06])
     assert len(widened) == MAX_WIDEN_DECADES
     assert out.free_params[0].upper == pytest.approx(20.0 * 10 ** MAX_WIDEN_DECADES)
+
+
+def test_a_round_searches_globally_only_when_the_refiners_bear_the_prediction_out(monkeypatch):
+    # Model error (need = WIDEN_CLEAR_GAIN): the local refit gains 0.2 %, less than the
+    # 10 % the prediction promised: no global search, widening stops there.
+    out, widened, searches = _run_widen(monkeypatch, 0.8, WIDEN_CLEAR_GAIN, [], [0.998])
+    assert searches == [] and len(widened) == 1
+    assert widened[0]["searched"] is False and widened[0]["gain"] == pytest.approx(0.002)
+    assert out.free_params[0].upper == pytest.approx(200.0)
+    # Borne out (a local gain just above the need): the global search runs, rounds go on
+    # (the second round's check is not borne out).
+    out, widened, searches = _run_widen(monkeypatch, 0.8, WIDEN_CLEAR_GAIN, [0.8],
+                                        [0.99 - WIDEN_CLEAR_GAIN, 0.79])
+    assert searches == [" (widened 1)"] and [w.get("searched", True) for w in widened] == [
+        True, False]
+
+
+def test_a_round_keeps_the_better_of_the_local_and_the_global_refit(monkeypatch):
+    _, widened, searches = _run_widen(monkeypatch, 0.2, 0.3, [0.7, 0.7], [0.5, 0.5])
+    assert searches == [" (widened 1)"]
+    assert widened[0]["gain"] == pytest.approx(0.5)  # the local 0.5, not the search's 0.7
