@@ -315,6 +315,14 @@ _LIBRARY_KINDS = ("effect", "sensor")
 #: refits of every free parameter, one per form and dropped term (37-42 s on the same
 #: record), and a settled round spares what comes after (:data:`_SETTLES`).
 _KIND_ORDER = {"effect": 0, "sensor": 0, "discovered": 1, "mode": 2}
+#: A round's refits in units of the base fit's wall time, for the estimate said before
+#: each round (:meth:`_Loop._estimate`): a library refit (shared among the workers), the
+#: discovery screen, a discovered entry (several refits of every free parameter) and a
+#: resonant mode, with the number of term and mode entries a round usually proposes.
+#: Measured on 5000-sample reference-rig records (a base fit of 6-16 s, a library refit
+#: 0.2-0.3 of it, a mode fit 0.5-0.8, a term entry 1.5-2.7): an upper bound by design.
+_ROUND_COST = {"library": 0.3, "screen": 0.3, "term": 2.5, "mode": 0.8, "entries": 3,
+               "modes": 3}
 #: What a candidate at the noise level on both parts spares of the rest of its round
 #: (:func:`~hhra_phys.selection.round_settled`): its own kind, and after a library effect of
 #: the dynamics all of discovery, terms and modes (on the selection part they could at best
@@ -1369,6 +1377,9 @@ class _Loop:
             cur = _run(cfg, prob, "none", 0, 0, refine="none")
         self.cfg = replace(cfg, substeps=_substeps(prob))
         self.base_res, self.base_prob, self.base_free = cur, prob, base_free
+        # The unit of the rounds' estimates (_estimate): the base fit's wall time.
+        self.t_base = float(cur.settings.get("seconds", 0.0)) or 1.0
+        self.unit_seconds: float | None = None
         self.cur, self.cur_prob, self.cur_free = cur, prob, list(base_free)
         say(f"  base: est RMSE {cur.metrics['est']['rmse']:.4g}, "
             f"selection RMSE {cur.metrics['val']['rmse']:.4g}")
@@ -1464,6 +1475,30 @@ class _Loop:
         for k, v in state.items():
             setattr(self, k, _shallow(v))
 
+    def _estimate(self, rnd: int, n_library: int) -> str:
+        """What round ``rnd`` may cost at most (wall seconds), said before it runs.
+
+        In units of the base fit's wall time (:data:`_ROUND_COST`), with the library's
+        refits shared among the executor's workers; from round 2 on, scaled by the last
+        round's measured cost per unit. An upper bound in the common case: a candidate
+        at the noise level spares the rest (:data:`_SETTLES`).
+        """
+        c = _ROUND_COST
+        workers = _lookahead(self.executor) if self.executor is not None else 1
+        units = c["library"] * n_library / (workers or 2)
+        if self.discover:
+            units += c["screen"] + c["term"] * c["entries"] + c["mode"] * c["modes"]
+        scale = self.t_base if self.unit_seconds is None else self.unit_seconds
+        est = units * scale
+        self.round_units, self.round_t0 = units, time.perf_counter()
+        left = self.o.max_effects - len(self.chosen)
+        budget = (f"; budget {self.o.budget:g} s, {time.perf_counter() - self.t0:.0f} s "
+                  "spent" if self.o.budget is not None else "")
+        return (f"round {rnd}: {n_library} library candidate{'s' * (n_library != 1)}"
+                + (" then discovery" if self.discover else "")
+                + f": up to about {est:.0f} s (at most {left} more round"
+                + f"{'s' * (left != 1)}: up to about {left * est:.0f} s){budget}")
+
     def _over_budget(self) -> bool:
         """Whether the loop's wall-clock budget (:attr:`LoopOptions.budget`) is spent."""
         return self.o.budget is not None and time.perf_counter() - self.t0 > self.o.budget
@@ -1558,6 +1593,7 @@ class _Loop:
         queue, jobs = self._queue(rnd, remaining)
         if not queue and not holds and not self.discover:
             return "no candidates left"
+        say(self._estimate(rnd, len(queue)))
         tried = holds + (self._refit_all(rnd, queue, jobs, level)
                          if queue or self.discover else [])
         if not tried:
@@ -1708,6 +1744,8 @@ class _Loop:
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
         bar.close()
+        if getattr(self, "round_units", 0):  # the next round's estimate: this one's pace
+            self.unit_seconds = (time.perf_counter() - self.round_t0) / self.round_units
         for stream in library.values():
             if hasattr(stream, "close"):
                 stream.close()  # cancels library refits queued but not started
