@@ -1476,28 +1476,33 @@ class _Loop:
             setattr(self, k, _shallow(v))
 
     def _estimate(self, rnd: int, n_library: int) -> str:
-        """What round ``rnd`` may cost at most (wall seconds), said before it runs.
+        """What round ``rnd`` may cost (wall seconds), said before it runs.
 
         In units of the base fit's wall time (:data:`_ROUND_COST`), with the library's
         refits shared among the executor's workers; from round 2 on, scaled by the last
-        round's measured cost per unit. An upper bound in the common case: a candidate
-        at the noise level spares the rest (:data:`_SETTLES`).
+        round's measured cost per unit. The library's refits come first; discovery's
+        (screen, term entries, modes) only when no library effect settles the round.
         """
         c = _ROUND_COST
         workers = _lookahead(self.executor) if self.executor is not None else 1
-        units = c["library"] * n_library / (workers or 2)
-        if self.discover:
-            units += c["screen"] + c["term"] * c["entries"] + c["mode"] * c["modes"]
+        library = c["library"] * n_library / (workers or 2)
+        discovery = (c["screen"] + c["term"] * c["entries"] + c["mode"] * c["modes"]
+                     if self.discover else 0.0)
         scale = self.t_base if self.unit_seconds is None else self.unit_seconds
-        est = units * scale
-        self.round_units, self.round_t0 = units, time.perf_counter()
+        # The round's pace is measured on what it runs (discovery only if screened).
+        self.round_units, self.round_t0 = library, time.perf_counter()
+        self.round_discovery_units = discovery
         left = self.o.max_effects - len(self.chosen)
-        budget = (f"; budget {self.o.budget:g} s, {time.perf_counter() - self.t0:.0f} s "
-                  "spent" if self.o.budget is not None else "")
-        return (f"round {rnd}: {n_library} library candidate{'s' * (n_library != 1)}"
-                + (" then discovery" if self.discover else "")
-                + f": up to about {est:.0f} s (at most {left} more round"
-                + f"{'s' * (left != 1)}: up to about {left * est:.0f} s){budget}")
+        text = (f"round {rnd}: {n_library} library candidate{'s' * (n_library != 1)}, about "
+                f"{library * scale:.0f} s")
+        if self.discover:
+            text += (f"; then discovery, up to about {discovery * scale:.0f} s more, unless a "
+                     "library effect reaches the noise level")
+        text += f"; at most {left} round{'s' * (left != 1)} to go"
+        if self.o.budget is not None:
+            text += (f"; budget {self.o.budget:g} s, "
+                     f"{time.perf_counter() - self.t0:.0f} s spent")
+        return text
 
     def _over_budget(self) -> bool:
         """Whether the loop's wall-clock budget (:attr:`LoopOptions.budget`) is spent."""
@@ -1704,6 +1709,8 @@ class _Loop:
                 if spares:  # nothing of discovery could be refitted: not even screened
                     not_refitted.setdefault(spares[0], []).append("discovery (not screened)")
                 else:
+                    self.round_units = (getattr(self, "round_units", 0.0)
+                                        + getattr(self, "round_discovery_units", 0.0))
                     disc, more = self._discovered(rnd)
                     queue += more
                     bar.total += len(more)
