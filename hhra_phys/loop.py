@@ -1685,7 +1685,7 @@ class _Loop:
         noise as a stand-in for the mode at another, which the information criterion
         tells apart.
         """
-        o, say = self.o, self.say
+        o = self.o
         crit_cur = information_criterion(self.cur, o.criterion)
         rmse_cur = float(self.cur.metrics["val"]["rmse"])
         noise_sel = float(level["noise"])
@@ -1700,62 +1700,91 @@ class _Loop:
         queue = list(queue)
         disc, screened = None, not self.discover
         bar = self._bar(rnd, len(queue))
-        k = -1
+        k = 0
         while True:
-            k += 1
             if k == len(queue) and not screened:
                 screened = True
-                spares = [s for s in settlers if {"discovered", "mode"} <= set(_SETTLES[s])]
-                if spares:  # nothing of discovery could be refitted: not even screened
-                    not_refitted.setdefault(spares[0], []).append("discovery (not screened)")
-                else:
-                    self.round_units = (getattr(self, "round_units", 0.0)
-                                        + getattr(self, "round_discovery_units", 0.0))
-                    disc, more = self._discovered(rnd)
-                    queue += more
-                    bar.total += len(more)
-            if k >= len(queue):
+                disc = self._add_discovery(rnd, queue, settlers, not_refitted, bar)
+            if k >= len(queue) or self._budget_ends(queue[k:]):
                 break
             _, kind, item = queue[k]
-            name = item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}"
-            if self._over_budget():
-                self.budget_spent = True
-                self.budget_left = [n for _, kd, it in queue[k:] for n in
-                                    [it.effect if kd in _LIBRARY_KINDS
-                                     else f"discovery at {it.entry}"]]
-                self.say(f"  budget of {o.budget:g} s spent: not refitted this round: "
-                         f"{', '.join(self.budget_left)}")
-                break
-            bar.set_postfix_str(name, refresh=False)
+            k += 1
+            bar.set_postfix_str(_label(kind, item), refresh=False)
             bar.update(1)
             # Modes are not spared by a discovered candidate: a mode at one entry reaches the
             # noise as a stand-in for a mode at another (an output mode settled a load-mode
             # record's round before the load was refitted); the criterion tells them apart.
             by = next((s for s in settlers if kind in _SETTLES[s]), None)
             if by is not None:
-                not_refitted.setdefault(by, []).append(name)
+                not_refitted.setdefault(by, []).append(_label(kind, item))
                 continue
             got = self._refit_one(kind, item, library, disc)
             if got is None:
                 continue
             step, payload, veto = got
-            ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
-            if veto:
-                ok, step.reason = False, f"dropped: {veto} ({step.reason})"
-            say(f"  tried {step.effect}"
-                + (f": {step.expression}" if isinstance(step, DiscoveredStep) else "")
-                + f"; {step.reason} [{step.seconds:.1f} s]")
-            self.steps.append(step)
+            ok = self._judge(step, veto, rmse_cur, crit_cur, noise_sel)
             if ok:
                 tried.append((step, payload))
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
+        self._end_round(rnd, bar, library, settlers, not_refitted)
+        return tried
+
+    def _end_round(self, rnd: int, bar: Any, library: Mapping[str, Any],
+                   settlers: Mapping[str, Step], not_refitted: Mapping[str, list[str]]) -> None:
+        """Close the round: its bar, its pace (the next estimate's unit), the library
+        refits not started, and the notes of what settled it."""
         bar.close()
-        if getattr(self, "round_units", 0):  # the next round's estimate: this one's pace
+        if getattr(self, "round_units", 0):
             self.unit_seconds = (time.perf_counter() - self.round_t0) / self.round_units
         for stream in library.values():
             if hasattr(stream, "close"):
                 stream.close()  # cancels library refits queued but not started
+        self._report_settled(rnd, settlers, not_refitted)
+
+    def _add_discovery(self, rnd: int, queue: list[Any], settlers: Mapping[str, Step],
+                       not_refitted: dict[str, list[str]], bar: Any) -> Any:
+        """After the library's refits: discovery's candidates appended to ``queue`` (its
+        screen run now), or, when a settled candidate spares all of discovery, a note that
+        it was not even screened; the round's :class:`Discovery` or None."""
+        spares = [s for s in settlers if {"discovered", "mode"} <= set(_SETTLES[s])]
+        if spares:
+            not_refitted.setdefault(spares[0], []).append("discovery (not screened)")
+            return None
+        self.round_units = (getattr(self, "round_units", 0.0)
+                            + getattr(self, "round_discovery_units", 0.0))
+        disc, more = self._discovered(rnd)
+        queue += more
+        bar.total += len(more)
+        return disc
+
+    def _budget_ends(self, rest: Sequence[Any]) -> bool:
+        """Whether the budget is spent before the round's ``rest``; says what is left."""
+        if not self._over_budget():
+            return False
+        self.budget_spent = True
+        self.budget_left = [_label(kind, item) for _, kind, item in rest]
+        self.say(f"  budget of {self.o.budget:g} s spent: not refitted this round: "
+                 f"{', '.join(self.budget_left)}")
+        return True
+
+    def _judge(self, step: Step, veto: str, rmse_cur: float, crit_cur: float,
+               noise_sel: float) -> bool:
+        """Judge a refitted candidate (:func:`~hhra_phys.selection.judge`, or its veto),
+        say it and keep its step; whether it is acceptable."""
+        o = self.o
+        ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
+        if veto:
+            ok, step.reason = False, f"dropped: {veto} ({step.reason})"
+        self.say(f"  tried {step.effect}"
+                 + (f": {step.expression}" if isinstance(step, DiscoveredStep) else "")
+                 + f"; {step.reason} [{step.seconds:.1f} s]")
+        self.steps.append(step)
+        return ok
+
+    def _report_settled(self, rnd: int, settlers: Mapping[str, Step],
+                        not_refitted: Mapping[str, list[str]]) -> None:
+        """Note on each settling step what it spared (and ``settings["settled"]``)."""
         for kind, rest in not_refitted.items():
             step = settlers[kind]
             what = {"effect": "library effect, discovered term or mode",
@@ -1765,8 +1794,7 @@ class _Loop:
                     f"{', '.join(rest)}")
             step.notes.append(note)
             self.settled.append({"round": rnd, "by": step.effect, "not_refitted": rest})
-            say(f"  {step.effect} {note}")
-        return tried
+            self.say(f"  {step.effect} {note}")
 
     def _library_refits(self, jobs: list[_Job]) -> Any:
         """The refits of ``jobs`` in their order, on the loop's executor if it has one."""
@@ -1872,6 +1900,11 @@ class _Loop:
         }
         return LoopResult(self.base_res, cur, self.steps, self.chosen, self.diagnoses,
                           final_diag, settings, self.warnings, self.skipped, test_scores)
+
+
+def _label(kind: str, item: Any) -> str:
+    """A queued candidate's name in the loop's notes: the effect, or the discovery entry."""
+    return item.effect if kind in _LIBRARY_KINDS else f"discovery at {item.entry}"
 
 
 def _silent(text: str) -> None:
