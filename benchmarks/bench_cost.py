@@ -1,8 +1,8 @@
 """``hhra-phys fit`` and ``hhra-phys diagnose`` on several records, this checkout beside others.
 
 The cost issue's side-by-side measurement: each record is written once (the independent
-reference implementation, :func:`hhra_phys.reference.reference_record`, 20 s at 250 Hz),
-then each command runs on it as a subprocess under every checkout in turn (this one first,
+reference implementation, :func:`hhra_phys.reference.reference_record`, 20 s at 250 Hz by
+default, ``--duration`` for longer), then each command runs on it as a subprocess under every checkout in turn (this one first,
 then each ``--against`` folder, a checkout of another commit: ``git worktree add --detach
 DIR COMMIT``), so the load of the machine falls alike on all. Each checkout has its own
 compiled-code cache, warmed by one unrecorded run of each command first. Per run: CPU
@@ -97,6 +97,9 @@ def main() -> None:
                     help="another checkout's folder (repeatable)")
     ap.add_argument("--only", default="", help="comma-separated record indices (0-based)")
     ap.add_argument("--extra", default="", help="extra options for every command")
+    ap.add_argument("--duration", type=float, default=20.0,
+                    help="record length [s] at 250 Hz (20: 5000 samples; the cost's growth "
+                         "with the record: run at 20, 80 and 200)")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
@@ -111,7 +114,7 @@ def main() -> None:
         paths = []
         for name, seed, eff in recs:
             p = Path(tmp, f"{name}-{seed}.csv")
-            save_csv(reference_record(seed=seed, duration=20.0, effects=eff or None), p)
+            save_csv(reference_record(seed=seed, duration=args.duration, effects=eff or None), p)
             paths.append(p)
         envs = {}
         for k, tree in enumerate(trees):
@@ -128,6 +131,7 @@ def main() -> None:
                     out.unlink(missing_ok=True)
                     wall, cpu, rc = _run(_command(c, rec, out, args.extra.split()), envs[tree])
                     row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
+                           "samples": int(round(args.duration * 250)),
                            "commit": _commit(tree), "wall_s": round(wall, 2),
                            "cpu_s": round(cpu, 2), "exit": rc,
                            **_score(c, out)}
