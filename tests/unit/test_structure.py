@@ -1,0 +1,209 @@
+"""The package's structure stays as issue 34 left it: no import cycles, no wide public signatures.
+
+Read from the source with :mod:`ast` (nothing is imported, so the test takes well under a
+second):
+
+- Import cycles between ``hhra_phys`` modules. Every ``import``/``from ... import`` counts,
+  wherever it stands: at module level, inside a function (a lazy import still closes a cycle
+  when the function runs) or under ``try``. Only ``if TYPE_CHECKING:`` blocks are left out, as
+  they never run. ``from hhra_phys.a import b`` is an edge to the module ``hhra_phys.a.b`` if
+  there is one, else to ``hhra_phys.a``; the implicit import of a module's parent packages is
+  not an edge (every package would otherwise close a cycle with its own modules).
+- Public functions and methods (no name on the path starting with ``_``) with more than
+  :data:`MAX_PARAMETERS` named parameters; ``self``/``cls`` and the catch-alls ``*args``/
+  ``**kwargs`` are not counted. The data loaders ``hhra_phys.data.load*`` are exempt: one
+  keyword per column, unit and label of a file (``docs/data.md``).
+
+Complexity is guarded by ruff (C901, max 10, ``pyproject.toml``), run by ``.ci/run``.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGE = "hhra_phys"
+MAX_PARAMETERS = 12
+#: (module prefix, function name prefix) exempt from the width limit.
+WIDE_EXEMPT = (("hhra_phys.data", "load"),)
+
+
+def modules(root: Path = ROOT) -> dict[str, tuple[Path, bool]]:
+    """Dotted module name -> (file, is a package) for every module of the package."""
+    out = {}
+    for path in sorted((root / PACKAGE).rglob("*.py")):
+        parts = list(path.relative_to(root).with_suffix("").parts)
+        is_package = parts[-1] == "__init__"
+        if is_package:
+            parts = parts[:-1]
+        out[".".join(parts)] = (path, is_package)
+    return out
+
+
+def _is_type_checking(node: ast.AST) -> bool:
+    test = node.test if isinstance(node, ast.If) else None
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def _imports(nodes: list[ast.AST]) -> Iterator[ast.Import | ast.ImportFrom]:
+    """Every import statement in ``nodes`` and under them, but not TYPE_CHECKING's."""
+    for node in nodes:
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            yield node
+        elif _is_type_checking(node):
+            yield from _imports(node.orelse)  # the `else:` of `if TYPE_CHECKING:` does run
+        else:
+            yield from _imports(list(ast.iter_child_nodes(node)))
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports (anywhere in its file)."""
+    mods = modules(root)
+
+    def known(name: str) -> str | None:
+        while name and name not in mods:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {}
+    for name, (path, is_package) in mods.items():
+        targets: set[str] = set()
+        for node in _imports([ast.parse(path.read_text(), filename=str(path))]):
+            if isinstance(node, ast.Import):
+                targets.update(known(alias.name) for alias in node.names)
+                continue
+            base = node.module or ""
+            if node.level:
+                here = name.split(".") if is_package else name.split(".")[:-1]
+                here = here[: len(here) - (node.level - 1)]
+                base = ".".join(here + ([node.module] if node.module else []))
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                targets.add(sub if sub in mods else known(base))
+        targets.discard(None)
+        targets.discard(name)
+        graph[name] = targets  # type: ignore[assignment]
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    for start in sorted(graph):
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start])))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    found.append(sorted(component))
+    return found
+
+
+def wide_signatures(root: Path = ROOT, limit: int = MAX_PARAMETERS) -> list[str]:
+    """``module:qualname (n parameters)`` for each public function over ``limit``."""
+    found = []
+    for name, (path, _) in modules(root).items():
+        if any(part.startswith("_") for part in name.split(".")[1:]):
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        stack: list[tuple[list[ast.stmt], str, bool]] = [(tree.body, "", False)]
+        while stack:
+            body, prefix, in_class = stack.pop()
+            for node in body:
+                if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                    stack.append((node.body, f"{prefix}{node.name}.", True))
+                if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                    continue
+                if node.name.startswith("_") and not node.name.endswith("__"):
+                    continue  # private; dunders (__init__, __call__) are public
+                if any(name.startswith(m) and node.name.startswith(f)
+                       for m, f in WIDE_EXEMPT) and not in_class:
+                    continue
+                args = node.args
+                named = [a.arg for a in (*args.posonlyargs, *args.args, *args.kwonlyargs)]
+                if in_class and named[:1] in (["self"], ["cls"]):
+                    named = named[1:]
+                if len(named) > limit:
+                    found.append(f"{name}:{prefix}{node.name} ({len(named)} parameters)")
+    return sorted(found)
+
+
+def test_no_import_cycle_between_the_package_modules():
+    graph = import_graph()
+    assert len(graph) > 50 and "hhra_phys.simulate" in graph["hhra_phys"]
+    assert cycles(graph) == [], "import cycles (lazy imports count): move the shared code down"
+
+
+def test_no_public_signature_over_twelve_parameters():
+    wide = wide_signatures()
+    assert wide == [], f"over {MAX_PARAMETERS} parameters: group them in an options object"
+
+
+def _package(root: Path, files: dict[str, str]) -> Path:
+    for name, text in files.items():
+        path = root / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return root
+
+
+def test_the_checks_see_a_lazy_cycle_and_a_wide_signature(tmp_path):
+    # The detectors on a made-up package: a cycle closed by an import inside a function,
+    # a type-only import (no cycle), a wide public function, method and constructor.
+    wide = ", ".join(f"p{i}" for i in range(MAX_PARAMETERS + 1))
+    ok = ", ".join(f"p{i}" for i in range(MAX_PARAMETERS))
+    root = _package(tmp_path, {
+        "__init__.py": "from hhra_phys.a import f\n",
+        "a.py": "from hhra_phys import b\n\ndef f():\n    return b\n",
+        "b.py": "def g():\n    from hhra_phys.a import f\n    return f\n",
+        "c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import hhra_phys.d\n",
+        "d.py": "import hhra_phys.c\n",
+        "e.py": (f"def wide({wide}): pass\ndef fine({ok}, *args, **kwargs): pass\n"
+                 f"def _private({wide}): pass\n"
+                 f"class K:\n    def __init__(self, {wide}): pass\n"
+                 f"    def m(self, {ok}): pass\n    @classmethod\n"
+                 f"    def n(cls, {wide}): pass\n"),
+        "data/__init__.py": f"def load_csv({wide}): pass\n",
+    })
+    graph = import_graph(root)
+    assert graph["hhra_phys.b"] == {"hhra_phys.a"} and graph["hhra_phys.c"] == set()
+    assert cycles(graph) == [["hhra_phys.a", "hhra_phys.b"]]
+    assert wide_signatures(root) == [
+        f"hhra_phys.e:K.__init__ ({MAX_PARAMETERS + 1} parameters)",
+        f"hhra_phys.e:K.n ({MAX_PARAMETERS + 1} parameters)",
+        f"hhra_phys.e:wide ({MAX_PARAMETERS + 1} parameters)",
+    ]
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
