@@ -14,7 +14,8 @@ second):
   ``**kwargs`` are not counted. The data loaders ``hhra_phys.data.load*`` are exempt: one
   keyword per column, unit and label of a file (``docs/data.md``).
 
-Complexity is guarded by ruff (C901, max 10, ``pyproject.toml``), run by ``.ci/run``.
+Complexity is guarded by ruff (C901, max 10, ``pyproject.toml``), which ``.ci/run`` runs as part
+of the README's test command (checked here too).
 """
 
 from __future__ import annotations
@@ -157,6 +158,15 @@ def test_no_import_cycle_between_the_package_modules():
 def test_no_public_signature_over_twelve_parameters():
     wide = wide_signatures()
     assert wide == [], f"over {MAX_PARAMETERS} parameters, group them in an options object: {wide}"
+
+
+def test_ci_runs_the_readme_test_command_with_ruff():
+    # .ci/run runs the README's test command verbatim, and that command runs ruff (C901) first.
+    readme = [line for line in (ROOT / "README.md").read_text().splitlines()
+              if line.startswith('python -m pip install ".[test]"')]
+    assert len(readme) == 1, readme
+    assert readme[0] in (ROOT / ".ci" / "run").read_text().splitlines()
+    assert "&& ruff check . &&" in readme[0] and readme[0].endswith("python -m pytest -q")
 
 
 def _package(root: Path, files: dict[str, str]) -> Path:
