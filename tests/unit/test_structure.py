@@ -21,6 +21,9 @@ of the README's test command (checked here too).
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -167,6 +170,26 @@ def test_ci_runs_the_readme_test_command_with_ruff():
     assert len(readme) == 1, readme
     assert readme[0] in (ROOT / ".ci" / "run").read_text().splitlines()
     assert "&& ruff check . &&" in readme[0] and readme[0].endswith("python -m pytest -q")
+
+
+def test_import_loads_no_scipy_and_has_the_top_level_names():
+    # `import hhra_phys` stays light (scipy.signal was most of its second: docs/performance.md,
+    # "Import time"); FitResult is loaded on first use, and is fit's own.
+    code = (
+        "import sys, hhra_phys\n"
+        "heavy = sorted({'.'.join(m.split('.')[:2]) for m in sys.modules if m.split('.')[0] in "
+        "('scipy', 'matplotlib', 'control', 'nlopt', 'pandas', 'dask')})\n"
+        "assert not heavy and 'hhra_phys.result' not in sys.modules, heavy\n"
+        "import hhra_phys.data, hhra_phys.fit\n"
+        "assert hhra_phys.FitResult is hhra_phys.fit.FitResult\n"
+        "assert (hhra_phys.load, hhra_phys.Dataset) == (hhra_phys.data.load, "
+        "hhra_phys.data.Dataset)\n"
+        "assert callable(hhra_phys.__dict__['fit'].fit)  # the submodule, not rebound\n"
+    )
+    path = [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(path)}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-2000:]
 
 
 def _package(root: Path, files: dict[str, str]) -> Path:
