@@ -1,21 +1,23 @@
 """The package's structure stays as issue 34 left it: no import cycles, no wide public signatures.
 
-Read from the source with :mod:`ast` (nothing is imported, so the test takes well under a
-second):
+Read from the source with :mod:`ast` (nothing imported; a second or so for the package):
 
 - Import cycles between ``hhra_phys`` modules. Every ``import``/``from ... import`` counts,
   wherever it stands: at module level, inside a function (a lazy import still closes a cycle
   when the function runs) or under ``try``. Only ``if TYPE_CHECKING:`` blocks are left out, as
   they never run. ``from hhra_phys.a import b`` is an edge to the module ``hhra_phys.a.b`` if
   there is one, else to ``hhra_phys.a``; the implicit import of a module's parent packages is
-  not an edge (every package would otherwise close a cycle with its own modules).
+  not an edge (every package would otherwise close a cycle with its own modules), nor is
+  ``importlib.import_module`` with a computed name (it cannot be read from the source).
 - Public functions and methods (no name on the path starting with ``_``) with more than
   :data:`MAX_PARAMETERS` named parameters; ``self``/``cls`` and the catch-alls ``*args``/
   ``**kwargs`` are not counted. The data loaders ``hhra_phys.data.load*`` are exempt: one
   keyword per column, unit and label of a file (``docs/data.md``).
 
 Complexity is guarded by ruff (C901, max 10, ``pyproject.toml``), which ``.ci/run`` runs as part
-of the README's test command (checked here too).
+of the README's test command (checked here too). One test imports the package, in a
+subprocess: ``import hhra_phys`` loads no scipy (nor the other heavy optional libraries) and
+offers the top-level names.
 """
 
 from __future__ import annotations
