@@ -52,9 +52,8 @@ def _public(module) -> list[tuple[str, object]]:
     if names is None:
         raise SystemExit(f"{module.__name__} has no __all__: list its public API there")
     out = []
-    for name, obj in vars(module).items():
-        if name not in names:
-            continue
+    for name in names:  # getattr, not vars(): hhra_phys loads FitResult on first use
+        obj = getattr(module, name)
         if inspect.isclass(obj) or inspect.isfunction(obj):
             out.append((name, obj))
     return sorted(out, key=lambda item: item[0].lower())

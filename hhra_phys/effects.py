@@ -48,7 +48,6 @@ from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
-from scipy import signal as sps
 
 from hhra_phys.errors import ModelError, ParameterError
 from hhra_phys.parameters import Parameter
@@ -466,6 +465,8 @@ class ValveDynamics(Effect):
         # The spool at sample k has seen the held inputs up to k-1 (zero-order hold),
         # starting at rest on u[0].
         b, den = [0.0, 1 - a], [1.0, -a]
+        from scipy import signal as sps  # here, not at import: most of `import hhra_phys`
+
         lagged = sps.lfilter(b, den, sig.u, zi=sps.lfilter_zi(b, den) * sig.u[0])[0]
         return (lagged - sig.u)[:, None]
 

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.io
 
 from hhra_phys.data import _text
 from hhra_phys.data.checks import (
@@ -806,6 +805,8 @@ def load_mat(
     -------
     Dataset
     """
+    import scipy.io  # here, not at import: a third of `import hhra_phys`
+
     p = _existing_file(path)
     try:
         variables = scipy.io.loadmat(p, squeeze_me=False)
