@@ -2,13 +2,13 @@
 
 The cost issue's side-by-side measurement: each record is written once (the independent
 reference implementation, :func:`hhra_phys.reference.reference_record`, 20 s at 250 Hz by
-default, ``--duration`` for longer), then each command runs on it as a subprocess under every checkout in turn (this one first,
-then each ``--against`` folder, a checkout of another commit: ``git worktree add --detach
-DIR COMMIT``), so the load of the machine falls alike on all. Each checkout has its own
-compiled-code cache, warmed by one unrecorded run of each command first. Per run: CPU
-seconds (the command's and every process it waited for: workers, the C compiler) beside
-wall seconds, and the score the command reports (fit: validation RMSE; diagnose: the final
-model's test RMSE and the chosen effects).
+default, ``--duration`` for longer), then each command runs on it as a subprocess under
+every checkout in turn (this one first, then each ``--against`` folder, a checkout of
+another commit: ``git worktree add --detach DIR COMMIT``), so the load of the machine
+falls alike on all. Each checkout has its own compiled-code cache, warmed by one unrecorded
+run of each command first. Per run: CPU seconds (the command's and every process it waited
+for: workers, the C compiler) beside wall seconds, and the score the command reports (fit:
+validation RMSE; diagnose: the final model's test RMSE and the chosen effects).
 
     python benchmarks/bench_cost.py --commands fit --set fit [--against ../old]
     python benchmarks/bench_cost.py --commands fit,diagnose --set diagnose --json OUT.json
@@ -89,6 +89,37 @@ def _command(command: str, rec: Path, out: Path, extra: list[str]) -> list[str]:
     return cmd + (["--quiet"] if command == "fit" else []) + extra
 
 
+def _summary(rows: list[dict], commands: list[str], here: str, trees: list[str]) -> None:
+    """Per record and in total: this checkout's CPU against each other checkout's, and
+    (with both commands) this checkout's diagnose against its fit."""
+    for c in commands:
+        mine = [r for r in rows if r["command"] == c and r["tree"] == here]
+        for tree in trees[1:]:
+            theirs = [r for r in rows if r["command"] == c and r["tree"] == tree]
+            for a, b in zip(mine, theirs, strict=True):
+                print(f"{c} {a['record']:16s} CPU {a['cpu_s']:7.1f} / {b['cpu_s']:7.1f} = "
+                      f"{a['cpu_s'] / b['cpu_s']:.2f}x; wall {a['wall_s'] / b['wall_s']:.2f}x")
+            total = sum(r["cpu_s"] for r in mine), sum(r["cpu_s"] for r in theirs)
+            print(f"{c} total CPU {total[0]:.1f} / {total[1]:.1f} = {total[0] / total[1]:.2f}x "
+                  f"(against {tree})")
+    if {"fit", "diagnose"} <= set(commands):
+        fits = {r["record"]: r for r in rows if r["command"] == "fit" and r["tree"] == here}
+        for d in (r for r in rows if r["command"] == "diagnose" and r["tree"] == here):
+            f = fits[d["record"]]
+            print(f"diagnose / fit {d['record']:16s} CPU {d['cpu_s'] / f['cpu_s']:.2f}x, "
+                  f"wall {d['wall_s'] / f['wall_s']:.2f}x")
+
+
+def _records(recs: list, duration: float, tmp: str) -> list[Path]:
+    """Each record written once as CSV (with its side-car) into ``tmp``."""
+    paths = []
+    for name, seed, eff in recs:
+        p = Path(tmp, f"{name}-{seed}.csv")
+        save_csv(reference_record(seed=seed, duration=duration, effects=eff or None), p)
+        paths.append(p)
+    return paths
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--commands", default="fit", help="comma-separated: fit, diagnose")
@@ -110,45 +141,29 @@ def main() -> None:
         recs = [recs[int(i)] for i in args.only.split(",")]
     rows = []
     load0 = os.getloadavg()[0]
+    extra = args.extra.split()
     with tempfile.TemporaryDirectory() as tmp:
-        paths = []
-        for name, seed, eff in recs:
-            p = Path(tmp, f"{name}-{seed}.csv")
-            save_csv(reference_record(seed=seed, duration=args.duration, effects=eff or None), p)
-            paths.append(p)
+        paths = _records(recs, args.duration, tmp)
         envs = {}
         for k, tree in enumerate(trees):
             Path(tmp, f"run{k}").mkdir()
-            env = dict(os.environ, PYTHONPATH=tree,
-                       HHRA_PHYS_CACHE=str(Path(tmp, f"run{k}", "cache")))
-            envs[tree] = env
+            envs[tree] = dict(os.environ, PYTHONPATH=tree,
+                              HHRA_PHYS_CACHE=str(Path(tmp, f"run{k}", "cache")))
             for c in commands:  # warm the compiled-code cache, unrecorded
-                _run(_command(c, paths[0], Path(tmp, "warm.json"), args.extra.split()), env)
+                _run(_command(c, paths[0], Path(tmp, "warm.json"), extra), envs[tree])
         for (name, seed, _), rec in zip(recs, paths, strict=True):
-            for c in commands:
-                for k, tree in enumerate(trees):
-                    out = Path(tmp, f"out{k}.json")
-                    out.unlink(missing_ok=True)
-                    wall, cpu, rc = _run(_command(c, rec, out, args.extra.split()), envs[tree])
-                    row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
-                           "samples": int(round(args.duration * 250)),
-                           "commit": _commit(tree), "wall_s": round(wall, 2),
-                           "cpu_s": round(cpu, 2), "exit": rc,
-                           **_score(c, out)}
-                    rows.append(row)
-                    print(json.dumps(row), flush=True)
+            for c, (k, tree) in ((c, kt) for c in commands for kt in enumerate(trees)):
+                out = Path(tmp, f"out{k}.json")
+                out.unlink(missing_ok=True)
+                wall, cpu, rc = _run(_command(c, rec, out, extra), envs[tree])
+                row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
+                       "samples": int(round(args.duration * 250)), "commit": _commit(tree),
+                       "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": rc,
+                       **_score(c, out)}
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     print(f"\nload average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
-    for c in commands:
-        for tree in trees[1:]:
-            mine = [r for r in rows if r["command"] == c and r["tree"] == here]
-            theirs = [r for r in rows if r["command"] == c and r["tree"] == tree]
-            for a, b in zip(mine, theirs, strict=True):
-                print(f"{c} {a['record']:16s} CPU {a['cpu_s']:7.1f} / {b['cpu_s']:7.1f} = "
-                      f"{a['cpu_s'] / b['cpu_s']:.2f}x; wall {a['wall_s'] / b['wall_s']:.2f}x")
-            print(f"{c} total CPU {sum(r['cpu_s'] for r in mine):.1f} / "
-                  f"{sum(r['cpu_s'] for r in theirs):.1f} = "
-                  f"{sum(r['cpu_s'] for r in mine) / sum(r['cpu_s'] for r in theirs):.2f}x "
-                  f"(against {tree})")
+    _summary(rows, commands, here, trees)
     if args.json:
         Path(args.json).write_text(json.dumps({"load_start": load0, "rows": rows}, indent=1))
 
