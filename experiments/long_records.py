@@ -287,7 +287,8 @@ def drive_reference(rng: np.random.Generator, n: int, fs: float) -> np.ndarray:
         else:  # a ramp over part of the segment, then a hold
             ramp = max(1, int(rng.uniform(0.2, 0.9) * seg))
             r[i:i + seg] = new
-            r[i:i + ramp] = level + (new - level) * np.arange(1, ramp + 1)[:ramp] / ramp
+            m = r[i:i + ramp].size  # the record may end within the ramp
+            r[i:i + m] = level + (new - level) * np.arange(1, m + 1) / ramp
         level, i = new, i + seg
     return r[:n]
 
