@@ -130,3 +130,24 @@ def test_one_loop_size_is_checked_before_any_loop(tmp_path, size, says):
                  "--out", str(out), cwd=tmp_path)
     assert proc.returncode == 2 and "--size" in proc.stderr and says in proc.stderr
     assert not out.exists()  # refused before any loop ran or any row was written
+
+
+def test_long_records_quick(tmp_path):
+    # Both records, short, through the CLI from the user's model files; a tiny search,
+    # one library candidate, no truth refit: the script runs end to end and writes its rows.
+    out = tmp_path / "lr"
+    _run("long_records.py", "--out", str(out), "--quick", "--no-truth", cwd=tmp_path)
+    rows = json.loads((out / "rows.json").read_text())["rows"]
+    assert [r["record"] for r in rows] == ["drive_seed1", "duffing_seed1"]
+    for r in rows:
+        for key in ("fit", "diagnose"):
+            assert r["commands"][key]["exit"] == 0, r["commands"][key]
+            assert r["commands"][key]["wall_s"] > 0 and r["commands"][key]["cpu_s"] > 0
+        assert r["diagnose"]["base"]["test"] is not None
+        assert (out / f"{r['kind']}_model.py").exists() and (out / f"{r['kind']}_truth.py").exists()
+    drive, duffing = rows
+    assert drive["samples"] == 1500 and drive["test_samples"] == 1000
+    assert duffing["samples"] == 1200 and duffing["metadata"]["intersample"] == "cubic"
+    # The side-car says the input's inter-sample behaviour.
+    side = json.loads((out / "duffing_seed1.json").read_text())
+    assert "cubic" in json.dumps(side)
