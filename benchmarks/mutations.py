@@ -812,6 +812,13 @@ MUTATIONS: tuple[Mutation, ...] = (
         SETTLE_TESTS,
     ),
     _m(
+        "loop-widen-any-candidate",
+        "every candidate ending at a box edge is widened, contender or not",
+        '    if float(r2.metrics["est"]["mse"]) > worth:',
+        "    if False:",
+        SETTLE_TESTS,
+    ),
+    _m(
         "loop-settle-sensor-spared",
         "a library effect at the noise level spares the sensor effects too",
         '_SETTLES = {"effect": ("effect", "discovered", "mode"), "sensor": ("sensor",),',

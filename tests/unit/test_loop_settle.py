@@ -128,3 +128,31 @@ def test_a_spent_budget_ends_the_round_and_names_what_was_not_refitted():
     assert [s.effect for s, _ in tried] == ["valve_deadzone"]  # still chosen among
     assert loop.budget_spent
     assert loop.budget_left == ["coulomb_friction"]
+
+
+class _Fit:
+    def __init__(self, mse: float) -> None:
+        self.metrics = {"est": {"mse": mse}}
+
+
+@pytest.mark.parametrize(("first", "searches"), [(0.95, 1), (0.85, 4)])
+def test_only_a_contender_has_its_boxes_widened(monkeypatch, first, searches):
+    """``loop._widen_candidate``: the current model's estimation MSE is 1.0 and the noise's
+    0.0 (worth: 0.9); a candidate at 0.95 is not widened (one search), one at 0.85 is
+    searched again at each widening that pays (three more)."""
+    import hhra_phys.loop as loopmod
+
+    monkeypatch.setattr(loopmod, "_edge_boxes", lambda p, r, names: {"g": (0.1, 10.0)})
+    mses = iter([first, first - 0.1, first - 0.2, first - 0.3])
+    calls = []
+
+    def search(boxes):
+        calls.append(dict(boxes))
+        return None, _Fit(next(mses))
+
+    notes: list[str] = []
+    worth = loopmod._widening_worth(_Fit(1.0), 0.0)
+    assert worth == pytest.approx(0.9)
+    _, res = loopmod._widen_candidate(search, {}, ["g"], notes, worth)
+    assert len(calls) == searches
+    assert (searches == 1) == any("not widened" in n for n in notes)
