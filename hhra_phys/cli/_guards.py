@@ -304,7 +304,31 @@ def _inputs_of(args: argparse.Namespace) -> dict[str, object]:
     model = getattr(args, "model", None)
     if model and ":" in model:
         out["--model"] = [model.rpartition(":")[0]]
+    for flag in ("DATA", "--validate"):  # a text record's side-car is read with it
+        cars = [sidecar_of(p) for p in out.get(flag) or []]  # type: ignore[attr-defined]
+        cars = [c for c in cars if c is not None]
+        if cars:
+            out[f"{flag}'s side-car"] = cars
     return out
+
+
+def sidecar_of(path: object) -> Path | None:
+    """The JSON side-car a text record ``path`` is read with (``rig.csv`` -> ``rig.json``),
+    if the record is a text file and the side-car exists; else None."""
+    from hhra_phys.data import sidecar_path
+
+    if not path or not isinstance(path, str | Path) or is_builtin_name(str(path)):
+        return None
+    p = Path(path)
+    if p.suffix.lower() not in (".csv", ".tsv", ".txt"):
+        return None
+    side = sidecar_path(p)
+    return side if side.is_file() and side != p else None
+
+
+def is_builtin_name(name: str) -> bool:
+    """Whether DATA ``name`` is a built-in record ('rig', 'public'), not a file."""
+    return name.lower() in ("rig", "public")
 
 
 def check_ranges(args: argparse.Namespace) -> None:
