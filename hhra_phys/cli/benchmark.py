@@ -89,7 +89,13 @@ def run(args: argparse.Namespace) -> int:
             tables=args.tables,
             scipy_reference=not args.no_scipy,
         )
-        with executor(args.workers, args.dask) as ex:
+        from hhra_phys.cli._guards import all_or_nothing
+        from hhra_phys.paper.table2 import plot_paths
+
+        figures = list(plot_paths(args.plot, settings.tables).values()) if args.plot else []
+        # Stopped (Ctrl-C, SIGTERM) or failed between its writes: none of them stays.
+        with executor(args.workers, args.dask) as ex, all_or_nothing(
+                [args.json, args.markdown, *figures]):
             report, text = run_and_write(
                 settings,
                 json_path=None if args.json == STDOUT else args.json,

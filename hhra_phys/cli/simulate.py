@@ -8,8 +8,8 @@ import sys
 from typing import Any
 
 from hhra_phys.cli._common import report_error
-from hhra_phys.cli._guards import check_size, output_path, seed
-from hhra_phys.data import Dataset, check_save_path, save
+from hhra_phys.cli._guards import all_or_nothing, check_size, output_path, seed
+from hhra_phys.data import Dataset, check_save_path, save, sidecar_path
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
@@ -186,7 +186,9 @@ def run(args: argparse.Namespace) -> int:
             ds = _reference(args, effects)
         else:
             ds = _builtin(args, effects)
-        path = save(ds, args.out, overwrite=args.overwrite)
+        # Ctrl-C or SIGTERM between the CSV and its side-car: neither stays.
+        with all_or_nothing([args.out, sidecar_path(args.out)]):
+            path = save(ds, args.out, overwrite=args.overwrite)
     except ParameterError as exc:
         if "cannot hold" not in str(exc):  # the excitation's words for too few samples
             return report_error("simulate", exc)

@@ -1,0 +1,191 @@
+"""Bad input, third round (issue 35): nothing lost, nothing silent, no traceback.
+
+Each case runs through ``hhra_phys.cli.main`` in this process (every one fails before any
+long work) or through the Python API, and checks the exit code, the words that name the
+file, flag, key or parameter at fault, and that nothing was written or replaced. The
+signal cases run in a subprocess (a real SIGTERM).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from hhra_phys.cli import main
+from hhra_phys.data import save
+from hhra_phys.models.hhra.rig import simulate_rig
+
+REPO = Path(__file__).resolve().parents[2]
+QUICK = ["--pop", "4", "--iters", "2", "--refine", "none", "--quiet"]
+
+
+def run(argv: list[object], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
+    """Exit code, stdout and stderr of ``hhra-phys ARGV`` run in this process."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's own usage errors
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "this is a bug" not in err, err
+    return code, out, err
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` with its bytes (to see what a case wrote or replaced)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def fitjs(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A fit result of a 2 s rig record, as the JSON dict ``fit --json`` writes."""
+    from hhra_phys.fit import fit
+
+    res = fit(simulate_rig(seed=0, duration=2.0), optimizer="none", refine="none")
+    return json.loads(json.dumps(res.to_json()))
+
+
+@pytest.fixture
+def rec(tmp_path: Path) -> Path:
+    """A 2 s rig record ``good.csv`` with its side-car ``good.json``, in a fresh folder."""
+    p = tmp_path / "good.csv"
+    save(simulate_rig(seed=0, duration=2.0), p)
+    return p
+
+
+def refused(argv: list[object], code: int, words: list[str], folder: Path,
+            capsys: pytest.CaptureFixture) -> str:
+    """Run a case that must be refused: its exit code and words, nothing written or replaced."""
+    before = files(folder)
+    got, _, err = run(argv, capsys)
+    assert got == code, err
+    for w in words:
+        assert w in err, (w, err)
+    assert len(err.strip().splitlines()[-1]) > 0
+    assert files(folder) == before, "a refused run wrote or replaced a file"
+    return err
+
+
+# -- lost: an output is never an input of the run ---------------------------------------------
+
+
+def test_the_records_own_side_car_is_never_replaced(rec, capsys) -> None:
+    side = rec.with_suffix(".json")
+    refused(["fit", rec, *QUICK, "--json", side, "--overwrite"], 2,
+            ["--json", "good.json", "DATA's side-car", "--overwrite never applies"],
+            rec.parent, capsys)
+
+
+def test_a_validation_records_side_car_is_never_replaced(rec, tmp_path, capsys) -> None:
+    other = tmp_path / "val.csv"
+    save(simulate_rig(seed=1, duration=2.0), other)
+    refused(["fit", rec, "--validate", other, *QUICK, "--json", other.with_suffix(".json"),
+             "--overwrite"], 2, ["--validate's side-car", "val.json"], tmp_path, capsys)
+    refused(["diagnose", rec, "--pop", "4", "--iters", "1", "--json",
+             rec.with_suffix(".json"), "--overwrite"], 2, ["DATA's side-car"], tmp_path, capsys)
+
+
+# -- silent: side-cars that say something impossible -----------------------------------------
+
+
+@pytest.mark.parametrize(("edit", "words"), [
+    (lambda s: {**s, "intersample": "bogus"}, ["'intersample'", "'bogus'"]),
+    (lambda s: {**s, "metadata": {**s["metadata"], "intersample": "bogus"}},
+     ["'metadata.intersample'", "'bogus'"]),
+    (lambda s: {**s, "fs": -250}, ["'fs'", "-250"]),
+    (lambda s: {**s, "fs": 0}, ["'fs'"]),
+    (lambda s: [], ["must be a JSON object", "list"]),
+    (lambda s: 42, ["must be a JSON object", "int"]),
+])
+def test_a_side_car_that_says_the_impossible_is_named(edit, words, rec, capsys) -> None:
+    side = rec.with_suffix(".json")
+    side.write_text(json.dumps(edit(json.loads(side.read_text()))))
+    refused(["fit", rec, *QUICK], 1, ["good.json", *words], rec.parent, capsys)
+
+
+def test_a_valid_top_level_intersample_is_honoured(rec) -> None:
+    from hhra_phys.data import load
+
+    side = rec.with_suffix(".json")
+    side.write_text(json.dumps({**json.loads(side.read_text()), "intersample": "foh"}))
+    assert load(rec).intersample == "foh"
+
+
+# -- partial: SIGTERM leaves nothing, as SIGINT does -------------------------------------------
+
+
+TERM_IN_SECOND_WRITE = textwrap.dedent(
+    """
+    import os, signal, sys
+    from hhra_phys import loop
+    from hhra_phys.cli import main
+
+    real = loop.LoopResult.report
+    sig = getattr(signal, sys.argv.pop(1))
+
+    def terminated_while_writing(self, *a, **k):  # the JSON is written by now
+        assert os.path.exists(sys.argv[sys.argv.index("--json") + 1])
+        os.kill(os.getpid(), sig)
+        return real(self, *a, **k)
+
+    loop.LoopResult.report = terminated_while_writing
+    sys.exit(main(sys.argv[1:]))
+    """
+)
+
+
+@pytest.mark.parametrize(("sig", "code", "words"), [
+    ("SIGTERM", 143, "terminated (SIGTERM); nothing written"),
+    ("SIGINT", 130, "interrupted; nothing written"),
+])
+def test_a_signal_while_writing_leaves_nothing(sig, code, words, rec, tmp_path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.run(
+        [sys.executable, "-c", TERM_IN_SECOND_WRITE, sig, "diagnose", str(rec), "--pop", "4",
+         "--iters", "1", "--max-effects", "0", "--no-discover", "--json",
+         str(out / "d.json"), "--report", str(out / "r.md")],
+        capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == code, proc.stderr[-2000:]
+    assert words in proc.stderr and "Traceback" not in proc.stderr
+    assert not list(out.iterdir())
+
+
+def test_sigterm_is_handled_as_sigint_only_inside_the_cli() -> None:
+    from hhra_phys.interrupt import interruptible, last_signal
+
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), interruptible(terminate=True):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(10**6):  # the handler runs between bytecodes
+            pass
+    assert last_signal() == signal.SIGTERM
+    assert signal.getsignal(signal.SIGTERM) is before  # restored
+    with interruptible():
+        assert signal.getsignal(signal.SIGTERM) is before  # the library's default: untouched
+
+
+def test_simulate_stopped_between_the_csv_and_its_side_car_leaves_neither(
+        tmp_path, capsys, monkeypatch) -> None:
+    import hhra_phys.data.formats as formats
+
+    real, calls = formats.atomic_write_text, []
+
+    def second(path, text):
+        calls.append(path)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(path, text)
+
+    monkeypatch.setattr(formats, "atomic_write_text", second)
+    code, _, err = run(["simulate", "--out", tmp_path / "s.csv", "--duration", "2"], capsys)
+    assert code == 130 and len(calls) == 2
+    assert not list(tmp_path.iterdir())
