@@ -223,10 +223,15 @@ class FitOptions:
                                  f"{self.optimizer!r}")
         if not 0 < self.split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {self.split}")
-        for name in ("pop_size", "max_iter"):
+        from hhra_phys.options import MAX_ITERATIONS, MAX_POPULATION
+
+        for name, most in (("pop_size", MAX_POPULATION), ("max_iter", MAX_ITERATIONS)):
             v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 0):
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0):
                 raise ParameterError(f"{name} must be an integer >= 0, got {v!r}")
+            if v > most:
+                raise ParameterError(f"{name} must be at most {most:,} (see "
+                                     f"hhra_phys.options), got {v:,}")
         return self
 
     @classmethod

@@ -33,13 +33,24 @@ def _positive_float(text: str) -> float:
 
 
 def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (``--pop``, ``--iters``, ``--top`` ...)."""
+    """argparse type: an integer >= 1 (``--top``, ``--starts`` ...)."""
     return _int_at_least(text, 1)
 
 
 def population(text: str) -> int:
-    """argparse type: a population size, an integer >= 4 (what every optimiser needs)."""
-    return _int_at_least(text, 4)
+    """argparse type: a population size, an integer >= 4 (what every optimiser needs) and
+    at most :data:`~hhra_phys.options.MAX_POPULATION`."""
+    from hhra_phys.options import MAX_POPULATION
+
+    return _int_at_least(text, 4, MAX_POPULATION)
+
+
+def iterations(text: str) -> int:
+    """argparse type: a number of iterations, an integer >= 1 and at most
+    :data:`~hhra_phys.options.MAX_ITERATIONS`."""
+    from hhra_phys.options import MAX_ITERATIONS
+
+    return _int_at_least(text, 1, MAX_ITERATIONS)
 
 
 def nonnegative_int(text: str) -> int:
@@ -47,13 +58,17 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(text, 0)
 
 
-def _int_at_least(text: str, low: int) -> int:
+def _int_at_least(text: str, low: int, high: int | None = None) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < low:
         raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+    if high is not None and value > high:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer <= {high:,} (a larger search would not fit in memory or "
+            f"would run for days; see docs/data.md), got {value:,}")
     return value
 
 

@@ -203,6 +203,67 @@ def check_size(n_samples: float, flags: str, *, bytes_per_sample: float = BYTES_
             "the memory available, at most 4 GiB); shorten it")
 
 
+#: Seconds one population member costs per sample simulated, near idle: a population of
+#: 100 over 5000 samples in 15-18 ms (README, docs/performance.md), rounded up.
+SECONDS_PER_MEMBER_SAMPLE = 4e-8
+
+#: Bytes one population member costs per sample while a population is simulated (its
+#: output and the work arrays of the vector code), an upper estimate.
+BYTES_PER_MEMBER_SAMPLE = 32
+
+#: The longest global search started without complaint [s]: a day at the estimate of
+#: :data:`SECONDS_PER_MEMBER_SAMPLE` (a loaded machine takes longer still).
+MAX_SEARCH_SECONDS = 86400.0
+
+#: A search estimated longer than this [s] is announced with its estimate before it starts.
+LONG_SEARCH_SECONDS = 600.0
+
+
+def check_search(pop: int, iters: int, n_samples: int, *, runs: int = 1,
+                 flags: str = "--pop/--iters") -> None:
+    """Refuse a global search whose population would not fit in memory, or which would
+    run longer than :data:`MAX_SEARCH_SECONDS`, before it starts; announce one estimated
+    longer than :data:`LONG_SEARCH_SECONDS` on stderr.
+
+    Parameters
+    ----------
+    pop, iters : int
+        Population size and iterations.
+    n_samples : int
+        Samples each member simulates per evaluation (the records' total).
+    runs : int
+        Searches run (``--starts``).
+    flags : str
+        The flags named in the message.
+
+    Raises
+    ------
+    ParameterError
+        With the estimate, the limit and the flags.
+    """
+    # The population's simulated outputs, and the pairwise comparison of members (up to
+    # 8 parameters) in the leaders' distinctness check.
+    need = float(pop) * n_samples * BYTES_PER_MEMBER_SAMPLE + 8.0 * pop * pop
+    budget = record_budget()
+    if need > budget:
+        raise ParameterError(
+            f"--pop {pop}: a population of {pop:,} members over {n_samples:,} samples needs "
+            f"about {_bytes(need)} of memory, more than the {_bytes(budget)} allowed (a "
+            "quarter of the memory available, at most 4 GiB); lower --pop")
+    seconds = float(pop) * (iters + 1) * n_samples * runs * SECONDS_PER_MEMBER_SAMPLE
+    if seconds > MAX_SEARCH_SECONDS:
+        raise ParameterError(
+            f"{flags}: {pop:,} members x {iters:,} iterations over {n_samples:,} samples"
+            + (f" x {runs} starts" if runs > 1 else "")
+            + f" would take about {seconds / 3600:,.0f} h at best, more than the "
+            f"{MAX_SEARCH_SECONDS / 3600:.0f} h allowed; lower --pop or --iters")
+    if seconds > LONG_SEARCH_SECONDS:
+        import sys
+
+        print(f"note: {flags}: the global search will take about {seconds / 60:,.0f} min at "
+              "best (Ctrl-C stops it, writing nothing)", file=sys.stderr)
+
+
 def _bytes(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if abs(n) < 1024 or unit == "PiB":

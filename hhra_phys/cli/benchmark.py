@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from hhra_phys.cli._common import population, positive_int, report_error
+from hhra_phys.cli._common import iterations, population, positive_int, report_error
 from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError
@@ -35,7 +35,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--runs", type=positive_int, default=30,
                    help="seeded runs per cell (default 30)")
     p.add_argument("--pop", type=population, default=30, help="population size (default 30)")
-    p.add_argument("--iters", type=positive_int, default=100, help="iterations (default 100)")
+    p.add_argument("--iters", type=iterations, default=100, help="iterations (default 100)")
     p.add_argument("--seed", type=seed, default=0, help="base seed (default 0)")
     p.add_argument(
         "--functions",

@@ -13,6 +13,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    iterations,
     model_for,
     model_records,
     nonnegative_int,
@@ -24,6 +25,7 @@ from hhra_phys.cli._guards import (
     STDOUT,
     all_or_nothing,
     check_arguments,
+    check_search,
     output_path,
     seed,
     split_fraction,
@@ -79,7 +81,7 @@ def register(subparsers: Any) -> None:
                         "(default 0.25; 0: the old two-way split, selection = validation)")
     p.add_argument("--pop", type=population, default=100,
                    help="base fit population (default 100, as hhra-phys fit)")
-    p.add_argument("--iters", type=positive_int, default=200,
+    p.add_argument("--iters", type=iterations, default=200,
                    help="base fit iterations (default 200, as hhra-phys fit)")
     p.add_argument("--margin", type=float, default=0.1,
                    help="required relative fall of the selection RMSE (default 0.1), unless "
@@ -153,6 +155,7 @@ def _augment(args: argparse.Namespace) -> Any:
     if added:
         print(f"registered effects: {', '.join(added)}", file=sys.stderr)
     records, validation, data_warnings = _records(args)
+    check_search(args.pop, args.iters, sum(len(d) for d in records))
     data = records[0]
     if args.split is not None:
         args.split = split_fraction(args.split, [len(d) for d in records])

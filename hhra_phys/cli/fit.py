@@ -11,6 +11,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    iterations,
     model_for,
     model_records,
     parse_fixed,
@@ -23,6 +24,7 @@ from hhra_phys.cli._guards import (
     STDOUT,
     all_or_nothing,
     check_arguments,
+    check_search,
     output_path,
     seed,
     split_fraction,
@@ -76,7 +78,7 @@ def register(subparsers: Any) -> None:
                         "error kept (default 1)")
     add_cluster_arguments(p, "the starts")
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
-    p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
+    p.add_argument("--iters", type=iterations, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
                    help="global-search cost (default itae, the paper's)")
     p.add_argument("--lam", type=float, default=1.0,
@@ -137,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         from hhra_phys.multi import check_records
 
         check_records(records + (validation or []))  # a pressure record against an angle fit
+        check_search(args.pop, args.iters, sum(len(d) for d in records), runs=args.starts)
         data = records[0]
         args.split = split_fraction(args.split, [len(d) for d in records])
         model, auto_bounds = model_for(args, data, args.valve)

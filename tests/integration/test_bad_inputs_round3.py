@@ -189,3 +189,54 @@ def test_simulate_stopped_between_the_csv_and_its_side_car_leaves_neither(
     code, _, err = run(["simulate", "--out", tmp_path / "s.csv", "--duration", "2"], capsys)
     assert code == 130 and len(calls) == 2
     assert not list(tmp_path.iterdir())
+
+
+# -- hang and allocation: sizes refused before the work ---------------------------------------
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["fit", "{rec}", "--iters", "1000000000"], ["--iters", "<= 1,000,000"]),
+    (["fit", "{rec}", "--pop", "1000000000"], ["--pop", "<= 10,000"]),
+    (["diagnose", "{rec}", "--pop", "1000000000"], ["--pop", "<= 10,000"]),
+    (["compare", "{rec}", "--iters", "1000000000"], ["--iters"]),
+    (["benchmark", "--pop", "1000000000"], ["--pop"]),
+    (["fit", "{rec}", "--pop", "10000", "--iters", "1000000"],
+     ["--pop/--iters", "h allowed", "lower --pop or --iters"]),
+    (["fit", "{rec}", "--pop", "4", "--iters", "1000000", "--starts", "10000"],
+     ["10000 starts", "h allowed"]),
+    (["compare", "{rec}", "--na", "100000", "--methods", "ls", "--json", "{out}/c.json"],
+     ["--na 100000", "250 samples", "regression rows", "lower the orders"]),
+    (["compare", "{rec}", "--nb", "300", "--nk", "300", "--methods", "ls"], ["--nb 300"]),
+])
+def test_sizes_are_refused_before_the_work(argv, words, rec, tmp_path, capsys) -> None:
+    argv = [a.format(rec=rec, out=tmp_path) for a in argv]
+    err = refused(argv, 2, words, tmp_path, capsys)
+    assert "fitting" not in err and "[1/" not in err
+
+
+def test_the_search_budget_counts_memory_and_time(monkeypatch, capsys) -> None:
+    from hhra_phys.cli import _guards
+    from hhra_phys.errors import ParameterError
+
+    monkeypatch.setattr(_guards, "available_memory", lambda: 4 * 2**20)  # 1 MiB allowed
+    with pytest.raises(ParameterError, match=r"--pop 1000: .* memory"):
+        _guards.check_search(1000, 1, 5000)
+    _guards.check_search(4, 1, 5000)
+    monkeypatch.setattr(_guards, "available_memory", lambda: None)
+    _guards.check_search(100, 200, 5000)  # the paper's search: no word
+    assert capsys.readouterr().err == ""
+    _guards.check_search(100, 50000, 5000)  # about 17 min: announced
+    assert "about 17 min" in capsys.readouterr().err
+
+
+def test_python_fit_refuses_sizes_naming_the_setting() -> None:
+    from hhra_phys.errors import ParameterError
+    from hhra_phys.fit import fit
+
+    ds = simulate_rig(seed=0, duration=2.0)
+    with pytest.raises(ParameterError, match=r"pop_size must be at most 10,000"):
+        fit(ds, pop_size=10**9)
+    with pytest.raises(ParameterError, match=r"max_iter must be at most 1,000,000"):
+        fit(ds, max_iter=10**9)
+    with pytest.raises(ParameterError, match=r"pop_size must be an integer"):
+        fit(ds, pop_size=True)
