@@ -240,3 +240,103 @@ def test_python_fit_refuses_sizes_naming_the_setting() -> None:
         fit(ds, max_iter=10**9)
     with pytest.raises(ParameterError, match=r"pop_size must be an integer"):
         fit(ds, pop_size=True)
+
+
+# -- the Python API: wrong types named, no AttributeError -------------------------------------
+
+
+@pytest.mark.parametrize(("call", "words"), [
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, model="HHRA"),
+     ["model must be a hhra_phys Model", "'HHRA'"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, model=__import__(
+        "hhra_phys").HHRAModel), ["model must be", "pass an instance"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(42), ["data must be a Dataset", "42"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit("rec.csv"),
+     ["data must be a Dataset", "hhra_phys.data.load"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, fixed={"g_leak": "abc"}),
+     ["fixed g_leak='abc'", "must be a number"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, start={"g_leak": "abc"}),
+     ["start g_leak='abc'", "must be a number"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, start={"g_leak": -1.0}),
+     ["start g_leak=-1.0", "positive"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, start={"g_nope": 1.0}),
+     ["start g_nope", "unknown parameter"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, start={"g_leak": float("nan")}),
+     ["start g_leak", "finite"]),
+    (lambda ds: __import__("hhra_phys.fit").fit.fit(ds, start=[1.0, 2.0]),
+     ["start", "mapping"]),
+    (lambda ds: __import__("hhra_phys").Parameter(3, "1", 1.0, 0.1, 10.0),
+     ["Parameter name must be a str", "3"]),
+    (lambda ds: __import__("hhra_phys").Parameter("k", "1", "1", 0.1, 10.0),
+     ["parameter 'k'", "nominal must be a number"]),
+    (lambda ds: __import__("hhra_phys").Parameter("k", 1, 1.0, 0.1, 10.0),
+     ["parameter 'k'", "unit must be a str"]),
+])
+def test_the_python_api_names_the_argument(call, words) -> None:
+    from hhra_phys.errors import HHRAError
+
+    ds = simulate_rig(seed=0, duration=2.0)
+    with pytest.raises(HHRAError) as info:
+        call(ds)
+    for w in words:
+        assert w in str(info.value), (w, str(info.value))
+
+
+# -- fit JSON edited by hand: the key named ------------------------------------------------------
+
+
+def _edit(d: dict, path: str, value: object) -> dict:
+    out = json.loads(json.dumps(d))
+    *keys, last = path.split(".")
+    target = out
+    for k in keys:
+        target = target[int(k)] if isinstance(target, list) else target[k]
+    target[last] = value
+    return out
+
+
+@pytest.mark.parametrize(("path", "value", "words"), [
+    ("params.g_valve.value", -31.7, ["'params.g_valve.value'", "positive quantity"]),
+    ("params.g_leak.value", "abc", ["'params.g_leak.value'", "must be a number"]),
+    ("model.class", "Bogus", ["'model.class'", "'Bogus'", "not a known model"]),
+    ("records.0.fs", -250, ["'records[0].fs'", "-250"]),
+    ("records.0.fs", "fast", ["'records[0].fs'", "'fast'"]),
+    ("version", 99, ["'version' is 99"]),
+    ("covariance", [[1.0, 2.0], [3.0, 4.0]], ["'covariance'", "6 x 6", "2 rows"]),
+    ("free", ["g_valve", "g_bogus"], ["'free' names 'g_bogus'"]),
+    ("format", "something else", ["'format' is 'something else'"]),
+])
+def test_an_edited_fit_json_is_refused_naming_the_key(path, value, words, fitjs, tmp_path,
+                                                     capsys) -> None:
+    from hhra_phys.errors import HHRAError
+    from hhra_phys.result import FitResult
+
+    p = tmp_path / "edited.json"
+    p.write_text(json.dumps(_edit(fitjs, path, value)))
+    with pytest.raises(HHRAError) as info:
+        FitResult.load(p)
+    for w in ["edited.json", *words]:
+        assert w in str(info.value), (w, str(info.value))
+    err = refused(["design", p, "--duration", "2", "--out", tmp_path / "u.csv"], 1,
+                  ["edited.json", *words], tmp_path, capsys)
+    assert "designing" not in err
+
+
+def test_a_fit_json_without_format_still_says_missing(fitjs, tmp_path) -> None:
+    from hhra_phys.errors import DataError
+    from hhra_phys.result import FitResult
+
+    p = tmp_path / "noformat.json"
+    p.write_text(json.dumps({k: v for k, v in fitjs.items() if k != "format"}))
+    with pytest.raises(DataError, match="missing 'format'"):
+        FitResult.load(p)
+
+
+def test_an_infinite_stiffness_is_no_overflow_in_plan() -> None:
+    from hhra_phys import HHRAModel, Simulator
+
+    model = HHRAModel()
+    p = model.nominal()
+    p[model.params.index("g_valve")] = 1e308
+    method, substeps, reason = Simulator(model, fs=250.0).plan(p * 1e10)
+    assert reason == "non-finite state Jacobian" and substeps == 2
