@@ -327,13 +327,14 @@ def parse_fixed(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def parse_names(text: str | None) -> list[str] | None:
-    """Comma-separated names, or None."""
+def parse_names(text: str | None, flag: str = "a list of names") -> list[str] | None:
+    """Comma-separated names, or None; ``flag`` is named when the list is empty."""
     if text is None:
         return None
     names = [t.strip() for t in text.split(",") if t.strip()]
     if not names:
-        raise ParameterError("an empty list of names was given")
+        raise ParameterError(f"{flag} {text!r}: an empty list of names; give comma-separated "
+                             "names (or leave the flag out for the default)")
     return names
 
 

@@ -276,14 +276,24 @@ def _bytes(n: float) -> str:
 
 
 def check_columns(time_col: str | None, input_col: str | None, output_col: str | None) -> None:
-    """Refuse one column given for two roles (``--input-col u --output-col u``)."""
-    given = [(flag, col) for flag, col in (("--time-col", time_col), ("--input-col", input_col),
-                                           ("--output-col", output_col)) if col is not None]
+    """Refuse one column given for two roles (``--input-col u --output-col u``), also when
+    the other role takes its default column (``--input-col y`` leaves the output at its
+    default ``y``: the output would be fitted as its own input)."""
+    roles = (("--time-col", time_col, "t"), ("--input-col", input_col, "u"),
+             ("--output-col", output_col, "y"))
+    given = [(flag, col) for flag, col, _ in roles if col is not None]
     for i, (flag, col) in enumerate(given):
         for other, col2 in given[:i]:
             if col.strip() == col2.strip():
                 raise ParameterError(f"{other} and {flag} both name column {col!r}: a record's "
                                      "time, input and output are three different columns")
+    for flag, col in given:
+        for other, col2, default in roles:
+            if other != flag and col2 is None and col.strip() == default:
+                raise ParameterError(
+                    f"{flag} {col!r} is the default column of {other} ({default!r}): one "
+                    "column would be both; a record's time, input and output are three "
+                    f"different columns (give {other} too)")
 
 
 def check_fix_items(items: Sequence[str] | None) -> None:
@@ -576,6 +586,24 @@ def check_model_builds(model: Any, data: Dataset, what: str) -> None:
         model.assemble(*model.symbols(), float(data.dt))
     except ModelError as exc:
         raise ModelError(f"{what}: {exc}") from None
+
+
+@contextmanager
+def stdout_kept_for_json(json_path: str | Path | None) -> Iterator[None]:
+    """A block whose prints go to stderr when ``--json -`` reserves stdout for the JSON.
+
+    A user's model file, effect file or plugin may print while it is imported or run; on
+    stdout its lines would corrupt the JSON a pipe reads (``--json - | jq``). Outside
+    ``--json -`` the block changes nothing.
+    """
+    import sys
+    from contextlib import redirect_stdout
+
+    if json_path is None or str(json_path) != STDOUT:
+        yield
+        return
+    with redirect_stdout(sys.stderr):
+        yield
 
 
 @contextmanager

@@ -31,6 +31,7 @@ from hhra_phys.cli._guards import (
     output_path,
     seed,
     split_value,
+    stdout_kept_for_json,
 )
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path, jsonable
@@ -226,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     try:
         paths = _outputs(args)  # before any work, so a clash fails fast
-        _check_methods(C, args)
+        with stdout_kept_for_json(args.json):  # a plugin printing while imported
+            _check_methods(C, args)
         dataset, default_split = _load(args)
         split = _split(args, dataset, default_split)
         records = dataset if isinstance(dataset, list) else [dataset]
@@ -235,21 +237,22 @@ def run(args: argparse.Namespace) -> int:
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
             say(f"compare: {what}, split {split}")
-        comp = C.run_comparison(
-            dataset,
-            split=split,
-            methods=args.methods,
-            seed=args.seed,
-            pop_size=args.pop,
-            max_iter=args.iters,
-            progress=say or False,
-            na=args.na,
-            nb=args.nb,
-            nk=args.nk,
-            zeta_s=args.zeta,
-            bounds=tuple(args.box),
-            **_physical_model(args, dataset),
-        )
+        with stdout_kept_for_json(args.json):  # a plugin's or model's prints
+            comp = C.run_comparison(
+                dataset,
+                split=split,
+                methods=args.methods,
+                seed=args.seed,
+                pop_size=args.pop,
+                max_iter=args.iters,
+                progress=say or False,
+                na=args.na,
+                nb=args.nb,
+                nk=args.nk,
+                zeta_s=args.zeta,
+                bounds=tuple(args.box),
+                **_physical_model(args, dataset),
+            )
         report = comp.to_dict()
         table = C.markdown_table(report)
         _write_outputs(C, comp, report, table, paths, args)

@@ -30,6 +30,7 @@ from hhra_phys.cli._guards import (
     seed,
     split_fraction,
     split_value,
+    stdout_kept_for_json,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
@@ -128,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
         if isinstance(args.split, float) and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
-        res = _augment(args)
+        with stdout_kept_for_json(args.json):  # user code's prints: not in the JSON
+            res = _augment(args)
         out = res.to_json()
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
@@ -151,6 +153,7 @@ def _augment(args: argparse.Namespace) -> Any:
     from hhra_phys.cli._common import parse_names
     from hhra_phys.loop import augment
 
+    candidates = [] if args.effects == "none" else parse_names(args.effects, "--effects")
     added = user_effects(args.effects_from)
     if added:
         print(f"registered effects: {', '.join(added)}", file=sys.stderr)
@@ -174,7 +177,7 @@ def _augment(args: argparse.Namespace) -> Any:
         res = augment(
             records if several else data, model, validation=validation, split=split,
             test=args.test,
-            candidates=[] if args.effects == "none" else parse_names(args.effects),
+            candidates=candidates,
             max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
             max_iter=args.iters, seed=args.seed, margin=args.margin,
             noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,

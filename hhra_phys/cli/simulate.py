@@ -65,6 +65,10 @@ def _parse_effects(items: list[str] | None) -> dict[str, dict[str, float]]:
     out: dict[str, dict[str, float]] = {}
     for item in items or []:
         name, _, rest = item.partition(":")
+        if name in out:  # the second would silently replace the first
+            first = next(i for i in items or [] if i.partition(":")[0] == name)
+            raise ParameterError(f"--effect {name} is given twice ({first!r} and {item!r}); "
+                                 "an effect acts once: give it once")
         if name not in LIBRARY:
             raise ParameterError(f"--effect {item!r}: unknown effect {name!r}; library: "
                                  f"{', '.join(LIBRARY)}")

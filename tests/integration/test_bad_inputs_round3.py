@@ -340,3 +340,74 @@ def test_an_infinite_stiffness_is_no_overflow_in_plan() -> None:
     p[model.params.index("g_valve")] = 1e308
     method, substeps, reason = Simulator(model, fs=250.0).plan(p * 1e10)
     assert reason == "non-finite state Jacobian" and substeps == 2
+
+
+# -- silent acceptance refused -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["fit", "{rec}", "--input-col", "y", *QUICK],
+     ["--input-col 'y'", "default column of --output-col"]),
+    (["fit", "{rec}", "--output-col", "u", *QUICK],
+     ["--output-col 'u'", "default column of --input-col"]),
+    (["diagnose", "{rec}", "--input-col", "t"], ["--input-col 't'", "--time-col"]),
+    (["compare", "{rec}", "--y", "u", "--methods", "ls"], ["--output-col 'u'"]),
+    (["simulate", "--out", "{out}/s.csv", "--generator", "reference",
+      "--effect", "gravity_load:g_grav_cos=1,g_grav_sin=0",
+      "--effect", "gravity_load:g_grav_cos=2,g_grav_sin=0"],
+     ["--effect gravity_load is given twice"]),
+    (["simulate", "--out", "{out}/s.csv", "--effect", "coulomb_friction:g_coulomb=1"],
+     ["--effect needs --generator reference"]),
+    (["fit", "{rec}", "--free", "", *QUICK], ["--free ''", "empty list"]),
+    (["fit", "{rec}", "--free", " , ", *QUICK], ["--free ' , '"]),
+    (["diagnose", "{rec}", "--effects", ""], ["--effects ''", "empty list"]),
+])
+def test_silent_acceptance_is_refused_round3(argv, words, rec, tmp_path, capsys) -> None:
+    argv = [a.format(rec=rec, out=tmp_path) for a in argv]
+    err = refused(argv, 2, words, tmp_path, capsys)
+    assert "fitting" not in err and "diagnosing" not in err
+
+
+def test_a_swapped_pair_of_columns_is_still_accepted(tmp_path, capsys) -> None:
+    """Naming both columns the other way round is a choice, not a mistake."""
+    p = tmp_path / "swap.csv"
+    ds = simulate_rig(seed=0, duration=2.0)
+    rows = "\n".join(f"{a!r},{b!r},{c!r}" for a, b, c in zip(ds.t.tolist(), ds.y.tolist(),
+                                                              ds.u.tolist(), strict=True))
+    p.write_text(f"t,u,y\n{rows}\n")
+    code, _, err = run(["fit", p, "--input-col", "y", "--output-col", "u", *QUICK], capsys)
+    assert code == 0, err
+
+
+PRINTING_MODEL = """
+print("hello from the model file")
+from hhra_phys.models.hhra.model import HHRAModel
+
+def make_model(data=None):
+    print("building the model")
+    return HHRAModel()
+"""
+
+
+@pytest.mark.parametrize("cmd", ["fit", "diagnose"])
+def test_json_to_stdout_stays_json_when_user_code_prints(cmd, rec, tmp_path, capsys) -> None:
+    model = tmp_path / "printing_model.py"
+    model.write_text(PRINTING_MODEL)
+    extra = (QUICK if cmd == "fit" else ["--pop", "4", "--iters", "1", "--max-effects", "0",
+                                          "--no-discover"])
+    code, out, err = run([cmd, rec, "--model", f"{model}:make_model", *extra, "--json", "-"],
+                         capsys)
+    assert code == 0, err
+    json.loads(out)  # the JSON alone
+    assert "hello from the model file" in err and "building the model" in err
+
+
+def test_design_refuses_a_model_other_than_the_fits(fitjs, tmp_path, capsys) -> None:
+    fit_path = tmp_path / "fit.json"
+    fit_path.write_text(json.dumps(fitjs))
+    other = tmp_path / "other_model.py"
+    other.write_text("from hhra_phys.models.hhra.model import HHRAModel\n"
+                     "def make_model(data=None):\n    return HHRAModel(valve='linear')\n")
+    refused(["design", fit_path, "--duration", "2", "--out", tmp_path / "u.csv", "--model",
+             f"{other}:make_model"], 2,
+            ["--model", "LinearValve", "OrificeValve", "would be ignored"], tmp_path, capsys)
