@@ -213,12 +213,15 @@ def check_same_model(spec: str, res: Any, record: Any, path: str) -> None:
     given = model_from_spec(spec, record).to_json()
     fitted = res.model_spec or {}
 
+    def short(typ: Any) -> str:  # a user's part is registered under its module's name,
+        return str(typ).rpartition(".")[2]  # which depends on how the file was imported
+
     def parts(m: Any) -> list[Any]:
-        return [(p.get("type"), p.get("args")) for p in m.get("parts", [])]
+        return [(short(p.get("type")), p.get("args")) for p in m.get("parts", [])]
 
     if parts(given) != parts(fitted):
-        names = [p.get("type") for p in given.get("parts", [])]
-        had = [p.get("type") for p in fitted.get("parts", [])]
+        names = [short(p.get("type")) for p in given.get("parts", [])]
+        had = [short(p.get("type")) for p in fitted.get("parts", [])]
         raise ParameterError(
             f"--model {spec} builds a model of parts {names}, but FIT.json {path} was fitted "
             f"with {had}: the design uses the fitted model (its values and covariance), so "
