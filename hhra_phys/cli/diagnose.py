@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
@@ -265,9 +267,42 @@ def check_effects_build(model: Any, data: Any, names: list[str]) -> None:
         why = eff.applicable(model)
         if why is None:
             check_model_builds(model.with_parts(eff), data, f"--effects-from effect {name!r}")
+            check_effect_finite(model, eff, data, name)
         elif "does not assemble" in why:  # Effect.applicable's words for a failing apply
             raise ModelError(f"--effects-from effect {name!r}: {why}")
         # other reasons: not a candidate for this model, and the loop says so
+
+
+#: Samples of the record a user's effect is simulated on before the loop (a quick check).
+EFFECT_CHECK_SAMPLES = 500
+
+
+def check_effect_finite(model: Any, eff: Any, data: Any, name: str) -> None:
+    """Simulate the model with a user's effect at its nominal values on the start of the
+    record (CasADi's virtual machine, nothing compiled): an output that is not finite
+    where the model without it is finite is the effect's, and is named now (the loop
+    would reject the candidate as 'RMSE -> inf' without saying why)."""
+    from hhra_phys.errors import ModelError
+    from hhra_phys.simulate import Simulator
+
+    u = np.asarray(data.u[:EFFECT_CHECK_SAMPLES], dtype=float)
+
+    def finite(m: Any) -> bool:
+        sim = Simulator(m, fs=float(data.fs), backend="casadi", intersample=data.intersample)
+        with np.errstate(all="ignore"):
+            return bool(np.all(np.isfinite(sim.simulate(u, m.nominal()))))
+
+    try:
+        if finite(model) and not finite(model.with_parts(eff)):
+            raise ModelError(
+                f"--effects-from effect {name!r}: the model with it at its nominal values "
+                f"({', '.join(f'{p.name}={p.nominal:g}' for p in eff.parameters)}) "
+                f"simulates to NaN or inf on the first {u.size} samples of "
+                f"{data.name or data.source or 'the record'}; check its apply()")
+    except ModelError:
+        raise
+    except Exception:  # noqa: BLE001 - a check; the loop reports other failures itself
+        return
 
 
 def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, list[str]]:

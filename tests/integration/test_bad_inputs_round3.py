@@ -411,3 +411,47 @@ def test_design_refuses_a_model_other_than_the_fits(fitjs, tmp_path, capsys) -> 
     refused(["design", fit_path, "--duration", "2", "--out", tmp_path / "u.csv", "--model",
              f"{other}:make_model"], 2,
             ["--model", "LinearValve", "OrificeValve", "would be ignored"], tmp_path, capsys)
+
+
+NAN_EFFECT = '''
+from dataclasses import dataclass
+from typing import ClassVar
+
+import casadi as ca
+
+from hhra_phys import Effect, Parameter, register_effect
+
+
+@register_effect
+@dataclass(frozen=True)
+class NanEffect35(Effect):
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "nan_effect_35"
+    reads: ClassVar[tuple] = ("omega",)
+    writes: ClassVar[tuple] = ("omega",)
+    entry: ClassVar[str] = "rate:omega"
+    signature: ClassVar[str] = "none"
+    regressors: ClassVar[tuple] = ()
+
+    @property
+    def parameters(self):
+        return (Parameter("g_nan35", "1/s", 1.0, 0.1, 10.0, "log", "a rate"),)
+
+    def apply(self, ctx):
+        ctx.add_rate("omega", ctx.p["g_nan35"] * ca.sqrt(-1 - ctx.x["omega"] ** 2))
+'''
+
+
+def test_an_effect_that_simulates_to_nan_is_named(rec, tmp_path, capsys) -> None:
+    from hhra_phys.parts import EFFECTS
+
+    src = tmp_path / "nan_effect_35.py"
+    src.write_text(NAN_EFFECT)
+    try:
+        err = refused(["diagnose", rec, "--pop", "4", "--iters", "1", "--no-discover",
+                       "--effects-from", src], 1,
+                      ["--effects-from effect 'nan_effect_35'", "NaN or inf", "g_nan35=1"],
+                      tmp_path, capsys)
+        assert "diagnosing" not in err
+    finally:
+        EFFECTS.pop("nan_effect_35", None)
