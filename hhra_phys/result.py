@@ -845,6 +845,10 @@ class FitResult:
         return cls.from_json(d, source=str(p))
 
 
+#: A saved value this many times beyond its parameter's box is refused: no fit ends there
+#: (a box is widened by a few decades at most), and the model's Jacobian overflows.
+FAR_OUTSIDE = 1e12
+
 _EDIT = "; give the JSON a fit wrote (FitResult.save, 'hhra-phys fit --json'), unedited"
 
 
@@ -898,6 +902,12 @@ def _values(params: Any, model: Model, source: str) -> dict[str, float]:
             raise DataError(f"{source}: {key} is {value!r}; {par.name} is a "
                             + ("positive quantity" if par.scale == "log" else "finite number")
                             + _EDIT)
+        span = max(abs(par.lower), abs(par.upper))
+        far = (value > par.upper * FAR_OUTSIDE or value < par.lower / FAR_OUTSIDE
+               if par.scale == "log" else abs(value) > span * FAR_OUTSIDE)
+        if far:  # no fit ends there (boxes widen by a few decades at most)
+            raise DataError(f"{source}: {key} is {value!r}, {FAR_OUTSIDE:.0e} times beyond "
+                            f"{par.name}'s box [{par.lower:g}, {par.upper:g}]{_EDIT}")
         values[par.name] = float(value)
     return values
 

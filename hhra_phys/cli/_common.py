@@ -125,7 +125,7 @@ def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> Non
     p.add_argument(
         "data", nargs="*" if several else "?", default=None, metavar="DATA",
         help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
-             "record in ../shared/data, or nothing (or 'rig') for the built-in simulated rig"
+             "record shipped with the package, or nothing (or 'rig') for the built-in simulated rig"
              + ("; several records are fitted jointly (shared parameters, an initial state "
                 "per record)" if several else ""),
     )

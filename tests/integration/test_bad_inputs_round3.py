@@ -305,6 +305,7 @@ def _edit(d: dict, path: str, value: object) -> dict:
     ("covariance", [[1.0, 2.0], [3.0, 4.0]], ["'covariance'", "6 x 6", "2 rows"]),
     ("free", ["g_valve", "g_bogus"], ["'free' names 'g_bogus'"]),
     ("format", "something else", ["'format' is 'something else'"]),
+    ("params.g_valve.value", 1e308, ["'params.g_valve.value'", "beyond g_valve's box"]),
 ])
 def test_an_edited_fit_json_is_refused_naming_the_key(path, value, words, fitjs, tmp_path,
                                                      capsys) -> None:
@@ -330,6 +331,23 @@ def test_a_fit_json_without_format_still_says_missing(fitjs, tmp_path) -> None:
     p.write_text(json.dumps({k: v for k, v in fitjs.items() if k != "format"}))
     with pytest.raises(DataError, match="missing 'format'"):
         FitResult.load(p)
+
+
+def test_the_public_record_ships_with_the_package(tmp_path, monkeypatch) -> None:
+    import hashlib
+    import tomllib
+
+    from hhra_phys.data import public
+
+    monkeypatch.delenv("HHRA_SHARED_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)  # no shared/data above it
+    found = public.find_public_data()
+    assert found == Path(public.__file__).resolve().parent / public.PUBLIC_ACTUATOR_FILE
+    assert hashlib.sha256(found.read_bytes()).hexdigest() == public.PUBLIC_ACTUATOR_SHA256
+    assert public.PUBLIC_ACTUATOR_SHA256 in (REPO / "docs" / "data.md").read_text()
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())
+    shipped = config["tool"]["setuptools"]["package-data"]["hhra_phys.data"]
+    assert public.PUBLIC_ACTUATOR_FILE in shipped  # so that a non-editable install has it
 
 
 def test_an_infinite_stiffness_is_no_overflow_in_plan() -> None:
