@@ -414,6 +414,7 @@ def round_three(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> 
                         (["diagnose", str(rig), "--pop", "1000000000"], "--pop"),
                         (["compare", str(rig), "--iters", "1000000000"], "--iters"),
                         (["benchmark", "--pop", "1000000000"], "--pop"),
+                        (["benchmark", "--pop", "4", "--runs", "1"], "--no-scipy"),
                         (["fit", str(rig), "--pop", "10000", "--iters", "1000000", "--quiet"],
                          "--pop/--iters"),
                         (["compare", str(rig), "--na", "100000", "--methods", "ls", "--json",

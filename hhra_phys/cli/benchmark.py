@@ -10,7 +10,7 @@ from typing import Any
 from hhra_phys.cli._common import iterations, population, positive_int, report_error
 from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
-from hhra_phys.errors import HHRAError
+from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.optim.registry import METHODS
 from hhra_phys.outputs import jsonable
 from hhra_phys.paper.benchmarks import BENCHMARK_KEYS
@@ -79,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_arguments(args, {"--json": args.json, "--markdown": args.markdown,
                                "--plot": args.plot})
+        if args.pop < 5 and not args.no_scipy:
+            raise ParameterError(f"--pop {args.pop}: the SciPy reference "
+                                 "(differential_evolution) needs a population of at least 5; "
+                                 "raise --pop or pass --no-scipy")
         settings = StudySettings(
             runs=args.runs,
             pop_size=args.pop,

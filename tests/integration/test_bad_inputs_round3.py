@@ -200,6 +200,7 @@ def test_simulate_stopped_between_the_csv_and_its_side_car_leaves_neither(
     (["diagnose", "{rec}", "--pop", "1000000000"], ["--pop", "<= 10,000"]),
     (["compare", "{rec}", "--iters", "1000000000"], ["--iters"]),
     (["benchmark", "--pop", "1000000000"], ["--pop"]),
+    (["benchmark", "--pop", "4", "--runs", "1"], ["--pop 4", "SciPy reference", "--no-scipy"]),
     (["fit", "{rec}", "--pop", "10000", "--iters", "1000000"],
      ["--pop/--iters", "h allowed", "lower --pop or --iters"]),
     (["fit", "{rec}", "--pop", "4", "--iters", "1000000", "--starts", "10000"],
@@ -335,7 +336,7 @@ def test_a_fit_json_without_format_still_says_missing(fitjs, tmp_path) -> None:
 
 def test_the_public_record_ships_with_the_package(tmp_path, monkeypatch) -> None:
     import hashlib
-    import tomllib
+    import re
 
     from hhra_phys.data import public
 
@@ -345,9 +346,10 @@ def test_the_public_record_ships_with_the_package(tmp_path, monkeypatch) -> None
     assert found == Path(public.__file__).resolve().parent / public.PUBLIC_ACTUATOR_FILE
     assert hashlib.sha256(found.read_bytes()).hexdigest() == public.PUBLIC_ACTUATOR_SHA256
     assert public.PUBLIC_ACTUATOR_SHA256 in (REPO / "docs" / "data.md").read_text()
-    config = tomllib.loads((REPO / "pyproject.toml").read_text())
-    shipped = config["tool"]["setuptools"]["package-data"]["hhra_phys.data"]
-    assert public.PUBLIC_ACTUATOR_FILE in shipped  # so that a non-editable install has it
+    config = (REPO / "pyproject.toml").read_text()  # (tomllib is Python 3.11+)
+    section = config.split("[tool.setuptools.package-data]", 1)[1].split("\n[", 1)[0]
+    shipped = re.search(r'^"hhra_phys.data" = \[(.*)\]$', section, re.M)
+    assert shipped and f'"{public.PUBLIC_ACTUATOR_FILE}"' in shipped.group(1)  # pip install .
 
 
 def test_an_infinite_stiffness_is_no_overflow_in_plan() -> None:
@@ -473,3 +475,65 @@ def test_an_effect_that_simulates_to_nan_is_named(rec, tmp_path, capsys) -> None
         assert "diagnosing" not in err
     finally:
         EFFECTS.pop("nan_effect_35", None)
+
+
+# -- README: every command runs, the install line agrees with the guide -------------------------
+
+
+def _readme() -> str:
+    return (REPO / "README.md").read_text()
+
+
+def test_readme_and_guide_install_the_same_way() -> None:
+    import re
+
+    guide = (REPO / "docs" / "guide.md").read_text()
+    install = re.search(r"python -m pip install [^\n&]+", guide)
+    assert install is not None
+    line = install.group(0).strip()
+    quick = _readme()[_readme().index("## Quick start"):_readme().index("## Commands")]
+    assert line in quick, line
+    assert "7-8 minutes" in quick and "docs/testing.md" in quick
+
+
+def test_every_flag_of_the_readme_table_exists() -> None:
+    import re
+
+    from hhra_phys.cli import build_parser
+
+    sub = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    table = _readme()[_readme().index("## Commands"):_readme().index("## Python")]
+    rows = re.findall(r"^\| `hhra-phys (\w+)([^`]*)`", table, re.M)
+    assert {cmd for cmd, _ in rows} == set(sub)
+    for cmd, synopsis in rows:
+        known = {s for a in sub[cmd]._actions for s in a.option_strings}
+        for flag in re.findall(r"--[\w-]+", synopsis):
+            assert flag in known, (cmd, flag)
+
+
+def test_every_readme_command_runs(tmp_path, capsys) -> None:
+    """Each command of the README's table, with its flags, cheaply (the demo runs in
+    test_cli.py, ``demo --quick``; the Python block in test_bad_inputs.py)."""
+    t = tmp_path
+    cheap = ["--pop", "4", "--iters", "2"]
+    for argv in (
+            ["simulate", "--out", t / "r.csv", "--seed", "1", "--noise", "0.05", "--duration",
+             "4"],
+            ["simulate", "--out", t / "v.csv", "--seed", "2", "--duration", "4",
+             "--generator", "reference", "--effect", "coulomb_friction:g_coulomb=1"],
+            ["fit", t / "r.csv", "--optimizer", "hgwo", "--refine", "none", "--free",
+             "g_valve,g_compress,g_leak,g_torque,g_damping", "--fix", "g_spring=0",
+             "--json", t / "fit.json", "--plot", t / "fit.png", *cheap, "--quiet"],
+            ["compare", t / "r.csv", "--json", t / "c.json", "--plot", t / "c.png",
+             "--methods", "ls", "--quiet"],
+            ["diagnose", t / "r.csv", "--validate", t / "v.csv", "--json", t / "d.json",
+             "--report", t / "d.md", "--max-effects", "0", "--no-discover", *cheap[:3], "1"],
+            ["design", t / "fit.json", "--duration", "2", "--out", t / "u.csv", "--criterion",
+             "d", "--draws", "1"],
+            ["benchmark", "--runs", "1", "--functions", "f1", "--methods", "gwo", "--json",
+             t / "b.json", "--plot", t / "b.png", "--pop", "5", "--iters", "2"]):
+        code, _, err = run(argv, capsys)
+        assert code == 0, (argv, err[-2000:])
+    for name in ("r.csv", "v.csv", "fit.json", "fit.png", "c.json", "c.png", "d.json", "d.md",
+                 "u.csv", "b.json", "b.png"):
+        assert (t / name).is_file(), name
