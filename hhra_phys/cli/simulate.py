@@ -43,7 +43,8 @@ def register(subparsers: Any) -> None:
                         "a fit is not the model checked against itself")
     p.add_argument("--effect", action="append", default=None, metavar="NAME[:PARAM=VALUE,...]",
                    help="with --generator reference: hide a library effect in the record, "
-                        "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable)")
+                        "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable, each effect "
+                        "once)")
     p.add_argument("--intersample", choices=("zoh", "foh"), default=None,
                    help="with --generator reference: what the valve current does between "
                         "samples, 'zoh' held (default, a DAC) or 'foh' linear to the next "
