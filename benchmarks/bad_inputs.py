@@ -76,6 +76,13 @@ class Case:
     code: int
     token: str
     warn: bool = False  # exit 0 is right, but only with a warning containing ``token``
+    #: A Python call instead of a command line (issue 35): it must raise an ``HHRAError``
+    #: (or a TypeError/ValueError) whose message contains ``token``.
+    call: Callable[[], object] | None = None
+    #: A context manager around the run (a signal sent from inside a writer, issue 35).
+    patch: Callable[[], contextlib.AbstractContextManager[object]] | None = None
+    #: Exit 0 is right only if stdout holds nothing but JSON (``--json -``, issue 35).
+    json_stdout: bool = False
 
 
 def _rows(t: np.ndarray, u: np.ndarray, y: np.ndarray, sep: str = ",") -> str:
@@ -222,6 +229,7 @@ def cases(d: Path) -> Iterator[Case]:
                    str(d / "u.csv")], 1, "nofit.json")
     yield Case(g, ["fit", str(rig), "--model", "x.py:make", "--valve", "linear"], 2, "--valve")
     yield from round_two(d, rig, file)
+    yield from round_three(d, rig, file)
 
 
 def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> Iterator[Case]:
@@ -360,6 +368,213 @@ def round_two(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> It
         yield Case(g, argv, 2, flag)
 
 
+def round_three(d: Path, rig: Path, file: Callable[[str, str | bytes], str]) -> Iterator[Case]:
+    """The cases of issue 35 and their neighbours, class by class."""
+    import copy
+
+    from hhra_phys.fit import fit
+
+    ds = simulate_rig(seed=0, duration=4.0)
+    fitted = fit(ds, optimizer="none", refine="none")
+    base = json.loads(json.dumps(fitted.to_json()))
+    fitjs = file("fit3.json", json.dumps(base))
+    val = d / "val3.csv"
+    save(simulate_rig(seed=1, duration=4.0), val)
+    side, val_side = str(rig.with_suffix(".json")), str(val.with_suffix(".json"))
+    nothing = file("nothing3.py", "X = 1\n")
+    # -- lost: no output is an input of the run, --overwrite or not ------------------------
+    g = "issue 35: lost"
+    yield Case(g, ["fit", str(rig), *QUICK, "--json", side, "--overwrite"], 2,
+               "DATA's side-car")
+    yield Case(g, ["fit", str(rig), "--validate", str(val), *QUICK, "--json", val_side,
+                   "--overwrite"], 2, "--validate's side-car")
+    yield Case(g, ["diagnose", str(rig), "--json", side, "--overwrite"], 2, "DATA's side-car")
+    yield Case(g, ["compare", str(rig), "--methods", "ls", "--json", side, "--overwrite"], 2,
+               "DATA's side-car")
+    yield Case(g, ["diagnose", str(rig), "--effects-from", nothing, "--json", nothing,
+                   "--overwrite"], 2, "is the input --effects-from")
+    # -- partial: SIGTERM (and SIGINT) while writing leave nothing ----------------------------
+    g = "issue 35: signals while writing"
+    for sig, code in (("SIGTERM", 143), ("SIGINT", 130)):
+        yield Case(g, ["diagnose", str(rig), "--pop", "4", "--iters", "1", "--max-effects", "0",
+                       "--no-discover", "--json", str(d / "d3.json"), "--report",
+                       str(d / "r3.md")], code, "nothing written",
+                   patch=partial_signal(sig, "hhra_phys.loop", "LoopResult", "report"))
+        yield Case(g, ["fit", str(rig), *QUICK, "--json", str(d / "f3.json"), "--plot",
+                       str(d / "f3.png")], code, "nothing written",
+                   patch=partial_signal(sig, "hhra_phys.cli.fit", None, "plot_result"))
+        yield Case(g, ["simulate", "--out", str(d / "s3.csv"), "--duration", "2"], code,
+                   "nothing written",
+                   patch=partial_signal(sig, "hhra_phys.data.formats", None,
+                                        "atomic_write_text", after=1))
+    # -- hang and allocation: sizes refused before the work ---------------------------------
+    g = "issue 35: sizes"
+    for argv, token in ((["fit", str(rig), *QUICK[2:], "--iters", "1000000000"], "--iters"),
+                        (["fit", str(rig), *QUICK[2:], "--pop", "1000000000"], "--pop"),
+                        (["diagnose", str(rig), "--pop", "1000000000"], "--pop"),
+                        (["compare", str(rig), "--iters", "1000000000"], "--iters"),
+                        (["benchmark", "--pop", "1000000000"], "--pop"),
+                        (["benchmark", "--pop", "4", "--runs", "1"], "--no-scipy"),
+                        (["fit", str(rig), "--pop", "10000", "--iters", "1000000", "--quiet"],
+                         "--pop/--iters"),
+                        (["compare", str(rig), "--na", "100000", "--methods", "ls", "--json",
+                          str(d / "c3.json")], "--na 100000"),
+                        (["compare", str(rig), "--nb", "600", "--nk", "600", "--methods",
+                          "ls"], "--nb 600")):
+        yield Case(g, argv, 2, token)
+    # -- tracebacks of the Python API --------------------------------------------------------
+    g = "issue 35: Python API"
+    from hhra_phys import HHRAModel, Parameter
+    from hhra_phys.result import FitResult
+
+    bad_value = copy.deepcopy(base)
+    bad_value["params"]["g_leak"]["value"] = "abc"
+    str_value = file("strvalue3.json", json.dumps(bad_value))
+    for call, token in (
+            (lambda: fit(ds, model="HHRA"), "model must be"),
+            (lambda: fit(ds, model=HHRAModel), "model must be"),
+            (lambda: Parameter(3, "1", 1.0, 0.1, 10.0), "name must be a str"),  # type: ignore
+            (lambda: Parameter("k", "1", "1", 0.1, 10.0), "nominal must be"),  # type: ignore
+            (lambda: fit(42), "data must be"),  # type: ignore[arg-type]
+            (lambda: fit("rec.csv"), "data must be"),  # type: ignore[arg-type]
+            (lambda: fit(ds, fixed={"g_leak": "abc"}), "fixed g_leak"),
+            (lambda: fit(ds, start={"g_leak": "abc"}), "start g_leak"),
+            (lambda: fit(ds, start={"g_leak": -1.0}), "start g_leak"),
+            (lambda: fit(ds, start={"g_nope": 1.0}), "start g_nope"),
+            (lambda: fit(ds, start=[1.0]), "start"),  # type: ignore[arg-type]
+            (lambda: fit(ds, pop_size=10**9), "pop_size"),
+            (lambda: FitResult.load(str_value), "'params.g_leak.value'")):
+        yield Case(g, ["python"], 1, token, call=call)
+    # -- silent acceptance ----------------------------------------------------------------------
+    g = "issue 35: silent acceptance"
+    for argv, token in (
+            (["fit", str(rig), "--input-col", "y", *QUICK], "--input-col 'y'"),
+            (["fit", str(rig), "--output-col", "u", *QUICK], "--output-col 'u'"),
+            (["compare", str(rig), "--u", "t", "--methods", "ls"], "--input-col 't'"),
+            (["simulate", "--out", str(d / "e3.csv"), "--generator", "reference", "--effect",
+              "gravity_load:g_grav_cos=1,g_grav_sin=0", "--effect",
+              "gravity_load:g_grav_cos=2,g_grav_sin=0"], "given twice"),
+            (["simulate", "--out", str(d / "e3.csv"), "--generator", "reference", "--effect",
+              "sensor_offset:y_offset=1", "--effect", "sensor_offset:y_offset=2"],
+             "given twice")):
+        yield Case(g, argv, 2, token)
+    printing = file("printing3.py", "print('hello from the model file')\n"
+                    "from hhra_phys.models.hhra.model import HHRAModel\n"
+                    "def make_model(data=None):\n    print('building')\n"
+                    "    return HHRAModel()\n")
+    for cmd, extra in (("fit", QUICK), ("diagnose", ["--pop", "4", "--iters", "1",
+                                                     "--max-effects", "0", "--no-discover"])):
+        yield Case(g, [cmd, str(rig), "--model", f"{printing}:make_model", *extra, "--json",
+                       "-"], 0, "", json_stdout=True)
+    other = file("other3.py", "from hhra_phys.models.hhra.model import HHRAModel\n"
+                 "def make_model(data=None):\n    return HHRAModel(valve='linear')\n")
+    yield Case(g, ["design", fitjs, "--duration", "2", "--out", str(d / "u3.csv"), "--model",
+                   f"{other}:make_model"], 2, "would be ignored")
+
+    def edited(name: str, path: str, value: object) -> str:
+        out = copy.deepcopy(base)
+        *keys, last = path.split(".")
+        target = out
+        for k in keys:
+            target = target[int(k)] if isinstance(target, list) else target[k]
+        target[last] = value
+        return file(name, json.dumps(out))
+
+    for name, path, value, token in (
+            ("neg3.json", "params.g_valve.value", -31.7, "'params.g_valve.value'"),
+            ("model3.json", "model.class", "Bogus", "'model.class'"),
+            ("fsneg3.json", "records.0.fs", -250, "'records[0].fs'"),
+            ("fsstr3.json", "records.0.fs", "fast", "'records[0].fs'"),
+            ("v99.json", "version", 99, "'version'")):
+        yield Case(g, ["design", edited(name, path, value), "--duration", "2", "--out",
+                       str(d / "u3.csv")], 1, token)
+    for name, text, token in (("is3", {"intersample": "bogus"}, "'intersample'"),
+                              ("fs3", {"fs": -250}, "'fs'"),
+                              ("list3", [], "JSON object")):
+        csv = d / f"{name}.csv"
+        csv.write_bytes(rig.read_bytes())
+        car = (text if isinstance(text, list) else
+               {**json.loads(rig.with_suffix(".json").read_text()), **text})
+        (d / f"{name}.json").write_text(json.dumps(car))
+        yield Case(g, ["fit", str(csv), *QUICK], 1, f"{name}.json")
+        yield Case(g, ["fit", str(csv), *QUICK], 1, token)
+    # -- weak messages ----------------------------------------------------------------------
+    g = "issue 35: messages"
+    yield Case(g, ["fit", str(rig), "--free", "", *QUICK], 2, "--free ''")
+    yield Case(g, ["diagnose", str(rig), "--effects", ""], 2, "--effects ''")
+    nan_effect = file("nan_effect3.py", NAN_EFFECT)
+    yield Case(g, ["diagnose", str(rig), "--pop", "4", "--iters", "1", "--no-discover",
+                   "--effects-from", nan_effect], 1, "'nan_effect_b35'")
+    for name, path, value, token in (
+            ("cov3.json", "covariance", [[1.0, 2.0], [3.0, 4.0]], "'covariance'"),
+            ("free3.json", "free", ["g_valve", "g_bogus"], "'free' names 'g_bogus'"),
+            ("fmt3.json", "format", "something else", "'format' is 'something else'"),
+            ("inf3.json", "params.g_valve.value", 1e308, "'params.g_valve.value'")):
+        yield Case(g, ["design", edited(name, path, value), "--duration", "2", "--out",
+                       str(d / "u3.csv")], 1, token)
+
+
+#: A user's effect whose simulation is NaN (issue 35).
+NAN_EFFECT = """
+from dataclasses import dataclass
+from typing import ClassVar
+
+import casadi as ca
+
+from hhra_phys import Effect, Parameter, register_effect
+
+
+@register_effect
+@dataclass(frozen=True)
+class NanEffectB35(Effect):
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "nan_effect_b35"
+    reads: ClassVar[tuple] = ("omega",)
+    writes: ClassVar[tuple] = ("omega",)
+    entry: ClassVar[str] = "rate:omega"
+    signature: ClassVar[str] = "none"
+    regressors: ClassVar[tuple] = ()
+
+    @property
+    def parameters(self):
+        return (Parameter("g_nanb", "1/s", 1.0, 0.1, 10.0, "log", "a rate"),)
+
+    def apply(self, ctx):
+        ctx.add_rate("omega", ctx.p["g_nanb"] * ca.sqrt(-1 - ctx.x["omega"] ** 2))
+"""
+
+
+def partial_signal(sig: str, module: str, cls: str | None, name: str, after: int = 0
+                   ) -> Callable[[], contextlib.AbstractContextManager[object]]:
+    """A patch that sends ``sig`` to this process from inside ``module.[cls.]name``, on its
+    call number ``after`` (0: the first), when the run has written part of its outputs."""
+    import importlib
+    import os
+    import signal
+
+    @contextlib.contextmanager
+    def patched() -> Iterator[object]:
+        owner = importlib.import_module(module)
+        if cls is not None:
+            owner = getattr(owner, cls)
+        real = getattr(owner, name)
+        calls = [0]
+
+        def wrapper(*a: object, **k: object) -> object:
+            calls[0] += 1
+            if calls[0] == after + 1:
+                os.kill(os.getpid(), getattr(signal, sig))
+            return real(*a, **k)
+
+        setattr(owner, name, wrapper)
+        try:
+            yield None
+        finally:
+            setattr(owner, name, real)
+
+    return patched
+
+
 def _server(reply: bytes) -> int:
     """A local TCP server that answers ``reply`` to every connection; its port."""
     import socket
@@ -429,8 +644,11 @@ def outcomes(case: Case, folder: Path) -> tuple[str, str, list[str]]:
 
 def classify(case: Case) -> tuple[str, str, int | None]:
     """(class, stderr, exit code) of one case."""
+    if case.call is not None:
+        return classify_call(case)
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), (
+            case.patch() if case.patch else contextlib.nullcontext()):
         try:
             code = main([str(a) for a in case.argv])
         except SystemExit as exc:
@@ -438,6 +656,12 @@ def classify(case: Case) -> tuple[str, str, int | None]:
         except Exception:  # noqa: BLE001 - an escaped exception is what is counted here
             return "traceback", traceback.format_exc(limit=3), 1
     text = err.getvalue()
+    if case.json_stdout and "Traceback" not in text:
+        try:
+            json.loads(out.getvalue())
+        except ValueError:
+            return "silent", "stdout is not JSON: " + out.getvalue()[:200], code
+        return ("clear" if code == 0 else "vague"), text, code
     if "Traceback" in text:
         return "traceback", text, code
     if case.code == 0 and not case.warn:  # a readable record: success expected
@@ -447,6 +671,24 @@ def classify(case: Case) -> tuple[str, str, int | None]:
     if code == case.code and case.token in text:
         return "clear", text, code
     return "vague", text, code
+
+
+def classify_call(case: Case) -> tuple[str, str, int | None]:
+    """(class, message, 1 or 0) of a Python call that must raise a named error."""
+    from hhra_phys.errors import HHRAError
+
+    assert case.call is not None
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(
+                io.StringIO()):
+            case.call()
+    except (HHRAError, TypeError, ValueError) as exc:
+        named = isinstance(exc, HHRAError) or case.token in str(exc)
+        kind = "clear" if named and case.token in str(exc) else "vague"
+        return kind, f"{type(exc).__name__}: {exc}", 1
+    except Exception:  # noqa: BLE001 - an AttributeError ... is what is counted here
+        return "traceback", traceback.format_exc(limit=3), 1
+    return "silent", "no error", 0
 
 
 def run(report: Callable[[str], None] = print,

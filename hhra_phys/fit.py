@@ -224,10 +224,15 @@ class FitOptions:
                                  f"{self.optimizer!r}")
         if not 0 < self.split <= 1:
             raise ParameterError(f"split must be in (0, 1], got {self.split}")
-        for name in ("pop_size", "max_iter"):
+        from hhra_phys.options import MAX_ITERATIONS, MAX_POPULATION
+
+        for name, most in (("pop_size", MAX_POPULATION), ("max_iter", MAX_ITERATIONS)):
             v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 0):
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0):
                 raise ParameterError(f"{name} must be an integer >= 0, got {v!r}")
+            if v > most:
+                raise ParameterError(f"{name} must be at most {most:,} (see "
+                                     f"hhra_phys.options), got {v:,}")
         return self
 
     @classmethod
@@ -305,6 +310,7 @@ def fit(
         On Ctrl-C anywhere in the search or the refiners (also inside IPOPT and NLopt
         callbacks, see :mod:`hhra_phys.interrupt`): no result.
     """
+    _check_model_argument(model)
     opts = FitOptions.of(options, **settings)
     t_start = time.perf_counter()
     if data is None:
@@ -321,6 +327,18 @@ def fit(
         problem = _build_problem(est, model, opts)
     return fit_problem(problem, val_parts, whole, opts, datasheet=datasheet,
                        callback=callback, records=records, notes=notes, t_start=t_start)
+
+
+def _check_model_argument(model: object) -> None:
+    """Refuse a ``model`` that is not a :class:`~hhra_phys.model.Model` (a name such as
+    ``"HHRA"``, a class instead of an instance) with the argument named."""
+    if model is None or isinstance(model, Model):
+        return
+    hint = ("pass an instance, e.g. HHRAModel()" if isinstance(model, type) else
+            "pass a Model object, e.g. hhra_phys.HHRAModel() or your own Model([...]); "
+            "leave it out for the default HHRA")
+    raise ParameterError(f"model must be a hhra_phys Model, got {type(model).__name__} "
+                         f"{model!r:.60}; {hint}")
 
 
 def _prepare_records(records: list[Dataset], whole: list[Dataset]

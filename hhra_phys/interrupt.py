@@ -36,6 +36,7 @@ __all__ = [
     "check",
     "ignore_sigint",
     "interruptible",
+    "last_signal",
     "map_stopping",
     "stop_on_interrupt",
     "stop_workers",
@@ -47,12 +48,20 @@ R = TypeVar("R")
 #: Seconds a terminated worker process gets to exit before it is killed.
 TERMINATE_WAIT = 5.0
 
-_state = {"depth": 0, "hit": False}
+_state: dict[str, Any] = {"depth": 0, "hit": False, "signum": None}
 
 
 def _handler(signum: int, frame: FrameType | None) -> None:
     _state["hit"] = True
+    _state["signum"] = signum
     raise KeyboardInterrupt
+
+
+def last_signal() -> int | None:
+    """The signal that ended the last :func:`interruptible` block (``signal.SIGINT`` or,
+    with ``terminate=True``, ``signal.SIGTERM``), or None; the CLI's exit code follows it
+    (130 or 143)."""
+    return _state["signum"]
 
 
 def check() -> None:
@@ -65,11 +74,19 @@ def check() -> None:
 
 
 @contextmanager
-def interruptible() -> Iterator[None]:
+def interruptible(terminate: bool = False) -> Iterator[None]:
     """A block in which Ctrl-C is recorded and re-raised when the block ends.
 
     Nested blocks share one flag; the outermost restores the previous SIGINT handler.
     Outside the main thread (where signal handlers cannot be set) it does nothing.
+
+    Parameters
+    ----------
+    terminate : bool
+        Treat SIGTERM (``kill PID``, a batch system's stop) as SIGINT too: it raises
+        ``KeyboardInterrupt`` in the block, so every writer's clean-up runs and a
+        command leaves none of its outputs (the CLI sets it; only the outermost block's
+        value counts). :func:`last_signal` tells which signal it was.
 
     Raises
     ------
@@ -81,9 +98,13 @@ def interruptible() -> Iterator[None]:
         return
     outer = _state["depth"] == 0
     previous = signal.getsignal(signal.SIGINT) if outer else None
+    previous_term = signal.getsignal(signal.SIGTERM) if outer and terminate else None
     if outer:
         _state["hit"] = False
+        _state["signum"] = None
         signal.signal(signal.SIGINT, _handler)
+        if terminate:
+            signal.signal(signal.SIGTERM, _handler)
     _state["depth"] += 1
     try:
         yield
@@ -98,6 +119,8 @@ def interruptible() -> Iterator[None]:
         _state["depth"] -= 1
         if outer:
             signal.signal(signal.SIGINT, previous)
+            if terminate:
+                signal.signal(signal.SIGTERM, previous_term)
             _state["hit"] = False
 
 

@@ -31,6 +31,22 @@ BOX_SLACK = 1e-6
 Scale = Literal["log", "linear"]
 
 
+def as_number(value: object, what: str) -> float:
+    """``value`` as a float, or a :class:`ParameterError` naming ``what`` (a string such as
+    ``"abc"``, None, a list are not numbers; a bool is refused too).
+
+    Parameters
+    ----------
+    value : object
+    what : str
+        What the value is, for the message (``"fixed g_leak='abc'"``).
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise ParameterError(f"{what}: the value must be a number, got "
+                             f"{type(value).__name__} {value!r}")
+    return float(value)
+
+
 @dataclass(frozen=True)
 class Parameter:
     """One scalar model parameter.
@@ -61,6 +77,17 @@ class Parameter:
     description: str = ""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise ParameterError(f"Parameter name must be a str, got {self.name!r} "
+                                 f"({type(self.name).__name__})")
+        if not isinstance(self.unit, str):
+            raise ParameterError(f"parameter {self.name!r}: unit must be a str, got "
+                                 f"{self.unit!r} ({type(self.unit).__name__})")
+        for field in ("nominal", "lower", "upper"):
+            value = getattr(self, field)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+                raise ParameterError(f"parameter {self.name!r}: {field} must be a number, "
+                                     f"got {value!r} ({type(value).__name__})")
         if not self.name.isidentifier():
             raise ParameterError(f"parameter name {self.name!r} is not a valid identifier")
         for field in ("nominal", "lower", "upper"):
@@ -212,7 +239,7 @@ class ParameterSet:
                 par = self[self.index(name)]
             except ParameterError as exc:
                 raise ParameterError(f"{what} {name}={value}: {exc}") from None
-            v = float(value)
+            v = as_number(value, f"{what} {name}={value!r}")
             if not math.isfinite(v):
                 raise ParameterError(f"{what} {name}={value}: the value must be finite")
             if par.scale == "log" and v <= 0:

@@ -49,7 +49,7 @@ import numpy as np
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
-from hhra_phys.parameters import Parameter, record_name, split_record_name
+from hhra_phys.parameters import Parameter, as_number, record_name, split_record_name
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 
 __all__ = [
@@ -139,7 +139,14 @@ def as_records(data: Dataset | Sequence[Dataset]) -> list[Dataset]:
     ParameterError
         No record, or an item that is not a :class:`~hhra_phys.data.Dataset`.
     """
-    records = [data] if isinstance(data, Dataset) else list(data)
+    if isinstance(data, Dataset):
+        records = [data]
+    elif isinstance(data, str | bytes) or not isinstance(data, Sequence | tuple | list):
+        raise ParameterError(
+            f"data must be a Dataset or a sequence of Dataset objects, got "
+            f"{type(data).__name__} {data!r:.60}; load a file with hhra_phys.data.load(path)")
+    else:
+        records = list(data)
     if not records:
         raise ParameterError("a fitting problem needs at least one record")
     for ds in records:
@@ -166,14 +173,18 @@ def _per_record_split(values: Mapping[str, float] | None, n: int, what: str
     """``{name or name_rec<k>: value}`` -> (shared values, one dict per record)."""
     shared: dict[str, float] = {}
     own: list[dict[str, float]] = [{} for _ in range(n)]
+    if values is not None and not isinstance(values, Mapping):
+        raise ParameterError(f"{what}s must be a mapping {{name: value}}, got "
+                             f"{type(values).__name__} {values!r:.60}")
     for name, value in (values or {}).items():
         base, k = split_record_name(name)
+        v = as_number(value, f"{what} {name}={value!r}")
         if k is None:
-            shared[name] = float(value)
+            shared[name] = v
         elif k > n:
             raise ParameterError(f"{what} {name!r}: there are only {n} records")
         else:
-            own[k - 1][base] = float(value)
+            own[k - 1][base] = v
     return shared, own
 
 
@@ -279,7 +290,7 @@ class RecordProblem(_Coordinates):
         self.data = data
         self.cost = cost
         self.initial_state = initial_state
-        start = dict(start or {})
+        start = self._checked_start(model, start)
         free = self._set_values(free, fixed, start, allow_outside_box)
         params = self._model_params(free, bounds, default_bounds, start)
         self._dt = 1.0 / data.fs
@@ -294,6 +305,31 @@ class RecordProblem(_Coordinates):
                                 for p in params])
         self._log = np.array([p.scale == "log" for p in params])
         self._set_simulator(simulator)
+
+    @staticmethod
+    def _checked_start(model: Model, start: Mapping[str, float] | None) -> dict[str, float]:
+        """``start`` as ``{name: float}``: every name a parameter of the model or an
+        ``x0_<state>``, every value a finite number (positive for a log-scaled one)."""
+        if start is None:
+            return {}
+        if not isinstance(start, Mapping):
+            raise ParameterError(f"start must be a mapping {{name: value}}, got "
+                                 f"{type(start).__name__} {start!r:.60}")
+        out: dict[str, float] = {}
+        for name, value in start.items():
+            v = as_number(value, f"start {name}={value!r}")
+            if not math.isfinite(v):
+                raise ParameterError(f"start {name}={value!r}: the value must be finite")
+            if not str(name).startswith("x0_"):
+                try:
+                    par = model.params[model.params.index(name)]
+                except ParameterError as exc:
+                    raise ParameterError(f"start {name}={value!r}: {exc}") from None
+                if par.scale == "log" and v <= 0:
+                    raise ParameterError(f"start {name}={value!r}: {name} is a positive "
+                                         "quantity (log scale); give a value > 0")
+            out[name] = v
+        return out
 
     def _set_values(self, free: Sequence[str] | None, fixed: Mapping[str, float] | None,
                     start: Mapping[str, float], allow_outside_box: bool) -> list[str]:
@@ -731,8 +767,8 @@ class Problem(_Coordinates):
         # As given (per-record names kept), so that with_boxes rebuilds the same problem.
         self._fixed_given = dict(fixed or {})
         self.simulators = _simulators_by_rate(simulator, datasets)
-        shared_start, own_start = _per_record_split(start, len(datasets), "start value")
-        shared_fixed, own_fixed = _per_record_split(fixed, len(datasets), "fixed value")
+        shared_start, own_start = _per_record_split(start, len(datasets), "start")
+        shared_fixed, own_fixed = _per_record_split(fixed, len(datasets), "fixed")
         self.records: list[RecordProblem] = []
         for i, ds in enumerate(datasets):
             pr = RecordProblem(model, ds, cost=cost, free=free,

@@ -562,6 +562,8 @@ class Simulator:
         dt = self.dt
         rho_rest = float(np.max(np.abs(rest)))
         rho_pts = float(np.max(np.abs(points)))
+        if not math.isfinite(rho_rest) or not math.isfinite(rho_pts):  # before any ceil(inf)
+            return (method or "rk4", 2, "non-finite state Jacobian")
         n_rk4 = max(2, math.ceil(rho_rest * dt / RK4_ACCURACY))
         if umax is not None:
             n_rk4 = max(n_rk4, math.ceil(rho_pts * dt / (0.5 * self.rho_max)))

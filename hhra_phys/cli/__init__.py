@@ -39,14 +39,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Exit codes, the same on every command: 0 done; 1 data or runtime error (unreadable
     record, diverged fit, simulation refused, a failed write); 2 usage error (bad option or
-    value, output path that cannot be written, also argparse's own errors); 130 Ctrl-C,
+    value, output path that cannot be written, also argparse's own errors); 130 Ctrl-C
+    and 143 SIGTERM,
     with nothing written (every writer is atomic and runs after the work). An error no
     check foresaw is one line and exit 1 as well; ``HHRA_PHYS_DEBUG=1`` shows its traceback.
     """
     try:  # the command modules import NumPy, CasADi ...: a Ctrl-C may come here
         from hhra_phys.cli._common import report_error
         from hhra_phys.errors import HHRAError
-        from hhra_phys.interrupt import interruptible
+        from hhra_phys.interrupt import interruptible, last_signal
 
         parser = build_parser()
     except KeyboardInterrupt:
@@ -57,9 +58,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with interruptible():  # a Ctrl-C that a solver swallowed is raised again here
+        # A Ctrl-C that a solver swallowed is raised again here; SIGTERM is handled as
+        # Ctrl-C, so every command's outputs are removed as a set when it is stopped.
+        with interruptible(terminate=True):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
+        import signal
+
+        if last_signal() == signal.SIGTERM:
+            print(f"hhra-phys {args.command}: terminated (SIGTERM); nothing written",
+                  file=sys.stderr)
+            return 128 + signal.SIGTERM
         print(f"hhra-phys {args.command}: interrupted; nothing written", file=sys.stderr)
         return 130
     except (HHRAError, OSError) as exc:  # a command that did not catch its own

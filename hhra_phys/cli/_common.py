@@ -33,13 +33,24 @@ def _positive_float(text: str) -> float:
 
 
 def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (``--pop``, ``--iters``, ``--top`` ...)."""
+    """argparse type: an integer >= 1 (``--top``, ``--starts`` ...)."""
     return _int_at_least(text, 1)
 
 
 def population(text: str) -> int:
-    """argparse type: a population size, an integer >= 4 (what every optimiser needs)."""
-    return _int_at_least(text, 4)
+    """argparse type: a population size, an integer >= 4 (what every optimiser needs) and
+    at most :data:`~hhra_phys.options.MAX_POPULATION`."""
+    from hhra_phys.options import MAX_POPULATION
+
+    return _int_at_least(text, 4, MAX_POPULATION)
+
+
+def iterations(text: str) -> int:
+    """argparse type: a number of iterations, an integer >= 1 and at most
+    :data:`~hhra_phys.options.MAX_ITERATIONS`."""
+    from hhra_phys.options import MAX_ITERATIONS
+
+    return _int_at_least(text, 1, MAX_ITERATIONS)
 
 
 def nonnegative_int(text: str) -> int:
@@ -47,13 +58,17 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(text, 0)
 
 
-def _int_at_least(text: str, low: int) -> int:
+def _int_at_least(text: str, low: int, high: int | None = None) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < low:
         raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+    if high is not None and value > high:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer <= {high:,} (a larger search would not fit in memory or "
+            f"would run for days; see docs/data.md), got {value:,}")
     return value
 
 
@@ -110,7 +125,7 @@ def add_data_arguments(p: argparse.ArgumentParser, several: bool = False) -> Non
     p.add_argument(
         "data", nargs="*" if several else "?", default=None, metavar="DATA",
         help="record to fit: a .csv/.mat/.npz file, 'public' for the public hydraulic-actuator "
-             "record in ../shared/data, or nothing (or 'rig') for the built-in simulated rig"
+             "record shipped with the package, or nothing (or 'rig') for the built-in simulated rig"
              + ("; several records are fitted jointly (shared parameters, an initial state "
                 "per record)" if several else ""),
     )
@@ -312,13 +327,14 @@ def parse_fixed(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def parse_names(text: str | None) -> list[str] | None:
-    """Comma-separated names, or None."""
+def parse_names(text: str | None, flag: str = "a list of names") -> list[str] | None:
+    """Comma-separated names, or None; ``flag`` is named when the list is empty."""
     if text is None:
         return None
     names = [t.strip() for t in text.split(",") if t.strip()]
     if not names:
-        raise ParameterError("an empty list of names was given")
+        raise ParameterError(f"{flag} {text!r}: an empty list of names; give comma-separated "
+                             "names (or leave the flag out for the default)")
     return names
 
 

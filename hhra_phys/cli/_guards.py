@@ -203,6 +203,67 @@ def check_size(n_samples: float, flags: str, *, bytes_per_sample: float = BYTES_
             "the memory available, at most 4 GiB); shorten it")
 
 
+#: Seconds one population member costs per sample simulated, near idle: a population of
+#: 100 over 5000 samples in 15-18 ms (README, docs/performance.md), rounded up.
+SECONDS_PER_MEMBER_SAMPLE = 4e-8
+
+#: Bytes one population member costs per sample while a population is simulated (its
+#: output and the work arrays of the vector code), an upper estimate.
+BYTES_PER_MEMBER_SAMPLE = 32
+
+#: The longest global search started without complaint [s]: a day at the estimate of
+#: :data:`SECONDS_PER_MEMBER_SAMPLE` (a loaded machine takes longer still).
+MAX_SEARCH_SECONDS = 86400.0
+
+#: A search estimated longer than this [s] is announced with its estimate before it starts.
+LONG_SEARCH_SECONDS = 600.0
+
+
+def check_search(pop: int, iters: int, n_samples: int, *, runs: int = 1,
+                 flags: str = "--pop/--iters") -> None:
+    """Refuse a global search whose population would not fit in memory, or which would
+    run longer than :data:`MAX_SEARCH_SECONDS`, before it starts; announce one estimated
+    longer than :data:`LONG_SEARCH_SECONDS` on stderr.
+
+    Parameters
+    ----------
+    pop, iters : int
+        Population size and iterations.
+    n_samples : int
+        Samples each member simulates per evaluation (the records' total).
+    runs : int
+        Searches run (``--starts``).
+    flags : str
+        The flags named in the message.
+
+    Raises
+    ------
+    ParameterError
+        With the estimate, the limit and the flags.
+    """
+    # The population's simulated outputs, and the pairwise comparison of members (up to
+    # 8 parameters) in the leaders' distinctness check.
+    need = float(pop) * n_samples * BYTES_PER_MEMBER_SAMPLE + 8.0 * pop * pop
+    budget = record_budget()
+    if need > budget:
+        raise ParameterError(
+            f"--pop {pop}: a population of {pop:,} members over {n_samples:,} samples needs "
+            f"about {_bytes(need)} of memory, more than the {_bytes(budget)} allowed (a "
+            "quarter of the memory available, at most 4 GiB); lower --pop")
+    seconds = float(pop) * (iters + 1) * n_samples * runs * SECONDS_PER_MEMBER_SAMPLE
+    if seconds > MAX_SEARCH_SECONDS:
+        raise ParameterError(
+            f"{flags}: {pop:,} members x {iters:,} iterations over {n_samples:,} samples"
+            + (f" x {runs} starts" if runs > 1 else "")
+            + f" would take about {seconds / 3600:,.0f} h at best, more than the "
+            f"{MAX_SEARCH_SECONDS / 3600:.0f} h allowed; lower --pop or --iters")
+    if seconds > LONG_SEARCH_SECONDS:
+        import sys
+
+        print(f"note: {flags}: the global search will take about {seconds / 60:,.0f} min at "
+              "best (Ctrl-C stops it, writing nothing)", file=sys.stderr)
+
+
 def _bytes(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if abs(n) < 1024 or unit == "PiB":
@@ -215,14 +276,24 @@ def _bytes(n: float) -> str:
 
 
 def check_columns(time_col: str | None, input_col: str | None, output_col: str | None) -> None:
-    """Refuse one column given for two roles (``--input-col u --output-col u``)."""
-    given = [(flag, col) for flag, col in (("--time-col", time_col), ("--input-col", input_col),
-                                           ("--output-col", output_col)) if col is not None]
+    """Refuse one column given for two roles (``--input-col u --output-col u``), also when
+    the other role takes its default column (``--input-col y`` leaves the output at its
+    default ``y``: the output would be fitted as its own input)."""
+    roles = (("--time-col", time_col, "t"), ("--input-col", input_col, "u"),
+             ("--output-col", output_col, "y"))
+    given = [(flag, col) for flag, col, _ in roles if col is not None]
     for i, (flag, col) in enumerate(given):
         for other, col2 in given[:i]:
             if col.strip() == col2.strip():
                 raise ParameterError(f"{other} and {flag} both name column {col!r}: a record's "
                                      "time, input and output are three different columns")
+    for flag, col in given:
+        for other, col2, default in roles:
+            if other != flag and col2 is None and col.strip() == default:
+                raise ParameterError(
+                    f"{flag} {col!r} is the default column of {other} ({default!r}): one "
+                    "column would be both; a record's time, input and output are three "
+                    f"different columns (give {other} too)")
 
 
 def check_fix_items(items: Sequence[str] | None) -> None:
@@ -304,7 +375,31 @@ def _inputs_of(args: argparse.Namespace) -> dict[str, object]:
     model = getattr(args, "model", None)
     if model and ":" in model:
         out["--model"] = [model.rpartition(":")[0]]
+    for flag in ("DATA", "--validate"):  # a text record's side-car is read with it
+        cars = [sidecar_of(p) for p in out.get(flag) or []]  # type: ignore[attr-defined]
+        cars = [c for c in cars if c is not None]
+        if cars:
+            out[f"{flag}'s side-car"] = cars
     return out
+
+
+def sidecar_of(path: object) -> Path | None:
+    """The JSON side-car a text record ``path`` is read with (``rig.csv`` -> ``rig.json``),
+    if the record is a text file and the side-car exists; else None."""
+    from hhra_phys.data import sidecar_path
+
+    if not path or not isinstance(path, str | Path) or is_builtin_name(str(path)):
+        return None
+    p = Path(path)
+    if p.suffix.lower() not in (".csv", ".tsv", ".txt"):
+        return None
+    side = sidecar_path(p)
+    return side if side.is_file() and side != p else None
+
+
+def is_builtin_name(name: str) -> bool:
+    """Whether DATA ``name`` is a built-in record ('rig', 'public'), not a file."""
+    return name.lower() in ("rig", "public")
 
 
 def check_ranges(args: argparse.Namespace) -> None:
@@ -491,6 +586,24 @@ def check_model_builds(model: Any, data: Dataset, what: str) -> None:
         model.assemble(*model.symbols(), float(data.dt))
     except ModelError as exc:
         raise ModelError(f"{what}: {exc}") from None
+
+
+@contextmanager
+def stdout_kept_for_json(json_path: str | Path | None) -> Iterator[None]:
+    """A block whose prints go to stderr when ``--json -`` reserves stdout for the JSON.
+
+    A user's model file, effect file or plugin may print while it is imported or run; on
+    stdout its lines would corrupt the JSON a pipe reads (``--json - | jq``). Outside
+    ``--json -`` the block changes nothing.
+    """
+    import sys
+    from contextlib import redirect_stdout
+
+    if json_path is None or str(json_path) != STDOUT:
+        yield
+        return
+    with redirect_stdout(sys.stderr):
+        yield
 
 
 @contextmanager

@@ -7,10 +7,10 @@ import json
 import sys
 from typing import Any
 
-from hhra_phys.cli._common import population, positive_int, report_error
+from hhra_phys.cli._common import iterations, population, positive_int, report_error
 from hhra_phys.cli._guards import STDOUT, check_arguments, output_path, seed
 from hhra_phys.cluster import add_cluster_arguments, executor
-from hhra_phys.errors import HHRAError
+from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.optim.registry import METHODS
 from hhra_phys.outputs import jsonable
 from hhra_phys.paper.benchmarks import BENCHMARK_KEYS
@@ -35,7 +35,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--runs", type=positive_int, default=30,
                    help="seeded runs per cell (default 30)")
     p.add_argument("--pop", type=population, default=30, help="population size (default 30)")
-    p.add_argument("--iters", type=positive_int, default=100, help="iterations (default 100)")
+    p.add_argument("--iters", type=iterations, default=100, help="iterations (default 100)")
     p.add_argument("--seed", type=seed, default=0, help="base seed (default 0)")
     p.add_argument(
         "--functions",
@@ -79,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_arguments(args, {"--json": args.json, "--markdown": args.markdown,
                                "--plot": args.plot})
+        if args.pop < 5 and not args.no_scipy:
+            raise ParameterError(f"--pop {args.pop}: the SciPy reference "
+                                 "(differential_evolution) needs a population of at least 5; "
+                                 "raise --pop or pass --no-scipy")
         settings = StudySettings(
             runs=args.runs,
             pop_size=args.pop,
@@ -89,7 +93,13 @@ def run(args: argparse.Namespace) -> int:
             tables=args.tables,
             scipy_reference=not args.no_scipy,
         )
-        with executor(args.workers, args.dask) as ex:
+        from hhra_phys.cli._guards import all_or_nothing
+        from hhra_phys.paper.table2 import plot_paths
+
+        figures = list(plot_paths(args.plot, settings.tables).values()) if args.plot else []
+        # Stopped (Ctrl-C, SIGTERM) or failed between its writes: none of them stays.
+        with executor(args.workers, args.dask) as ex, all_or_nothing(
+                [args.json, args.markdown, *figures]):
             report, text = run_and_write(
                 settings,
                 json_path=None if args.json == STDOUT else args.json,

@@ -14,6 +14,7 @@ from hhra_phys.cli._common import (
     add_model_arguments,
     add_record_arguments,
     is_builtin,
+    iterations,
     nonnegative_int,
     population,
     positive_int,
@@ -25,10 +26,12 @@ from hhra_phys.cli._guards import (
     STDOUT,
     all_or_nothing,
     check_arguments,
+    check_search,
     check_size,
     output_path,
     seed,
     split_value,
+    stdout_kept_for_json,
 )
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path, jsonable
@@ -81,7 +84,7 @@ def register(subparsers: Any) -> None:
         help="comma-separated method names (default: every registered method)",
     )
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
-    p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
+    p.add_argument("--iters", type=iterations, default=200, help="iterations (default 200)")
     p.add_argument("--na", type=nonnegative_int, default=3, help="ARX output order (default 3)")
     p.add_argument("--nb", type=positive_int, default=3, help="ARX input order (default 3)")
     p.add_argument("--nk", type=nonnegative_int, default=1, help="ARX input delay (default 1)")
@@ -224,27 +227,32 @@ def run(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     try:
         paths = _outputs(args)  # before any work, so a clash fails fast
-        _check_methods(C, args)
+        with stdout_kept_for_json(args.json):  # a plugin printing while imported
+            _check_methods(C, args)
         dataset, default_split = _load(args)
         split = _split(args, dataset, default_split)
+        records = dataset if isinstance(dataset, list) else [dataset]
+        check_search(args.pop, args.iters, sum(len(d) for d in records))
+        _check_orders(C, args, records, split)
         if say:
             what = (f"{len(dataset)} records" if isinstance(dataset, list) else repr(dataset))
             say(f"compare: {what}, split {split}")
-        comp = C.run_comparison(
-            dataset,
-            split=split,
-            methods=args.methods,
-            seed=args.seed,
-            pop_size=args.pop,
-            max_iter=args.iters,
-            progress=say or False,
-            na=args.na,
-            nb=args.nb,
-            nk=args.nk,
-            zeta_s=args.zeta,
-            bounds=tuple(args.box),
-            **_physical_model(args, dataset),
-        )
+        with stdout_kept_for_json(args.json):  # a plugin's or model's prints
+            comp = C.run_comparison(
+                dataset,
+                split=split,
+                methods=args.methods,
+                seed=args.seed,
+                pop_size=args.pop,
+                max_iter=args.iters,
+                progress=say or False,
+                na=args.na,
+                nb=args.nb,
+                nk=args.nk,
+                zeta_s=args.zeta,
+                bounds=tuple(args.box),
+                **_physical_model(args, dataset),
+            )
         report = comp.to_dict()
         table = C.markdown_table(report)
         _write_outputs(C, comp, report, table, paths, args)
@@ -257,6 +265,23 @@ def run(args: argparse.Namespace) -> int:
               "table's notes", file=sys.stderr)
         return 1
     return 0
+
+
+def _check_orders(C: Any, args: argparse.Namespace, records: list[Any],
+                  split: float | int) -> None:
+    """Refuse ARX orders that leave an estimation part too few regression rows (at least
+    one per ARX parameter), before any method runs and nothing is written."""
+    if args.methods is not None and not set(args.methods) & set(C.ARX_METHODS):
+        return
+    start = max(args.na, args.nk + args.nb - 1)  # the rows the first samples cannot fill
+    for ds in records:
+        n_est = split if isinstance(split, int) else int(round(split * len(ds)))
+        if n_est - start < args.na + args.nb:
+            raise ParameterError(
+                f"--na {args.na} --nb {args.nb} --nk {args.nk}: the estimation part of "
+                f"{ds.name or ds.source or 'the record'} has {n_est} samples, which leave "
+                f"{max(n_est - start, 0)} regression rows for {args.na + args.nb} ARX "
+                "parameters; lower the orders (the paper's are --na 3 --nb 3 --nk 1)")
 
 
 def _check_methods(C: Any, args: argparse.Namespace) -> None:

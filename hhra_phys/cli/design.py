@@ -198,6 +198,37 @@ def _geomean(widths: dict[str, float]) -> float:
     return float(np.exp(np.mean(np.log(vals)))) if vals else float("nan")
 
 
+def check_same_model(spec: str, res: Any, record: Any, path: str) -> None:
+    """Refuse ``--model`` when it builds another model than the one ``path`` was fitted
+    with: the design uses the fit's model, values and covariance, so another model would
+    be silently ignored.
+
+    Raises
+    ------
+    ParameterError
+        Naming both models' parts.
+    """
+    from hhra_phys.extensions import model_from_spec
+
+    given = model_from_spec(spec, record).to_json()
+    fitted = res.model_spec or {}
+
+    def short(typ: Any) -> str:  # a user's part is registered under its module's name,
+        return str(typ).rpartition(".")[2]  # which depends on how the file was imported
+
+    def parts(m: Any) -> list[Any]:
+        return [(short(p.get("type")), p.get("args")) for p in m.get("parts", [])]
+
+    if parts(given) != parts(fitted):
+        names = [short(p.get("type")) for p in given.get("parts", [])]
+        had = [short(p.get("type")) for p in fitted.get("parts", [])]
+        raise ParameterError(
+            f"--model {spec} builds a model of parts {names}, but FIT.json {path} was fitted "
+            f"with {had}: the design uses the fitted model (its values and covariance), so "
+            "this --model would be ignored; give the --model the fit was made with, or "
+            "leave it out")
+
+
 def run(args: argparse.Namespace) -> int:
     """Design the input; returns the exit code."""
     from hhra_phys.design import design_input
@@ -213,6 +244,8 @@ def run(args: argparse.Namespace) -> int:
                        what="the designed input")
         split = fit_split(res) if args.split is None else float(args.split)
         record = fitted_record(res, args.data)
+        if args.model:
+            check_same_model(args.model, res, record, args.fit)
         if record is None and args.max_input is None:
             raise ParameterError("the fitted record is not available (give --data FILE) and "
                                  "--max-input is not given: no input limit to design within")

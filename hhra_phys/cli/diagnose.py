@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hhra_phys.cli._common import (
     _positive_float as positive_float,
 )
@@ -16,6 +18,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    iterations,
     model_for,
     model_records,
     nonnegative_int,
@@ -27,10 +30,12 @@ from hhra_phys.cli._guards import (
     STDOUT,
     all_or_nothing,
     check_arguments,
+    check_search,
     output_path,
     seed,
     split_fraction,
     split_value,
+    stdout_kept_for_json,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
@@ -82,7 +87,7 @@ def register(subparsers: Any) -> None:
                         "(default 0.25; 0: the old two-way split, selection = validation)")
     p.add_argument("--pop", type=population, default=100,
                    help="base fit population (default 100, as hhra-phys fit)")
-    p.add_argument("--iters", type=positive_int, default=200,
+    p.add_argument("--iters", type=iterations, default=200,
                    help="base fit iterations (default 200, as hhra-phys fit)")
     p.add_argument("--margin", type=float, default=0.1,
                    help="required relative fall of the selection RMSE (default 0.1), unless "
@@ -133,7 +138,8 @@ def run(args: argparse.Namespace) -> int:
         if isinstance(args.split, float) and args.split >= 1:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
-        res = _augment(args)
+        with stdout_kept_for_json(args.json):  # user code's prints: not in the JSON
+            res = _augment(args)
         out = res.to_json()
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
@@ -156,10 +162,12 @@ def _augment(args: argparse.Namespace) -> Any:
     from hhra_phys.cli._common import parse_names
     from hhra_phys.loop import augment
 
+    candidates = [] if args.effects == "none" else parse_names(args.effects, "--effects")
     added = user_effects(args.effects_from)
     if added:
         print(f"registered effects: {', '.join(added)}", file=sys.stderr)
     records, validation, data_warnings = _records(args)
+    check_search(args.pop, args.iters, sum(len(d) for d in records))
     data = records[0]
     if args.split is not None:
         args.split = split_fraction(args.split, [len(d) for d in records])
@@ -178,7 +186,7 @@ def _augment(args: argparse.Namespace) -> Any:
         res = augment(
             records if several else data, model, validation=validation, split=split,
             test=args.test,
-            candidates=[] if args.effects == "none" else parse_names(args.effects),
+            candidates=candidates,
             max_effects=args.max_effects, top_k=args.top, pop_size=args.pop,
             max_iter=args.iters, seed=args.seed, margin=args.margin,
             noise_tol=args.noise_tol, default_bounds=bounds, executor=ex,
@@ -266,9 +274,42 @@ def check_effects_build(model: Any, data: Any, names: list[str]) -> None:
         why = eff.applicable(model)
         if why is None:
             check_model_builds(model.with_parts(eff), data, f"--effects-from effect {name!r}")
+            check_effect_finite(model, eff, data, name)
         elif "does not assemble" in why:  # Effect.applicable's words for a failing apply
             raise ModelError(f"--effects-from effect {name!r}: {why}")
         # other reasons: not a candidate for this model, and the loop says so
+
+
+#: Samples of the record a user's effect is simulated on before the loop (a quick check).
+EFFECT_CHECK_SAMPLES = 500
+
+
+def check_effect_finite(model: Any, eff: Any, data: Any, name: str) -> None:
+    """Simulate the model with a user's effect at its nominal values on the start of the
+    record (CasADi's virtual machine, nothing compiled): an output that is not finite
+    where the model without it is finite is the effect's, and is named now (the loop
+    would reject the candidate as 'RMSE -> inf' without saying why)."""
+    from hhra_phys.errors import ModelError
+    from hhra_phys.simulate import Simulator
+
+    u = np.asarray(data.u[:EFFECT_CHECK_SAMPLES], dtype=float)
+
+    def finite(m: Any) -> bool:
+        sim = Simulator(m, fs=float(data.fs), backend="casadi", intersample=data.intersample)
+        with np.errstate(all="ignore"):
+            return bool(np.all(np.isfinite(sim.simulate(u, m.nominal()))))
+
+    try:
+        if finite(model) and not finite(model.with_parts(eff)):
+            raise ModelError(
+                f"--effects-from effect {name!r}: the model with it at its nominal values "
+                f"({', '.join(f'{p.name}={p.nominal:g}' for p in eff.parameters)}) "
+                f"simulates to NaN or inf on the first {u.size} samples of "
+                f"{data.name or data.source or 'the record'}; check its apply()")
+    except ModelError:
+        raise
+    except Exception:  # noqa: BLE001 - a check; the loop reports other failures itself
+        return
 
 
 def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, list[str]]:

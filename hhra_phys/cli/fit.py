@@ -11,6 +11,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    iterations,
     model_for,
     model_records,
     parse_fixed,
@@ -23,10 +24,12 @@ from hhra_phys.cli._guards import (
     STDOUT,
     all_or_nothing,
     check_arguments,
+    check_search,
     output_path,
     seed,
     split_fraction,
     split_value,
+    stdout_kept_for_json,
 )
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
@@ -76,7 +79,7 @@ def register(subparsers: Any) -> None:
                         "error kept (default 1)")
     add_cluster_arguments(p, "the starts")
     p.add_argument("--pop", type=population, default=100, help="population size (default 100)")
-    p.add_argument("--iters", type=positive_int, default=200, help="iterations (default 200)")
+    p.add_argument("--iters", type=iterations, default=200, help="iterations (default 200)")
     p.add_argument("--cost", choices=("itae", "mse", "rmse", "ssr"), default="itae",
                    help="global-search cost (default itae, the paper's)")
     p.add_argument("--lam", type=float, default=1.0,
@@ -129,39 +132,12 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
                       figures=[args.plot])
         fixed = parse_fixed(args.fix)
-        free = parse_names(args.free)
+        free = parse_names(args.free, "--free")
         if args.model and args.valve is not None:  # before the model file is looked at
             raise ParameterError("--valve is an option of the built-in HHRA; it cannot be "
                                  "combined with --model")
-        records, validation, data_warnings = model_records(args)
-        from hhra_phys.multi import check_records
-
-        check_records(records + (validation or []))  # a pressure record against an angle fit
-        data = records[0]
-        args.split = split_fraction(args.split, [len(d) for d in records])
-        model, auto_bounds = model_for(args, data, args.valve)
-        # Problem runs the same check in every fit; here it names --fix before any worker
-        # starts. Notes about values accepted outside their box come with the result.
-        model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
-        bounds = _automatic_box(args, model, auto_bounds, free, fixed,
-                                records[1:] + (validation or []))
-        refine = [r for r in args.refine.split("+")] if args.refine else None
-        _say_fitting(args, records)
-        if len(records) == 1 and (validation is None or len(validation) == 1):
-            target, val_arg = data, (validation[0] if validation else None)
-        else:  # several records, or one record with several validation records
-            target, val_arg = records, validation
-        with executor(args.workers, args.dask) as ex:
-            results = fit_many(
-                [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
-                model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
-                default_bounds=bounds, split=args.split, validation=val_arg,
-                pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
-                progress=not args.quiet and args.starts == 1 and ex is None,
-                intervals=args.intervals, widen_bounds=not args.no_widen,
-                allow_outside_box=args.allow_outside_box)
-        res = best_of(results)
-        res.warnings.extend(data_warnings)
+        with stdout_kept_for_json(args.json):  # a model file's prints: not in the JSON
+            res, records, validation = _fit(args, fixed, free)
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
         print_result(res, say)
@@ -169,6 +145,42 @@ def run(args: argparse.Namespace) -> int:
             return _write(args, res, records, validation, say)
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
+
+
+def _fit(args: argparse.Namespace, fixed: dict[str, float], free: list[str] | None
+         ) -> tuple[Any, list[Any], list[Any] | None]:
+    """Read the records, build the model, run the fits: (best result, records, validation)."""
+    records, validation, data_warnings = model_records(args)
+    from hhra_phys.multi import check_records
+
+    check_records(records + (validation or []))  # a pressure record against an angle fit
+    check_search(args.pop, args.iters, sum(len(d) for d in records), runs=args.starts)
+    data = records[0]
+    args.split = split_fraction(args.split, [len(d) for d in records])
+    model, auto_bounds = model_for(args, data, args.valve)
+    # Problem runs the same check in every fit; here it names --fix before any worker
+    # starts. Notes about values accepted outside their box come with the result.
+    model.params.check_values(fixed, allow_outside_box=args.allow_outside_box)
+    bounds = _automatic_box(args, model, auto_bounds, free, fixed,
+                            records[1:] + (validation or []))
+    refine = [r for r in args.refine.split("+")] if args.refine else None
+    _say_fitting(args, records)
+    if len(records) == 1 and (validation is None or len(validation) == 1):
+        target, val_arg = data, (validation[0] if validation else None)
+    else:  # several records, or one record with several validation records
+        target, val_arg = records, validation
+    with executor(args.workers, args.dask) as ex:
+        results = fit_many(
+            [target], seeds=range(args.seed, args.seed + args.starts), executor=ex,
+            model=model, optimizer=args.optimizer, refine=refine, free=free, fixed=fixed,
+            default_bounds=bounds, split=args.split, validation=val_arg,
+            pop_size=args.pop, max_iter=args.iters, cost=args.cost, lam=args.lam,
+            progress=not args.quiet and args.starts == 1 and ex is None,
+            intervals=args.intervals, widen_bounds=not args.no_widen,
+            allow_outside_box=args.allow_outside_box)
+    res = best_of(results)
+    res.warnings.extend(data_warnings)
+    return res, records, validation
 
 
 def _write(args: argparse.Namespace, res: Any, records: list[Any],
@@ -186,10 +198,11 @@ def _write(args: argparse.Namespace, res: Any, records: list[Any],
               + "check the units of the record and the --fix values", file=sys.stderr)
         return 1
     if args.plot:
-        plotted = (plot_records(res, records, validation, args.plot, args.split,
-                                args.overwrite)
-                   if len(records) > 1 or validation else
-                   plot_result(res, records[0], args.plot, args.split, args.overwrite))
+        with stdout_kept_for_json(args.json):  # the model runs again for the figure
+            plotted = (plot_records(res, records, validation, args.plot, args.split,
+                                    args.overwrite)
+                       if len(records) > 1 or validation else
+                       plot_result(res, records[0], args.plot, args.split, args.overwrite))
         say(f"wrote {plotted}")
     return 0
 

@@ -8,8 +8,8 @@ import sys
 from typing import Any
 
 from hhra_phys.cli._common import report_error
-from hhra_phys.cli._guards import check_size, output_path, seed
-from hhra_phys.data import Dataset, check_save_path, save
+from hhra_phys.cli._guards import all_or_nothing, check_size, output_path, seed
+from hhra_phys.data import Dataset, check_save_path, save, sidecar_path
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.models.hhra.rig import DEFAULT_AMPLITUDE_MA, DEFAULT_NOISE_DEG, simulate_rig
 
@@ -43,7 +43,8 @@ def register(subparsers: Any) -> None:
                         "a fit is not the model checked against itself")
     p.add_argument("--effect", action="append", default=None, metavar="NAME[:PARAM=VALUE,...]",
                    help="with --generator reference: hide a library effect in the record, "
-                        "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable)")
+                        "e.g. --effect coulomb_friction:g_coulomb=8 (repeatable, each effect "
+                        "once)")
     p.add_argument("--intersample", choices=("zoh", "foh"), default=None,
                    help="with --generator reference: what the valve current does between "
                         "samples, 'zoh' held (default, a DAC) or 'foh' linear to the next "
@@ -65,6 +66,10 @@ def _parse_effects(items: list[str] | None) -> dict[str, dict[str, float]]:
     out: dict[str, dict[str, float]] = {}
     for item in items or []:
         name, _, rest = item.partition(":")
+        if name in out:  # the second would silently replace the first
+            first = next(i for i in items or [] if i.partition(":")[0] == name)
+            raise ParameterError(f"--effect {name} is given twice ({first!r} and {item!r}); "
+                                 "an effect acts once: give it once")
         if name not in LIBRARY:
             raise ParameterError(f"--effect {item!r}: unknown effect {name!r}; library: "
                                  f"{', '.join(LIBRARY)}")
@@ -186,7 +191,9 @@ def run(args: argparse.Namespace) -> int:
             ds = _reference(args, effects)
         else:
             ds = _builtin(args, effects)
-        path = save(ds, args.out, overwrite=args.overwrite)
+        # Ctrl-C or SIGTERM between the CSV and its side-car: neither stays.
+        with all_or_nothing([args.out, sidecar_path(args.out)]):
+            path = save(ds, args.out, overwrite=args.overwrite)
     except ParameterError as exc:
         if "cannot hold" not in str(exc):  # the excitation's words for too few samples
             return report_error("simulate", exc)

@@ -29,7 +29,7 @@ from hhra_phys.data.checks import (
     _time_axis,
     _validate,
 )
-from hhra_phys.data.dataset import Dataset
+from hhra_phys.data.dataset import INTERSAMPLE, Dataset
 from hhra_phys.data.errors import (
     DataFileExistsError,
     DataFileNotFoundError,
@@ -160,7 +160,11 @@ def _from_json(text: str, source: PathLike) -> dict[str, Any]:
         info = json.loads(text)
     except (json.JSONDecodeError, RecursionError) as exc:
         raise DataFormatError(f"{source}: invalid JSON ({exc})") from None
-    if not isinstance(info, dict) or info.get("format") != _SIDECAR_FORMAT:
+    if not isinstance(info, dict):  # a list, a number: no description of a record at all
+        raise DataFormatError(
+            f"{source}: a side-car must be a JSON object (written by save), got "
+            f"{type(info).__name__} {_short(info)}; fix or delete it (or pass sidecar=False)")
+    if info.get("format") != _SIDECAR_FORMAT:
         return {}  # someone else's JSON file: not ours to interpret
     # Ours: check the types here so that a hand-edited side-car gives a message, not a
     # TypeError deep in the loader.
@@ -178,7 +182,43 @@ def _from_json(text: str, source: PathLike) -> dict[str, Any]:
             )
     if not all(isinstance(e, str) for e in info.get("extra") or []):
         raise DataFormatError(f"{source}: 'extra' must list channel names, got {info['extra']!r}")
+    _check_values(info, source)
     return info
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _check_values(info: dict[str, Any], source: PathLike) -> None:
+    """The values of a side-car's fields (their types are checked already): a sample rate
+    that is no rate, a negative count, an unknown inter-sample behaviour are refused with
+    the file and the key named (they used to be ignored silently)."""
+    fix = "; fix or delete it (or pass sidecar=False)"
+    fs = info.get("fs")
+    if fs is not None and not (math.isfinite(fs) and fs > 0):
+        raise DataFormatError(f"{source}: field 'fs' must be a sample rate > 0 Hz, got "
+                              f"{fs!r}{fix}")
+    n = info.get("n")
+    if n is not None and n < 0:
+        raise DataFormatError(f"{source}: field 'n' must be a count >= 0, got {n!r}{fix}")
+    meta = info.get("metadata") or {}
+    for key, value in (("intersample", info.get("intersample", None)),
+                       ("metadata.intersample", meta.get("intersample"))):
+        if key == "intersample" and "intersample" not in info:
+            continue
+        if value is not None and value not in INTERSAMPLE:
+            raise DataFormatError(
+                f"{source}: field {key!r} must be one of "
+                f"{', '.join(map(repr, INTERSAMPLE))}, got {_short(value)}{fix}")
+    if "intersample" in info:  # where a hand-written side-car may put it: honoured there too
+        if "intersample" in meta and meta["intersample"] != info["intersample"]:
+            raise DataFormatError(
+                f"{source}: 'intersample' {info['intersample']!r} and 'metadata.intersample' "
+                f"{meta['intersample']!r} disagree{fix}")
+        if info["intersample"] is not None:
+            info["metadata"] = {**meta, "intersample": info["intersample"]}
 
 
 def _read_sidecar(side: Path) -> dict[str, Any]:

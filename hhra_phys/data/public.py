@@ -1,7 +1,10 @@
 """The public hydraulic-actuator record (Sjöberg et al. 1995): where it is and how to load it.
 
-The record is read from where it lies (``../shared/data`` or ``HHRA_SHARED_DATA``), never
-copied into the repository.
+The record ships with the package (``hhra_phys/data/hydraulic_actuator.mat``, 17 kB,
+declared as package data so that ``pip install .`` installs it; its source and checksum
+are in ``docs/data.md``). ``HHRA_SHARED_DATA`` or a path given by the caller still comes
+first, and a folder ``shared/data`` or ``../shared/data`` is looked in when the packaged
+copy is missing.
 """
 
 from __future__ import annotations
@@ -15,10 +18,14 @@ from hhra_phys.data.dataset import Dataset
 from hhra_phys.data.errors import DataFileNotFoundError
 from hhra_phys.data.formats import PathLike, load_mat
 
-__all__ = ["PUBLIC_ACTUATOR_FILE", "find_public_data", "load_public_actuator"]
+__all__ = ["PUBLIC_ACTUATOR_FILE", "PUBLIC_ACTUATOR_SHA256", "find_public_data",
+           "load_public_actuator"]
 
 #: File name of the public hydraulic-actuator record (described in ``docs/data.md``).
 PUBLIC_ACTUATOR_FILE = "hydraulic_actuator.mat"
+
+#: SHA-256 of the shipped record (``docs/data.md`` gives its source).
+PUBLIC_ACTUATOR_SHA256 = "fbd54f88e40cba7ed5049f658888c6063ffadebeb1d7567d68ea79fc1a573eb3"
 
 
 def _public_candidates(path: PathLike | None) -> Iterable[Path]:
@@ -30,6 +37,7 @@ def _public_candidates(path: PathLike | None) -> Iterable[Path]:
     if env:
         p = Path(env).expanduser()
         yield p if p.suffix == ".mat" else p / PUBLIC_ACTUATOR_FILE
+    yield Path(__file__).resolve().parent / PUBLIC_ACTUATOR_FILE  # the packaged copy
     seen = set()
     repo_root = Path(__file__).resolve().parents[2]  # hhra_phys/data/ -> repo (or site-packages)
     # The current directory and each folder above it (an installed copy, not editable,
@@ -50,7 +58,8 @@ def find_public_data(path: PathLike | None = None) -> Path:
     """Locate ``hydraulic_actuator.mat``.
 
     Search order: ``path`` (a file or its directory) when given, and nothing else; else the
-    directory in the environment variable ``HHRA_SHARED_DATA``; else ``../shared/data`` and
+    directory in the environment variable ``HHRA_SHARED_DATA``; else the copy shipped in
+    the package (``hhra_phys/data/hydraulic_actuator.mat``); else ``../shared/data`` and
     ``shared/data`` relative to the current directory and each folder above it, and then
     to the source checkout (an editable install) and each folder above it.
 

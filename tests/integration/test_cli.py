@@ -4,6 +4,7 @@ of its own, started with the session: ``BACKGROUND``)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -72,6 +73,10 @@ def test_demo_quick_runs_end_to_end(background):
     assert f"hides {hidden}" in text and "error on the held-out test part" in text
     loop = json.loads((out / "demo_loop.json").read_text())
     assert loop["test"]["rmse"] < loop["base"]["test"]["rmse"]
+    # The README's count: two records with their side-cars, the fit's and the loop's JSON
+    # and figure.
+    assert len(list(out.iterdir())) == 8 and "writes eight files" in (
+        Path(__file__).resolve().parents[2] / "README.md").read_text()
     for name in ("demo_fit.png", "demo_fit.json", "demo_rig.csv", "demo_loop.png",
                  "demo_loop.json", "demo_loop_rig.csv"):
         assert (out / name).exists()
