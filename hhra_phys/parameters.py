@@ -77,17 +77,7 @@ class Parameter:
     description: str = ""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str):
-            raise ParameterError(f"Parameter name must be a str, got {self.name!r} "
-                                 f"({type(self.name).__name__})")
-        if not isinstance(self.unit, str):
-            raise ParameterError(f"parameter {self.name!r}: unit must be a str, got "
-                                 f"{self.unit!r} ({type(self.unit).__name__})")
-        for field in ("nominal", "lower", "upper"):
-            value = getattr(self, field)
-            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-                raise ParameterError(f"parameter {self.name!r}: {field} must be a number, "
-                                     f"got {value!r} ({type(value).__name__})")
+        self._check_types()
         if not self.name.isidentifier():
             raise ParameterError(f"parameter name {self.name!r} is not a valid identifier")
         for field in ("nominal", "lower", "upper"):
@@ -107,6 +97,20 @@ class Parameter:
             raise ParameterError(
                 f"parameter {self.name!r}: log scale needs a positive lower bound, got {self.lower}"
             )
+
+    def _check_types(self) -> None:
+        """The fields' types (a str name and unit, numbers for the values), named."""
+        if not isinstance(self.name, str):
+            raise ParameterError(f"Parameter name must be a str, got {self.name!r} "
+                                 f"({type(self.name).__name__})")
+        if not isinstance(self.unit, str):
+            raise ParameterError(f"parameter {self.name!r}: unit must be a str, got "
+                                 f"{self.unit!r} ({type(self.unit).__name__})")
+        for field in ("nominal", "lower", "upper"):
+            value = getattr(self, field)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+                raise ParameterError(f"parameter {self.name!r}: {field} must be a number, "
+                                     f"got {value!r} ({type(value).__name__})")
 
     def with_(self, **changes: float | str) -> Parameter:
         """Return a copy with some fields changed (validated again)."""
