@@ -18,6 +18,7 @@ import pytest
 
 from hhra_phys.data import Dataset
 from hhra_phys.effects import make_effect
+from hhra_phys.fit import FitOptions, fit_problem
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.problem import Problem
 from hhra_phys.reference.hhra import REFERENCE_GROUPS
@@ -91,6 +92,12 @@ def test_a_delay_part_just_after_a_step_is_at_the_noise(delay_record, rule) -> N
     for ys, part in zip(pr.simulate_parts(v, [sel]), [sel], strict=True):
         assert _rmse(part.y, ys) < 1.1 * NOISE
     assert _rmse(test.y, pr.records[0].simulate_values(v, data=test)) < 1.1 * NOISE
+    if rule == "fit":  # a fit's validation score (the loop's refits are scored so)
+        res = fit_problem(pr, [sel], options=FitOptions(optimizer="none", refine="none",
+                                                         pop_size=0, max_iter=0))
+        assert res.metrics["val"]["rmse"] == pytest.approx(
+            _rmse(sel.y, pr.simulate_values(v, data=sel)), rel=1e-9)
+        assert res.metrics["val"]["rmse"] < 1.1 * NOISE
 
 
 def test_a_lag_part_starts_from_the_state_the_run_reaches(delay_record) -> None:
