@@ -32,15 +32,9 @@ Initial state: one rule for every model, from the states' declarations
     every fitted state's initial value is a free parameter ``x0_<state>``,
     started at its ``"data"`` value and searched within ``+- scale`` of it.
 
-A later part of the record the estimation record was cut from (the loop's selection
-and test parts, a fit's validation part: :meth:`RecordProblem.lead_in`) is simulated as
-the continuation of the estimation record's run: it starts from the state the model
-reaches at its first sample, with the inputs before it that a delay or a filter needs
-(issue 33; before, each part started from its first measured output with the input before
-it held at its first value, and under ``"fit"`` from a state re-estimated on the part).
-On another record (a separate validation record, prediction) the ``"data"`` rule starts
-it and, under ``"fit"``, the whole initial state is then re-estimated on that record with
-the parameters fixed (:func:`estimate_initial_state`).
+On another record (validation, prediction) the ``"data"`` rule starts it and,
+under ``"fit"``, the whole initial state is then re-estimated on that record
+with the parameters fixed (:func:`estimate_initial_state`).
 """
 
 from __future__ import annotations
@@ -504,23 +498,12 @@ class RecordProblem(_Coordinates):
     def initial_states(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
         """Initial states (n_pop, nx) for free-parameter values (n_pop, n_free).
 
-        For a later part of the record the estimation record was cut from (``data``
-        with a :meth:`lead_in`: the selection and test parts) the state the model
-        reaches at its first sample, run in from the estimation record's initial
-        state through the samples before it. For another record (``data``, e.g. a
-        separate validation record) the ``"data"`` rule is applied to it, and under
-        ``"fit"`` the whole initial state is re-estimated on it
-        (:meth:`fit_initial_state`): the fitted one belongs to the estimation record.
+        For another record (``data``, e.g. validation) the ``"data"`` rule is
+        applied to it, and under ``"fit"`` the whole initial state is
+        re-estimated on it (:meth:`fit_initial_state`): the fitted one belongs to
+        the estimation record.
         """
         v = np.atleast_2d(np.asarray(values, dtype=float))
-        lead = None if data is None else self.lead_in(data)
-        if lead is not None:  # the state the estimation record's run reaches there
-            X0 = self.initial_states(v)
-            if lead.size:
-                _, X = self.simulator_for(data).simulate(
-                    np.concatenate([lead, data.u]), self.full(v), x0=X0, states=True)
-                X0 = X[:, lead.size]
-            return X0
         if self.initial_state == "zero":
             return np.tile(self.model.x0(), (v.shape[0], 1))
         P = self.full(v)
@@ -561,24 +544,6 @@ class RecordProblem(_Coordinates):
             x0[self.model.state_names.index(state)] = vals[nm + k]
         return p_full, ca.vertcat(*x0)
 
-    def lead_in(self, data: Dataset) -> np.ndarray | None:
-        """The inputs from the estimation record's first sample to just before ``data``'s.
-
-        Defined when both were cut from one record (:attr:`Dataset.origin
-        <hhra_phys.data.Dataset.origin>`, e.g. the loop's selection and test parts, or
-        a fit's validation part) and ``data`` starts at or after the estimation record
-        does: simulating these inputs and then ``data``'s from the estimation record's
-        initial state starts ``data`` from the state the model reaches at its first
-        sample, with the input history a delay or a filter needs. ``None`` otherwise
-        (a separate record: its initial state is then set by the problem's rule on it).
-        """
-        est, part = self.data.origin or (self.data, 0), data.origin
-        if part is None or not _same_record(est[0], part[0]) or part[1] < est[1]:
-            return None
-        if abs(data.fs - self.data.fs) > 1e-9 * data.fs:
-            return None
-        return np.asarray(est[0].u[est[1]:part[1]], dtype=float)
-
     def fit_initial_state(
         self, data: Dataset, p: np.ndarray, x0: np.ndarray, iterations: int = 4
     ) -> np.ndarray:
@@ -597,22 +562,14 @@ class RecordProblem(_Coordinates):
     def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
         """Simulated output for free-parameter values, (n_free,) -> (N,) or (n, n_free) -> (n, N).
 
-        With ``data`` the simulation runs on its input: for a later part of the record
-        the estimation record was cut from (:meth:`lead_in`: the selection and test
-        parts, a fit's validation part) as the continuation of the estimation record's
-        run, so the part starts from the state the model reaches at its first sample,
-        delays and filters with their input history; for another record from the
-        initial state the problem's rule gives it (:meth:`initial_states`).
+        With ``data`` (e.g. the validation part) the simulation runs on its input,
+        starting from its first measured output by the ``"data"`` rule.
         """
         single = np.ndim(values) == 1
         v = np.atleast_2d(np.asarray(values, dtype=float))
         P = self.full(v)
-        lead = None if data is None else self.lead_in(data)
         if data is None:
             Y = self.sim.simulate(self.u, P, x0=self.initial_states(v))
-        elif lead is not None:
-            Y = self.simulator_for(data).simulate(np.concatenate([lead, data.u]), P,
-                                                  x0=self.initial_states(v))[:, lead.size:]
         else:
             Y = self.simulator_for(data).simulate(data.u, P, x0=self.initial_states(v, data))
         return Y[0] if single else Y
@@ -992,8 +949,8 @@ class Problem(_Coordinates):
 
         Without ``data`` the records' outputs one after another (``N`` all their
         samples); with ``data`` (e.g. a whole validation record) the simulation runs on
-        its input with the first record's values, started as
-        :meth:`RecordProblem.simulate_values` starts it.
+        its input with the first record's values, starting from its first measured
+        output by the ``"data"`` rule.
         """
         if data is not None:
             return self.records[0].simulate_values(self.record_values(values, 0), data=data)
@@ -1016,8 +973,7 @@ class Problem(_Coordinates):
         """Each record's simulated output with its own values, shape (N_k,) each.
 
         ``parts[k]`` (e.g. record ``k``'s selection part; ``None``: its estimation
-        record) is simulated as :meth:`RecordProblem.simulate_values` does: a later part
-        of the record as the continuation of the estimation record's run.
+        record) is simulated from its first measured output by the ``"data"`` rule.
         """
         parts = [None] * len(self.records) if parts is None else list(parts)
         return [pr.simulate_values(vk, data=ds)
@@ -1033,13 +989,6 @@ class Problem(_Coordinates):
                      for pr, idx in self.blocks()]
             self._residual_fn = ca.Function("residual", [z], [ca.vertcat(*parts)], ["z"], ["r"])
         return self._residual_fn
-
-
-def _same_record(a: Dataset, b: Dataset) -> bool:
-    """``a`` and ``b`` are one record (the same object, or equal samples: a copy sent to
-    a worker process)."""
-    return a is b or (a.n == b.n and np.array_equal(a.t, b.t) and np.array_equal(a.u, b.u)
-                      and np.array_equal(a.y, b.y))
 
 
 def estimate_initial_state(
