@@ -694,7 +694,7 @@ def _candidate_model(job: _Job) -> tuple[Model, list[str], Any]:
 def _widen_candidate(search: Callable[[Mapping[str, tuple[float, float]]],
                                       tuple[Problem, FitResult]],
                      boxes: dict[str, tuple[float, float]], all_free: Sequence[str],
-                     notes: list[str], worth: float = 0.0) -> tuple[Problem, FitResult]:
+                     notes: list[str], worth: float = math.inf) -> tuple[Problem, FitResult]:
     """A candidate's search (``search(boxes)``), widened where it ends at a box edge.
 
     A parameter (the effect's or the base's) that ends at the edge of its guessed box: the
