@@ -81,9 +81,9 @@ def test_clean_records_add_nothing(loop_workers):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "regression measured 2026-11-26 (docs/diagnosis.md, pair rerun at dd64702, again on the "
-    "session's merged main): seed 2 ends with the friction alone, its dead-zone refit ends "
-    "worse than the model without it; the pair study is 3 of 5 (4 of 5 before)"))
+    "regression measured 2026-11-26 (experiments/notes/diagnosis.md, pair rerun at dd64702, "
+    "again on the session's merged main): seed 2 ends with the friction alone, its dead-zone "
+    "refit ends worse than the model without it; the pair study is 3 of 5 (4 of 5 before)"))
 def test_dead_zone_and_sharp_friction_both_found(loop_workers):
     """A dead zone and exact stick-slip friction hidden together (issue 16).
 
