@@ -353,8 +353,10 @@ def _lookahead(executor: Executor) -> int | None:
 
     The round may settle early (a candidate at the noise level), after which the rest
     of the library is not refitted; jobs already running would still be waited for
-    when the executor closes. Submitting one per worker keeps them busy and wastes at
-    most that many. ``None`` (all at once) for executors of unknown size (Dask).
+    when the executor closes. Submitting one per worker keeps them busy, and since the
+    next is submitted only when the round asks for the next result (after judging this
+    one), a settled round wastes at most one fewer. ``None`` (all at once) for executors
+    of unknown size (Dask).
     """
     n = getattr(executor, "_max_workers", None)
     return n if isinstance(n, int) and n > 0 else None
