@@ -10,7 +10,7 @@ model provides (``model.signal_names()``) and the input.
 Where (entry points, :func:`entry_points`)
     ``input`` (added to the input the model's parts see), ``output`` (added to the
     output ``y``) and ``rate:<state>`` for every state but a position whose rate is a
-    velocity state (added to its time derivative).
+    velocity state and a sensor effect's state (added to its time derivative).
 
 What (term library, :func:`term_library`)
     For every variable ``v`` (states, the measured input ``u``, named signals;
@@ -21,7 +21,9 @@ What (term library, :func:`term_library`)
     knot ``c`` (started at the 60 % quantile of ``|q|``), a saturation
     ``tanh(2q)``; products ``q_a*q_b`` of two variables; ``sin`` and ``cos`` of
     angle-like states (unit ``rad``); a constant. An input entry sees states and
-    the input only (it runs before the model's parts, so no signal exists yet).
+    the input only (it runs before the model's parts, so no signal exists yet). No
+    term reads a sensor effect's state (a drift's ``y_drift``): a sensor is not
+    part of the dynamics, and the backward step must be able to remove it alone.
 
 Screening (first order)
     Every candidate column is propagated to the output through the model
@@ -164,9 +166,11 @@ def entry_points(model: Model) -> list[str]:
     :func:`velocity_pairs`) is no entry: that equation is the definition of the velocity,
     not a balance a missing force or flow enters. Terms there stood in for what belonged
     at the velocity's rate (a drag written as ``d theta/dt += -0.41*omega*|omega|``; a
-    term that took the place of a hidden resonance; docs/diagnosis.md).
+    term that took the place of a hidden resonance; docs/diagnosis.md). Nor is the rate of a
+    sensor effect's state (:meth:`~hhra_phys.model.Model.sensor_states`, a drift's
+    ``y_drift``): the measurement's, not the dynamics'.
     """
-    kinematic = set(velocity_pairs(model).values())
+    kinematic = set(velocity_pairs(model).values()) | set(model.sensor_states())
     return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
 
 
@@ -476,7 +480,11 @@ def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = Non
         per.append({"pr": pr, "P": pr.full(v), "Q": Q, "series": series, "n": yhat.size,
                     "r_p": r - Q @ (Q.T @ r),
                     "umax": float(np.max(np.abs(pr.data.u))) or 1.0})
-    pooled = {n: np.concatenate([b["series"][n] for b in per]) for n in per[0]["series"]}
+    # A sensor's own state (a drift's y_drift) is the measurement's, not a variable of the
+    # dynamics: no term reads it (it could not be removed with its sensor effect).
+    sensor = set(model.sensor_states())
+    pooled = {n: np.concatenate([b["series"][n] for b in per]) for n in per[0]["series"]
+              if n not in sensor}
     units = {s.name: s.unit for s in model.states}
     r_p = np.concatenate([b["r_p"] for b in per])
     edges = np.cumsum([0] + [b["n"] for b in per])
