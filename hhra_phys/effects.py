@@ -10,30 +10,36 @@ Library names (stable, read by outside checks)::
 
     coulomb_friction  valve_deadzone  valve_saturation  input_delay  valve_dynamics
     gravity_load      backlash        sensor_offset     asymmetric_valve
-    sensor_drift
+    sensor_drift      input_offset    constant_force
 
-Each effect declares what it reads and writes (:attr:`Effect.reads`,
-:attr:`Effect.writes`), and :meth:`Effect.applicable` checks exactly that, so the
-loop skips an effect a model cannot take and says why. Input-side effects
-(``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``)
-act on the model's input ``ctx.u`` and output-side ``sensor_offset`` and
-``sensor_drift`` (a sensor's, not the physics') on the output ``y``: they attach to
-any model. ``coulomb_friction`` and ``gravity_load``
-act on the rate of a rotary velocity state ``omega`` (and read ``theta``),
-``backlash`` on an angle output in degrees, ``asymmetric_valve`` on the
-``"flow"`` and ``"command"`` signals of a valve model such as the HHRA. A user's
-effect is registered with :func:`hhra_phys.parts.register_effect`.
+Each effect declares what it needs: roles (:attr:`Effect.binds`) and names
+(:attr:`Effect.reads`, :attr:`Effect.writes`), and :meth:`Effect.applicable` checks
+exactly that, so the loop skips an effect a model cannot take and says why (for a
+missing role, which one and how to declare it). Input-side effects
+(``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``,
+``input_offset``) act on the model's input ``ctx.u`` and output-side ``sensor_offset``
+and ``sensor_drift`` (a sensor's, not the physics') on the output ``y``: they attach to
+any model. ``coulomb_friction``, ``constant_force`` and ``gravity_load`` bind by role:
+they act on the rate of the model's velocity (:attr:`hhra_phys.model.Model.motion`, the
+state with role ``"velocity"`` or ``"angular_velocity"``: ``omega`` on the HHRA, ``v`` on
+the cylinder or a user's drive) and ``gravity_load`` reads its angle (role ``"angle"``);
+``backlash`` needs an angle output in degrees, ``asymmetric_valve`` the ``"flow"`` and
+``"command"`` signals of a valve model such as the HHRA (by name). A user's effect is
+registered with :func:`hhra_phys.parts.register_effect`.
 
 Scaling. Bounds of input-stage effects are relative to ``u_scale`` (typical input
 magnitude, default 1 mA), of motion effects to ``accel_scale`` (the model's
-``g_torque``, default the rig's), of time constants to ``dt`` (sample period);
-:func:`make_effect` sets them from a record and a fit so the same library works on
-the rig (mA, deg, 250 Hz) and on records in raw units and sample time.
+``g_torque``, default the rig's; on another model the velocity's rate made by the full
+input and the efforts, :func:`motion_scales`), of velocity widths to ``v_scale`` (the
+velocity state's scale), of time constants to ``dt`` (sample period);
+:func:`make_effect` sets them from a record, a fit and the model so the same library
+works on the rig (mA, deg, 250 Hz), on a linear drive (V, m, m/s) and on records in raw
+units and sample time.
 
 First-order signature. :meth:`Effect.first_order` returns, for a probe size of
 the effect, the change it makes at its entry point (``"input"``: the model's input,
-the valve command; ``"rate:omega"``: the rate of the velocity state, the angular
-acceleration; ``"output"``: the output) given the
+the valve command; ``"rate:@velocity"``: the rate of the model's velocity state, the
+angular acceleration ``rate:omega`` on the HHRA; ``"output"``: the output) given the
 signals of a simulation without it. Propagated through the linearised model this
 is the direction in which the effect moves the output, which the diagnosis
 compares with the residual.
@@ -63,7 +69,7 @@ from hhra_phys.parts import (
 )
 
 __all__ = ["EFFECTS", "EFFECT_ALIASES", "LIBRARY", "Effect", "Signals", "effect_name",
-           "make_effect", "register_effect", "RIG_ACCEL",
+           "make_effect", "motion_scales", "register_effect", "RIG_ACCEL",
            "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu",
            "output_offsets", "output_slope"]
 
@@ -268,6 +274,12 @@ class GravityLoad(Effect):
             Parameter("g_grav_sin", au, 0.0, -a, a, "linear",
                       "load torque over inertia at theta = 90 deg"),
         )
+
+    def unbound(self, model: Any) -> str | None:
+        why = super().unbound(model)
+        if why and model.motion.velocity is not None and not model.motion.rotary:
+            why += "; on a linear axis a constant load (gravity on an incline) is constant_force"
+        return why
 
     def apply(self, ctx: Context) -> None:
         th = ctx.x[ctx.position(self.name)]

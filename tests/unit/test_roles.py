@@ -102,7 +102,7 @@ def test_an_effect_that_cannot_bind_names_the_role_and_how_to_declare_it():
     assert "constant_force needs a state with role 'velocity'" in \
         make_effect("constant_force").applicable(tank)
     why = make_effect("gravity_load").applicable(drive.make_model())
-    assert "rotary position" in why and "role='angle'" in why and "constant" not in why
+    assert "rotary position" in why and "role='angle'" in why and "constant_force" in why
     why = make_effect("backlash").applicable(LinearCylinderModel())
     assert "role 'angle'" in why
 
