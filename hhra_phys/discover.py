@@ -21,7 +21,10 @@ What (term library, :func:`term_library`)
     knot ``c`` (started at the 60 % quantile of ``|q|``), a saturation
     ``tanh(2q)``; products ``q_a*q_b`` of two variables; ``sin`` and ``cos`` of
     angle-like states (unit ``rad``); a constant. An input entry sees states and
-    the input only (it runs before the model's parts, so no signal exists yet). No
+    the input only (it runs before the model's parts, so no signal exists yet). An
+    output entry sees neither the input nor a signal that follows it directly
+    (:func:`input_followers`) unless the model declares direct feedthrough
+    (``Model(..., feedthrough=True)``): output terms are functions of states. No
     term reads a sensor effect's state (a drift's ``y_drift``): a sensor is not
     part of the dynamics, and the backward step must be able to remove it alone.
 
@@ -122,6 +125,7 @@ __all__ = [
     "Candidate",
     "EntryScreen",
     "entry_points",
+    "input_followers",
     "term_library",
     "screen",
     "variable_forms",
@@ -172,6 +176,23 @@ def entry_points(model: Model) -> list[str]:
     """
     kinematic = set(velocity_pairs(model).values()) | set(model.sensor_states())
     return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
+
+
+def input_followers(model: Model) -> list[str]:
+    """The input ``u`` and the model's signals that depend on it directly (not only through
+    the states): the HHRA's ``command`` and ``flow``, a resonator's ``drive``.
+
+    At the output entry no discovered term uses them unless the model declares direct
+    feedthrough (:class:`~hhra_phys.model.Model`, ``feedthrough=True``): an output term of
+    the input stood in for missing dynamics (a resonator's cubic spring found at the input
+    ended with ``y += -0.00924*u + ...`` beside it, issue 32).
+    """
+    names = [n for n in model.signal_names() if n != "y"]
+    if not names:
+        return ["u"]
+    x, u, p = model.symbols()
+    ctx = model._context(x, u, p, 1.0)
+    return ["u", *[n for n in names if ca.depends_on(ctx.signals[n], u)]]
 
 
 def _signal_function(model: Model, dt: float) -> tuple[list[str], ca.Function | None]:
@@ -247,8 +268,8 @@ class Candidate:
 
 
 def term_library(series: Mapping[str, np.ndarray], entry: str,
-                 units: Mapping[str, str] | None = None) -> tuple[list[Candidate],
-                                                                   dict[str, float]]:
+                 units: Mapping[str, str] | None = None,
+                 exclude: Sequence[str] = ()) -> tuple[list[Candidate], dict[str, float]]:
     """Candidate terms at ``entry`` from the simulated variables, and the variables' scales.
 
     Parameters
@@ -259,6 +280,9 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
         Entry point; ``input`` sees states and ``u`` only.
     units : dict, optional
         Units of the variables: states with unit ``rad`` also get ``sin``/``cos``.
+    exclude : sequence of str
+        Variables no term may use (:func:`screen`: at the output the input and the
+        signals that follow it directly, unless the model declares feedthrough).
 
     Returns
     -------
@@ -267,7 +291,8 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
         ``max|v|`` of every variable used (its unit).
     """
     units = dict(units or {})
-    names = [n for n in series if entry != "input" or n == "u" or n in units]
+    names = [n for n in series if (entry != "input" or n == "u" or n in units)
+             and n not in exclude]
     kept, scales = _term_variables(series, names)
     cands: list[Candidate] = []
     N = len(next(iter(series.values())))
@@ -489,8 +514,9 @@ def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = Non
     r_p = np.concatenate([b["r_p"] for b in per])
     edges = np.cumsum([0] + [b["n"] for b in per])
     out = []
+    direct = [] if model.feedthrough else input_followers(model)
     for e in entries:
-        cands, scales = term_library(pooled, e, units)
+        cands, scales = term_library(pooled, e, units, direct if e == "output" else ())
         cols = np.column_stack([c.column for c in cands])
         parts = []
         for k, b in enumerate(per):

@@ -146,6 +146,10 @@ class Model:
         the states' roles do not say it (several states with a velocity role). By
         default the state with role ``"velocity"`` (or ``"angular_velocity"``) and the
         one with role ``"position"`` (or ``"angle"``): :attr:`motion`.
+    feedthrough : bool
+        The input acts on the measured output directly (not only through the states):
+        only then may a discovered output term use the input
+        (:func:`hhra_phys.discover.input_followers`). Default ``False``.
 
     Notes
     -----
@@ -167,6 +171,7 @@ class Model:
         held: Sequence[str] = (),
         velocity: str | None = None,
         position: str | None = None,
+        feedthrough: bool = False,
     ) -> None:
         if isinstance(stages, str):
             raise ModelError(
@@ -190,6 +195,8 @@ class Model:
         self.held: tuple[str, ...] = tuple(held)
         self.states: tuple[State, ...] = tuple(states)
         self._motion_given = (velocity, position)
+        #: Whether the input acts on the output directly (declared; see ``feedthrough``).
+        self.feedthrough = bool(feedthrough)
         #: The velocity whose rate forces act on and its position (bound by role).
         self.motion: Motion = resolve_motion(self.states, velocity, position)
         self.n_lags = max((part.n_lags for part in self.parts), default=0)
@@ -331,7 +338,7 @@ class Model:
         held = [n for n in self.held if n in pnames]
         velocity, position = (n if n in names else None for n in self._motion_given)
         Model.__init__(new, parts, keep_stages, self.name, overrides, pinned, held,
-                       velocity, position)
+                       velocity, position, self.feedthrough)
         return new
 
     def with_parts(self, *parts: Part) -> Model:
@@ -515,6 +522,7 @@ class Model:
             # Only where declared: a model bound by its states' roles saves as before.
             **{k: v for k, v in zip(("velocity", "position"), self._motion_given,
                                      strict=True) if v is not None},
+            **({"feedthrough": True} if self.feedthrough else {}),
         }
 
     @classmethod
@@ -550,7 +558,7 @@ class Model:
         stages = spec.get("stages")
         Model.__init__(new, parts, stages, spec.get("name", "model"), spec.get("overrides"),
                        spec.get("pinned", ()), spec.get("held", ()), spec.get("velocity"),
-                       spec.get("position"))
+                       spec.get("position"), bool(spec.get("feedthrough", False)))
         return new
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hhra_phys import Model
 from hhra_phys.diagnose import analyse
 from hhra_phys.discover import screen
 from hhra_phys.effects import make_effect
@@ -74,3 +75,25 @@ def test_no_discovered_term_reads_the_drift_state():
     assert {s.entry for s in screens} == {"input", "output", "rate:v"}
     for s in screens:
         assert not any("y_drift" in c.spec for c in s.candidates), s.entry
+
+
+def _uses(spec: str, names: set[str]) -> bool:
+    args = spec[spec.index("(") + 1:-1].split(",")
+    return any(a in names for a in args)
+
+
+def test_output_terms_are_functions_of_states_unless_feedthrough_is_declared():
+    """At the output entry no term uses the command or the motor force that follows it
+    (issue 32, item 4); a model declaring direct feedthrough gets them back."""
+    data = drive.simulate_record(seed=1, coulomb=0.1)
+    base = drive.make_model()
+    values = np.array([drive.TRUTH.get(n, 0.0) for n in Problem(base, data).free_names])
+    follow = {"u", "force"}
+    out = next(s for s in screen(Problem(base, data), values, entries=["output"]))
+    assert out.candidates and not any(_uses(c.spec, follow) for c in out.candidates)
+    rate = next(s for s in screen(Problem(base, data), values, entries=["rate:v"]))
+    assert any(_uses(c.spec, {"u"}) for c in rate.candidates)  # the dynamics may read u
+    through = Model(list(base.parts), name="drive", feedthrough=True)
+    assert through.with_parts(make_effect("input_offset")).feedthrough
+    out = next(s for s in screen(Problem(through, data), values, entries=["output"]))
+    assert any(_uses(c.spec, {"u"}) for c in out.candidates)
