@@ -455,7 +455,9 @@ def _analyse_record(
     fs = data.fs
     names = problem.model.state_names
     states = {n: X[:, i] for i, n in enumerate(names)}
-    theta, omega = states.get("theta"), states.get("omega")
+    # The velocity and position bound by role (omega and theta on the HHRA).
+    motion = problem.model.motion
+    theta, omega = states.get(motion.position or ""), states.get(motion.velocity or "")
     # The input and the simulated output carry the model error; the rest is noise.
     noise = noise_level(r, (data.u, yhat))
     white = whiteness(r)
@@ -474,7 +476,8 @@ def _analyse_record(
     r_p = _project_out(Q, r[:, None])[:, 0]
     fit = _FittedResidual(
         problem=problem, P=P, data=data, fitted=problem.model.params.as_dict(P),
-        sig=Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat),
+        sig=Signals(u=data.u, dt=data.dt, output=data.output_unit or "", states=states, y=yhat,
+                    velocity=omega, position=theta),
         table=table, Q=Q, r_p=r_p, r_norm2=float(r_p @ r_p) or 1e-300, noise=noise,
         umax=float(np.max(np.abs(data.u))) or 1.0)
     names_c = (list(dict.fromkeys(effect_name(n) for n in candidates))
@@ -483,9 +486,10 @@ def _analyse_record(
                 for name in names_c]
     series = {"yhat": yhat, "y": data.y, "u": data.u}
     if theta is not None:
-        series["angle"] = np.degrees(theta)
+        series["angle" if motion.rotary else "position"] = (
+            np.degrees(theta) if motion.rotary else theta)
     if omega is not None:
-        series["omega"] = omega
+        series["omega" if motion.rotary else "velocity"] = omega
     return Diagnosis(
         n=data.n, rmse=float(np.sqrt(np.mean(r ** 2))), noise=noise, whiteness=white,
         xcorr_input=xcorr, delay_samples=delay, regressors=table, spectrum=spectrum,
@@ -545,7 +549,8 @@ def _candidate_evidence(name: str, kw: dict[str, Any], fit: _FittedResidual) -> 
     """Evidence for one candidate: skipped (cannot be built, not applicable, no first-order
     signature) or its projected first-order fit of the residual."""
     try:
-        eff: Effect = make_effect(name, data=fit.data, values=fit.fitted, **kw)
+        eff: Effect = make_effect(name, data=fit.data, values=fit.fitted,
+                                  model=fit.problem.model, **kw)
     except Exception as exc:  # noqa: BLE001 - a user's effect may fail to build
         return EffectEvidence(name, 0.0, 0.0, {}, False, "",
                               note=f"skipped: cannot be built ({exc})")
@@ -553,7 +558,8 @@ def _candidate_evidence(name: str, kw: dict[str, Any], fit: _FittedResidual) -> 
     if why:
         return EffectEvidence(name, 0.0, 0.0, {}, False, eff.signature,
                               note=f"skipped: {why}")
-    rel = {k: fit.table[k]["r_rate" if eff.entry != "output" else "r_residual"]
+    entry = eff.entry_at(fit.problem.model)
+    rel = {k: fit.table[k]["r_rate" if entry != "output" else "r_residual"]
            for k in eff.regressors if k in fit.table}
     try:
         cols = eff.first_order(fit.sig)
@@ -562,7 +568,7 @@ def _candidate_evidence(name: str, kw: dict[str, Any], fit: _FittedResidual) -> 
                 name, 0.0, float("nan"), {}, True, eff.signature, rel,
                 note="no first-order signature declared: ranked last, decided by its refit")
         cols = np.asarray(cols, dtype=float).reshape(fit.data.n, -1)
-        S = _linear_response(fit.problem, fit.P, eff.entry, cols, fit.umax)
+        S = _linear_response(fit.problem, fit.P, entry, cols, fit.umax)
     except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
         return EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,
                               rel, note=f"no first-order signature: {exc}")

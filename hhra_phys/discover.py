@@ -10,7 +10,7 @@ model provides (``model.signal_names()``) and the input.
 Where (entry points, :func:`entry_points`)
     ``input`` (added to the input the model's parts see), ``output`` (added to the
     output ``y``) and ``rate:<state>`` for every state but a position whose rate is a
-    velocity state (added to its time derivative).
+    velocity state and a sensor effect's state (added to its time derivative).
 
 What (term library, :func:`term_library`)
     For every variable ``v`` (states, the measured input ``u``, named signals;
@@ -21,7 +21,12 @@ What (term library, :func:`term_library`)
     knot ``c`` (started at the 60 % quantile of ``|q|``), a saturation
     ``tanh(2q)``; products ``q_a*q_b`` of two variables; ``sin`` and ``cos`` of
     angle-like states (unit ``rad``); a constant. An input entry sees states and
-    the input only (it runs before the model's parts, so no signal exists yet).
+    the input only (it runs before the model's parts, so no signal exists yet). An
+    output entry sees neither the input nor a signal that follows it directly
+    (:func:`input_followers`) unless the model declares direct feedthrough
+    (``Model(..., feedthrough=True)``): output terms are functions of states. No
+    term reads a sensor effect's state (a drift's ``y_drift``): a sensor is not
+    part of the dynamics, and the backward step must be able to remove it alone.
 
 Screening (first order)
     Every candidate column is propagated to the output through the model
@@ -120,6 +125,7 @@ __all__ = [
     "Candidate",
     "EntryScreen",
     "entry_points",
+    "input_followers",
     "term_library",
     "screen",
     "variable_forms",
@@ -164,10 +170,29 @@ def entry_points(model: Model) -> list[str]:
     :func:`velocity_pairs`) is no entry: that equation is the definition of the velocity,
     not a balance a missing force or flow enters. Terms there stood in for what belonged
     at the velocity's rate (a drag written as ``d theta/dt += -0.41*omega*|omega|``; a
-    term that took the place of a hidden resonance; docs/diagnosis.md).
+    term that took the place of a hidden resonance; docs/diagnosis.md). Nor is the rate of a
+    sensor effect's state (:meth:`~hhra_phys.model.Model.sensor_states`, a drift's
+    ``y_drift``): the measurement's, not the dynamics'.
     """
-    kinematic = set(velocity_pairs(model).values())
+    kinematic = set(velocity_pairs(model).values()) | set(model.sensor_states())
     return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
+
+
+def input_followers(model: Model) -> list[str]:
+    """The input ``u`` and the model's signals that depend on it directly (not only through
+    the states): the HHRA's ``command`` and ``flow``, a resonator's ``drive``.
+
+    At the output entry no discovered term uses them unless the model declares direct
+    feedthrough (:class:`~hhra_phys.model.Model`, ``feedthrough=True``): an output term of
+    the input stood in for missing dynamics (a resonator's cubic spring found at the input
+    ended with ``y += -0.00924*u + ...`` beside it, issue 32).
+    """
+    names = [n for n in model.signal_names() if n != "y"]
+    if not names:
+        return ["u"]
+    x, u, p = model.symbols()
+    ctx = model._context(x, u, p, 1.0)
+    return ["u", *[n for n in names if ca.depends_on(ctx.signals[n], u)]]
 
 
 def _signal_function(model: Model, dt: float) -> tuple[list[str], ca.Function | None]:
@@ -243,8 +268,8 @@ class Candidate:
 
 
 def term_library(series: Mapping[str, np.ndarray], entry: str,
-                 units: Mapping[str, str] | None = None) -> tuple[list[Candidate],
-                                                                   dict[str, float]]:
+                 units: Mapping[str, str] | None = None,
+                 exclude: Sequence[str] = ()) -> tuple[list[Candidate], dict[str, float]]:
     """Candidate terms at ``entry`` from the simulated variables, and the variables' scales.
 
     Parameters
@@ -255,6 +280,9 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
         Entry point; ``input`` sees states and ``u`` only.
     units : dict, optional
         Units of the variables: states with unit ``rad`` also get ``sin``/``cos``.
+    exclude : sequence of str
+        Variables no term may use (:func:`screen`: at the output the input and the
+        signals that follow it directly, unless the model declares feedthrough).
 
     Returns
     -------
@@ -263,7 +291,8 @@ def term_library(series: Mapping[str, np.ndarray], entry: str,
         ``max|v|`` of every variable used (its unit).
     """
     units = dict(units or {})
-    names = [n for n in series if entry != "input" or n == "u" or n in units]
+    names = [n for n in series if (entry != "input" or n == "u" or n in units)
+             and n not in exclude]
     kept, scales = _term_variables(series, names)
     cands: list[Candidate] = []
     N = len(next(iter(series.values())))
@@ -476,13 +505,18 @@ def screen(problem: Any, values: np.ndarray, entries: Sequence[str] | None = Non
         per.append({"pr": pr, "P": pr.full(v), "Q": Q, "series": series, "n": yhat.size,
                     "r_p": r - Q @ (Q.T @ r),
                     "umax": float(np.max(np.abs(pr.data.u))) or 1.0})
-    pooled = {n: np.concatenate([b["series"][n] for b in per]) for n in per[0]["series"]}
+    # A sensor's own state (a drift's y_drift) is the measurement's, not a variable of the
+    # dynamics: no term reads it (it could not be removed with its sensor effect).
+    sensor = set(model.sensor_states())
+    pooled = {n: np.concatenate([b["series"][n] for b in per]) for n in per[0]["series"]
+              if n not in sensor}
     units = {s.name: s.unit for s in model.states}
     r_p = np.concatenate([b["r_p"] for b in per])
     edges = np.cumsum([0] + [b["n"] for b in per])
     out = []
+    direct = [] if model.feedthrough else input_followers(model)
     for e in entries:
-        cands, scales = term_library(pooled, e, units)
+        cands, scales = term_library(pooled, e, units, direct if e == "output" else ())
         cols = np.column_stack([c.column for c in cands])
         parts = []
         for k, b in enumerate(per):

@@ -10,30 +10,36 @@ Library names (stable, read by outside checks)::
 
     coulomb_friction  valve_deadzone  valve_saturation  input_delay  valve_dynamics
     gravity_load      backlash        sensor_offset     asymmetric_valve
-    sensor_drift
+    sensor_drift      input_offset    constant_force
 
-Each effect declares what it reads and writes (:attr:`Effect.reads`,
-:attr:`Effect.writes`), and :meth:`Effect.applicable` checks exactly that, so the
-loop skips an effect a model cannot take and says why. Input-side effects
-(``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``)
-act on the model's input ``ctx.u`` and output-side ``sensor_offset`` and
-``sensor_drift`` (a sensor's, not the physics') on the output ``y``: they attach to
-any model. ``coulomb_friction`` and ``gravity_load``
-act on the rate of a rotary velocity state ``omega`` (and read ``theta``),
-``backlash`` on an angle output in degrees, ``asymmetric_valve`` on the
-``"flow"`` and ``"command"`` signals of a valve model such as the HHRA. A user's
-effect is registered with :func:`hhra_phys.parts.register_effect`.
+Each effect declares what it needs: roles (:attr:`Effect.binds`) and names
+(:attr:`Effect.reads`, :attr:`Effect.writes`), and :meth:`Effect.applicable` checks
+exactly that, so the loop skips an effect a model cannot take and says why (for a
+missing role, which one and how to declare it). Input-side effects
+(``valve_deadzone``, ``valve_saturation``, ``input_delay``, ``valve_dynamics``,
+``input_offset``) act on the model's input ``ctx.u`` and output-side ``sensor_offset``
+and ``sensor_drift`` (a sensor's, not the physics') on the output ``y``: they attach to
+any model. ``coulomb_friction``, ``constant_force`` and ``gravity_load`` bind by role:
+they act on the rate of the model's velocity (:attr:`hhra_phys.model.Model.motion`, the
+state with role ``"velocity"`` or ``"angular_velocity"``: ``omega`` on the HHRA, ``v`` on
+the cylinder or a user's drive) and ``gravity_load`` reads its angle (role ``"angle"``);
+``backlash`` needs an angle output in degrees, ``asymmetric_valve`` the ``"flow"`` and
+``"command"`` signals of a valve model such as the HHRA (by name). A user's effect is
+registered with :func:`hhra_phys.parts.register_effect`.
 
 Scaling. Bounds of input-stage effects are relative to ``u_scale`` (typical input
 magnitude, default 1 mA), of motion effects to ``accel_scale`` (the model's
-``g_torque``, default the rig's), of time constants to ``dt`` (sample period);
-:func:`make_effect` sets them from a record and a fit so the same library works on
-the rig (mA, deg, 250 Hz) and on records in raw units and sample time.
+``g_torque``, default the rig's; on another model the velocity's rate made by the full
+input and the efforts, :func:`motion_scales`), of velocity widths to ``v_scale`` (the
+velocity state's scale), of time constants to ``dt`` (sample period);
+:func:`make_effect` sets them from a record, a fit and the model so the same library
+works on the rig (mA, deg, 250 Hz), on a linear drive (V, m, m/s) and on records in raw
+units and sample time.
 
 First-order signature. :meth:`Effect.first_order` returns, for a probe size of
 the effect, the change it makes at its entry point (``"input"``: the model's input,
-the valve command; ``"rate:omega"``: the rate of the velocity state, the angular
-acceleration; ``"output"``: the output) given the
+the valve command; ``"rate:@velocity"``: the rate of the model's velocity state, the
+angular acceleration ``rate:omega`` on the HHRA; ``"output"``: the output) given the
 signals of a simulation without it. Propagated through the linearised model this
 is the direction in which the effect moves the output, which the diagnosis
 compares with the residual.
@@ -63,7 +69,7 @@ from hhra_phys.parts import (
 )
 
 __all__ = ["EFFECTS", "EFFECT_ALIASES", "LIBRARY", "Effect", "Signals", "effect_name",
-           "make_effect", "register_effect", "RIG_ACCEL",
+           "make_effect", "motion_scales", "register_effect", "RIG_ACCEL",
            "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu",
            "output_offsets", "output_slope"]
 
@@ -84,6 +90,11 @@ REMOVED_SETTINGS: dict[str, str] = {
 
 def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
     return v / np.sqrt(v * v + eps * eps)
+
+
+def _rate_unit(v_unit: str) -> str:
+    """Unit of a velocity's rate: ``"rad/s"`` -> ``"rad/s^2"``, ``"m"`` -> ``"m/s"``."""
+    return f"{v_unit}^2" if v_unit.endswith("/s") else f"{v_unit}/s"
 
 
 # --- motion stage -----------------------------------------------------------------
@@ -129,6 +140,18 @@ class CoulombFriction(Effect):
         0.0005 to 0.5 rad/s, nominal ``width``).
     accel_scale : float
         Typical acceleration [rad/s^2] (the model's ``g_torque``); sets the bounds.
+    v_scale : float
+        Typical velocity (the velocity's unit; 1 on the rig): scales the bounds of
+        ``v_stribeck`` and ``v_switch``.
+    v_unit : str
+        Unit of the velocity (``"rad/s"`` on the rig, ``"m/s"`` on a linear drive):
+        the parameters' units follow it.
+
+    Binding. The friction acts on the rate of the model's velocity state and reads
+    it (:attr:`hhra_phys.model.Model.motion`: the state with role ``"velocity"`` or
+    ``"angular_velocity"``), whatever its name; :func:`make_effect` given the model
+    sets ``accel_scale``, ``v_scale``, ``v_unit`` and ``width`` from it. Units above
+    are the rig's; on a linear drive read m/s for rad/s.
     """
 
     stribeck: bool = False
@@ -136,11 +159,12 @@ class CoulombFriction(Effect):
     viscous: bool = False
     width: float = FRICTION_WIDTH
     fit_width: bool = False
+    v_scale: float = 1.0
+    v_unit: str = "rad/s"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "coulomb_friction"
-    reads: ClassVar[tuple[str, ...]] = ("omega",)
-    writes: ClassVar[tuple[str, ...]] = ("omega",)
-    entry: ClassVar[str] = "rate:omega"
+    binds: ClassVar[tuple[str, ...]] = ("velocity",)
+    entry: ClassVar[str] = "rate:@velocity"
     signature: ClassVar[str] = (
         "residual follows the sign of the simulated velocity; the error grows after "
         "each direction reversal and is largest at small inputs"
@@ -148,27 +172,30 @@ class CoulombFriction(Effect):
     regressors: ClassVar[tuple[str, ...]] = ("sign_velocity", "reversals", "small_input")
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.width, (int, float)) and math.isfinite(self.width)
-                and self.width > 0):
-            raise ParameterError(f"coulomb_friction width must be > 0 rad/s, got {self.width!r}")
+        for key in ("width", "v_scale"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"coulomb_friction {key} must be > 0 {self.v_unit}, "
+                                     f"got {v!r}")
 
     @property
     def parameters(self) -> Sequence[Parameter]:
-        a = self.accel_scale
-        out = [Parameter("g_coulomb", "rad/s^2", 0.03 * a, 1e-4 * a, 0.6 * a, "log",
+        a, vs, vu = self.accel_scale, self.v_scale, self.v_unit
+        au = _rate_unit(vu)
+        out = [Parameter("g_coulomb", au, 0.03 * a, 1e-4 * a, 0.6 * a, "log",
                          "Coulomb friction torque over inertia")]
         if self.stribeck:
             out += [
-                Parameter("g_stribeck", "rad/s^2", 0.01 * a, 1e-4 * a, 0.6 * a, "log",
+                Parameter("g_stribeck", au, 0.01 * a, 1e-4 * a, 0.6 * a, "log",
                           "extra breakaway (Stribeck) friction over inertia"),
-                Parameter("v_stribeck", "rad/s", 0.1, 1e-3, 2.0, "log",
+                Parameter("v_stribeck", vu, 0.1 * vs, 1e-3 * vs, 2.0 * vs, "log",
                           "Stribeck velocity"),
             ]
         if self.viscous:
             out.append(Parameter("g_viscous", "1/s", 0.5, 0.0, 50.0, "linear",
-                                 "viscous friction torque over inertia per rad/s"))
+                                 f"viscous friction torque over inertia per {vu}"))
         if self.fit_width:
-            out.append(Parameter("v_switch", "rad/s", self.width, 5e-4, 0.5, "log",
+            out.append(Parameter("v_switch", vu, self.width, 5e-4 * vs, 0.5 * vs, "log",
                                  "switching width of the Coulomb friction"))
         return tuple(out)
 
@@ -179,23 +206,24 @@ class CoulombFriction(Effect):
         return self.width
 
     def apply(self, ctx: Context) -> None:
-        w = ctx.x["omega"]
+        v = ctx.velocity(self.name)
+        w = ctx.x[v]
         level = ctx.p["g_coulomb"]
         if self.stribeck:
             level = level + ctx.p["g_stribeck"] * ca.exp(-(w / ctx.p["v_stribeck"]) ** 2)
         rate = -level * smooth_sign(w, self._width(level, ctx.p))
         if self.viscous:
             rate = rate - ctx.p["g_viscous"] * w
-        ctx.add_rate("omega", rate)
+        ctx.add_rate(v, rate)
 
     def probe(self) -> dict[str, float]:
         return {p.name: p.nominal for p in self.parameters}
 
     def first_order(self, sig: Signals) -> np.ndarray:
-        if sig.omega is None:
+        if sig.velocity is None:
             raise ModelError("coulomb_friction needs the simulated velocity")
         g = self.probe()["g_coulomb"]
-        return -g * _smooth_np(sig.omega, self._width(g))[:, None]
+        return -g * _smooth_np(sig.velocity, self._width(g))[:, None]
 
 
 @register_effect
@@ -209,14 +237,26 @@ class GravityLoad(Effect):
     ``hypot(g_grav_cos, g_grav_sin)`` and phase ``atan2``. The two linear
     coefficients are used instead of amplitude and phase because they are
     identified without a phase ambiguity.
+
+    Binding. It acts on the rate of the model's velocity and reads its position, which
+    must be an angle (a state with role ``"angle"``, in rad): whatever their names. On a
+    linear axis gravity is a constant force: :class:`ConstantForce`.
+
+    Parameters
+    ----------
+    accel_scale : float
+        Typical acceleration (the velocity's unit per second; the model's ``g_torque``):
+        sets the bounds.
+    v_unit : str
+        Unit of the velocity: the parameters' units follow it.
     """
 
     accel_scale: float = RIG_ACCEL
+    v_unit: str = "rad/s"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "gravity_load"
-    reads: ClassVar[tuple[str, ...]] = ("theta",)
-    writes: ClassVar[tuple[str, ...]] = ("omega",)
-    entry: ClassVar[str] = "rate:omega"
+    binds: ClassVar[tuple[str, ...]] = ("velocity", "angle")
+    entry: ClassVar[str] = "rate:@velocity"
     signature: ClassVar[str] = (
         "residual drifts with the simulated angle (sin/cos of theta); it is absent "
         "where the shaft rests and may extrapolate badly outside the angles seen"
@@ -227,26 +267,88 @@ class GravityLoad(Effect):
     @property
     def parameters(self) -> Sequence[Parameter]:
         a = 0.6 * self.accel_scale
+        au = _rate_unit(self.v_unit)
         return (
-            Parameter("g_grav_cos", "rad/s^2", 0.0, -a, a, "linear",
+            Parameter("g_grav_cos", au, 0.0, -a, a, "linear",
                       "load torque over inertia at theta = 0"),
-            Parameter("g_grav_sin", "rad/s^2", 0.0, -a, a, "linear",
+            Parameter("g_grav_sin", au, 0.0, -a, a, "linear",
                       "load torque over inertia at theta = 90 deg"),
         )
 
+    def unbound(self, model: Any) -> str | None:
+        why = super().unbound(model)
+        if why and model.motion.velocity is not None and not model.motion.rotary:
+            why += "; on a linear axis a constant load (gravity on an incline) is constant_force"
+        return why
+
     def apply(self, ctx: Context) -> None:
-        th = ctx.x["theta"]
-        ctx.add_rate("omega", -(ctx.p["g_grav_cos"] * ca.cos(th)
-                                + ctx.p["g_grav_sin"] * ca.sin(th)))
+        th = ctx.x[ctx.position(self.name)]
+        ctx.add_rate(ctx.velocity(self.name), -(ctx.p["g_grav_cos"] * ca.cos(th)
+                                                + ctx.p["g_grav_sin"] * ca.sin(th)))
 
     def probe(self) -> dict[str, float]:
         return {"g_grav_cos": 0.03 * self.accel_scale, "g_grav_sin": 0.03 * self.accel_scale}
 
     def first_order(self, sig: Signals) -> np.ndarray:
-        if sig.theta is None:
+        if sig.position is None:
             raise ModelError("gravity_load needs the simulated angle")
         a = 0.03 * self.accel_scale
-        return -a * np.column_stack([np.cos(sig.theta), np.sin(sig.theta)])
+        return -a * np.column_stack([np.cos(sig.position), np.sin(sig.position)])
+
+
+@dataclass(frozen=True)
+class ConstantForce(Effect):
+    """A constant force (torque) at the velocity's rate: ``dv/dt += g_const``.
+
+    A load that does not depend on the motion: the weight on an inclined linear axis, a
+    spring preload, a pressure on a rod's area, a motor's torque offset. ``g_const``
+    is the force over the mass (torque over inertia), in the velocity's unit per second.
+    It binds to the model's velocity (a state with role ``"velocity"`` or
+    ``"angular_velocity"``) whatever its name. Physics first: a constant at the rate is
+    what a trend in a position output needs before any sensor drift.
+
+    Parameters
+    ----------
+    accel_scale : float
+        Typical acceleration (the velocity's unit per second; the model's ``g_torque``):
+        the bounds are ``+-0.6*accel_scale``, the probe ``0.03*accel_scale``.
+    v_unit : str
+        Unit of the velocity: the parameter's unit follows it.
+    """
+
+    accel_scale: float = RIG_ACCEL
+    v_unit: str = "rad/s"
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "constant_force"
+    binds: ClassVar[tuple[str, ...]] = ("velocity",)
+    entry: ClassVar[str] = "rate:@velocity"
+    signature: ClassVar[str] = (
+        "the velocity's rate is off by a constant: a position output drifts (a ramp that "
+        "bends where damping or a spring holds it), a velocity output is offset"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("time",)
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        a = 0.6 * self.accel_scale
+        return (Parameter("g_const", _rate_unit(self.v_unit), 0.0, -a, a, "linear",
+                          "constant force over mass (torque over inertia)"),)
+
+    def applicable(self, model: Any) -> str | None:
+        have = _rate_constants(model)
+        if have:
+            return (f"the model already has a free constant at the velocity's rate "
+                    f"({', '.join(have)})")
+        return super().applicable(model)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.add_rate(ctx.velocity(self.name), ctx.p["g_const"])
+
+    def probe(self) -> dict[str, float]:
+        return {"g_const": 0.03 * self.accel_scale}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        return np.full((sig.u.size, 1), 0.03 * self.accel_scale)
 
 
 # --- input stage ------------------------------------------------------------------
@@ -361,6 +463,53 @@ class ValveSaturation(_InputCorner, Effect):
     def first_order(self, sig: Signals) -> np.ndarray:
         s = 0.8 * float(np.max(np.abs(sig.u)))
         return (np.clip(sig.u, -s, s) - sig.u)[:, None]
+
+
+@dataclass(frozen=True)
+class InputOffset(Effect):
+    """A constant bias of the input: ``u -> u + u_offset`` (input units).
+
+    A servo valve's null bias (the spool passes flow at zero current), a motor driver's
+    command offset, a pump's zero. It acts on the model's input, so it attaches to any
+    model; under an integrating output it leaves a trend in the output, which is physics
+    before it is a sensor's drift.
+
+    Parameters
+    ----------
+    u_scale : float
+        Typical input magnitude (input units; 1 mA on the rig): the bounds are
+        ``+-0.5*u_scale``, the probe ``0.05*u_scale``.
+    """
+
+    u_scale: float = 1.0
+    stage: ClassVar[str] = "input"
+    name: ClassVar[str] = "input_offset"
+    entry: ClassVar[str] = "input"
+    signature: ClassVar[str] = (
+        "the model is driven by a constant input it does not see: a trend (integrating "
+        "output) or an offset that follows the input's gain"
+    )
+    regressors: ClassVar[tuple[str, ...]] = ("time",)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.u_scale, (int, float)) and math.isfinite(self.u_scale)
+                and self.u_scale > 0):
+            raise ParameterError(f"input_offset u_scale must be > 0, got {self.u_scale!r}")
+
+    @property
+    def parameters(self) -> Sequence[Parameter]:
+        s = 0.5 * self.u_scale
+        return (Parameter("u_offset", "input", 0.0, -s, s, "linear",
+                          "constant bias of the input (valve null bias, command offset)"),)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.u = ctx.u + ctx.p["u_offset"]
+
+    def probe(self) -> dict[str, float]:
+        return {"u_offset": 0.05 * self.u_scale}
+
+    def first_order(self, sig: Signals) -> np.ndarray:
+        return np.full((sig.u.size, 1), 0.05 * self.u_scale)
 
 
 @register_effect
@@ -573,7 +722,7 @@ class Backlash(Effect):
     speed: float = BACKLASH_SPEED
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "backlash"
-    reads: ClassVar[tuple[str, ...]] = ("omega", "theta")
+    binds: ClassVar[tuple[str, ...]] = ("velocity", "angle")
     writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
     signature: ClassVar[str] = (
@@ -606,14 +755,15 @@ class Backlash(Effect):
         why = super().applicable(model)
         if why:
             return why
-        slope = output_slope(model, "theta")
+        angle = model.motion.position
+        slope = output_slope(model, angle)
         if slope is None or abs(slope - RAD2DEG) > 1e-9 * RAD2DEG:
             return ("backlash is seen by an angle encoder: the model has no angle output "
-                    "(its output is not the angle 'theta' in degrees)")
+                    f"(its output is not the angle {angle!r} in degrees)")
         return None
 
     def apply(self, ctx: Context) -> None:
-        w, gap = ctx.x["omega"], ctx.x["gap"]
+        w, gap = ctx.x[ctx.velocity(self.name)], ctx.x["gap"]
         half = 0.5 * ctx.p["play"] / RAD2DEG
         width = (ctx.p["w_contact"] if self.fit_width else self.width) / RAD2DEG
         # The exact direction (max/min): a smooth sign would let the gap creep at
@@ -634,21 +784,22 @@ class Backlash(Effect):
         Returns
         -------
         list of dict
-            Carried at contact on either side at :attr:`speed`: ``{"omega": +-speed,
-            "gap": +-play/2}`` (rad/s, rad), where the gap relaxes at ``speed/width``.
+            Carried at contact on either side at :attr:`speed`: ``{"@velocity": +-speed,
+            "gap": +-play/2}`` (rad/s, rad), where the gap relaxes at ``speed/width``;
+            ``"@velocity"`` names the model's velocity state (``omega`` on the HHRA).
         """
         half = 0.5 * float(values["play"]) / RAD2DEG
-        return [{"omega": s * self.speed, "gap": s * half} for s in (1.0, -1.0)]
+        return [{"@velocity": s * self.speed, "gap": s * half} for s in (1.0, -1.0)]
 
     def probe(self) -> dict[str, float]:
         return {"play": 0.5}
 
     def first_order(self, sig: Signals) -> np.ndarray:
-        if sig.omega is None:
+        if sig.velocity is None:
             raise ModelError("backlash needs the simulated velocity")
         # Half the probe play against the motion; the direction's sign smoothed over
         # 0.01 rad/s so that a velocity crossing zero between samples is not a jump.
-        return -0.25 * _smooth_np(sig.omega, 0.01)[:, None]
+        return -0.25 * _smooth_np(sig.velocity, 0.01)[:, None]
 
 
 @register_effect
@@ -744,6 +895,11 @@ class SensorDrift(Effect):
         return (np.arange(sig.u.size) * sig.dt * self.probe()["drift_rate"])[:, None]
 
 
+# The offsets, physics first, registered after the earlier library so that the order of
+# the earlier candidates (the loop's order where scores tie) stays as it was.
+register_effect(InputOffset)
+register_effect(ConstantForce)
+
 #: Names of the library's own effects (:data:`EFFECTS` also holds a user's registered ones).
 LIBRARY: tuple[str, ...] = tuple(EFFECTS)
 
@@ -781,6 +937,76 @@ def output_slope(model: Any, state: str) -> float | None:
     return float(ca.DM(ca.evalf(d)))
 
 
+def _rate_constants(model: Any) -> list[str]:
+    """Free parameters that add a constant to the velocity's rate by themselves: a
+    constant slope there, absent from every other rate and from the output."""
+    v = model.motion.velocity
+    if v is None:
+        return []
+    x, u, p = model.symbols()
+    xdot, y = model.assemble(x, u, p, 0.004)
+    iv = model.state_names.index(v)
+    dx = ca.jacobian(xdot, p)
+    dy = ca.jacobian(y, p)
+    out = []
+    for i, name in enumerate(model.params.names):
+        if name in model.held:
+            continue
+        di = dx[iv, i]
+        others = [dx[k, i] for k in range(model.nx) if k != iv]
+        if (di.is_constant() and float(ca.evalf(di)) != 0.0 and dy[0, i].nnz() == 0
+                and all(o.nnz() == 0 for o in others)):
+            out.append(name)
+    return out
+
+
+def motion_scales(model: Any, values: Mapping[str, float] | None = None,
+                  u_scale: float = 1.0) -> dict[str, Any]:
+    """Scales of the model's motion for the library's motion effects.
+
+    Parameters
+    ----------
+    model : Model
+        A model with a velocity (:attr:`~hhra_phys.model.Model.motion`).
+    values : mapping, optional
+        Parameter values by name (a fit's); the nominal values elsewhere.
+    u_scale : float
+        Typical input magnitude (input units).
+
+    Returns
+    -------
+    dict
+        ``accel_scale``: typical acceleration [velocity unit/s], the change of the
+        velocity's rate made by ``u_scale`` at the input and by every state with role
+        ``"effort"`` at its :attr:`~hhra_phys.parts.State.scale` (the model linearised at
+        rest; by the other states' scales if those give none); ``v_scale`` (the velocity
+        state's scale) and ``v_unit`` (its unit). Empty for a model without a velocity.
+    """
+    v = model.motion.velocity
+    if v is None:
+        return {}
+    st = model.states[model.state_names.index(v)]
+    out: dict[str, Any] = {"v_scale": float(st.scale), "v_unit": st.unit or "1/s"}
+    P = model.nominal()
+    for i, name in enumerate(model.params.names):
+        if values and name in values:
+            P[i] = float(values[name])
+    try:
+        A, B, _, _ = model.linearize(p=P)
+    except Exception:  # noqa: BLE001 - no scale rather than no effect
+        return out
+    iv = model.state_names.index(v)
+    scales = [s.scale for s in model.states]
+    effort = [k for k, s in enumerate(model.states) if s.role == "effort"]
+    a = abs(float(B[iv, 0])) * u_scale + sum(abs(float(A[iv, k])) * scales[k] for k in effort)
+    if not (math.isfinite(a) and a > 0):
+        a = max((abs(float(A[iv, k])) * scales[k] for k in range(model.nx) if k != iv),
+                default=0.0)
+    if math.isfinite(a) and a > 0:
+        out["accel_scale"] = a
+    return out
+
+
 def output_offsets(model: Any) -> list[str]:
     """Parameters that shift the output by themselves: ``dy/dq == 1`` and absent from ``f``."""
     x, u, p = model.symbols()
@@ -798,11 +1024,23 @@ def output_offsets(model: Any) -> list[str]:
 # --- construction -------------------------------------------------------------------
 
 
+def _model_scales(model: Any, values: Mapping[str, float] | None,
+                  u_scale: float) -> dict[str, Any]:
+    """:func:`make_effect`'s settings from the model: its motion's scales and units."""
+    if "g_torque" in model.params.names:
+        return {}  # the HHRA: g_torque (or the rig's) and the rig's units, as before roles
+    out = motion_scales(model, values, u_scale)
+    if "v_scale" in out:
+        out["width"] = FRICTION_WIDTH * out["v_scale"]
+    return out
+
+
 def make_effect(
     name: str,
     *,
     data: Any | None = None,
     values: Mapping[str, float] | None = None,
+    model: Any | None = None,
     **kw: Any,
 ) -> Effect:
     """Build library effect ``name``, scaled to a record and a fit.
@@ -816,6 +1054,12 @@ def make_effect(
         ``|input|``), ``dt`` (sample period) and ``y_scale`` (output st. dev.).
     values : dict, optional
         Fitted values of the model it is added to: ``g_torque`` sets ``accel_scale``.
+    model : Model, optional
+        The model it is added to: where ``values`` has no ``g_torque`` (any model but
+        the HHRA), :func:`motion_scales` sets ``accel_scale``, and the velocity state
+        sets ``v_scale``, ``v_unit`` and the friction's ``width``
+        (:data:`FRICTION_WIDTH` times ``v_scale``), so that the motion effects work in
+        the model's own units (a linear drive in m, m/s).
     **kw
         Fields of the effect class (explicit ones win).
 
@@ -834,6 +1078,8 @@ def make_effect(
         auto["u_scale"] = float(np.max(np.abs(data.u))) or 1.0
         auto["dt"] = float(data.dt)
         auto["y_scale"] = float(np.std(data.y)) or 1.0
+    if model is not None:
+        auto.update(_model_scales(model, values, auto.get("u_scale", 1.0)))
     if values and values.get("g_torque", 0) > 0:
         auto["accel_scale"] = float(values["g_torque"])
     args = {k: v for k, v in auto.items() if k in fields}

@@ -689,7 +689,8 @@ def _search_size(n_new: int, pop: int | None, iters: int | None) -> tuple[int, i
 
 def _candidate_model(job: _Job) -> tuple[Model, list[str], Any]:
     """The current model with the job's effect; the effect's parameter names; the effect."""
-    eff = make_effect(job.effect, data=job.cfg.data, values=job.values, **job.effect_kw)
+    eff = make_effect(job.effect, data=job.cfg.data, values=job.values, model=job.model,
+                      **job.effect_kw)
     return job.model.with_parts(eff), [p.name for p in eff.parameters], eff
 
 
@@ -788,7 +789,9 @@ def refit_candidate(job: _Job) -> _Outcome:
                 {n: list(r2.ci95[n]) for n in new if n in r2.ci95},
                 dict(r2.metrics["est"]), dict(r2.metrics["val"]), crit, job.crit_cur,
                 job.rmse_cur)
-    step.entry = str(getattr(eff, "entry", "") or "")
+    # Where it enters on this model: a role-bound entry ("rate:@velocity") by its state's name.
+    entry_at = getattr(eff, "entry_at", None)
+    step.entry = str((entry_at(job.model) if entry_at else getattr(eff, "entry", "")) or "")
     step.sensor = bool(getattr(eff, "sensor", False))
     bad = _unidentified(r2, new, model_c)
     if bad:

@@ -47,10 +47,12 @@ from hhra_phys.parts import (
     PART_TYPES,
     Context,
     Effect,
+    Motion,
     Part,
     State,
     part_type_name,
     register_part,
+    resolve_motion,
 )
 
 __all__ = ["DerivedQuantity", "Model", "register_part", "MODEL_TYPES"]
@@ -139,6 +141,15 @@ class Model:
     held : sequence of str, optional
         Parameters a fit holds at their nominal value unless they are freed
         explicitly (e.g. a spring that is absent on the usual rig).
+    velocity, position : str, optional
+        The velocity state whose rate forces act on and its position, by name, where
+        the states' roles do not say it (several states with a velocity role). By
+        default the state with role ``"velocity"`` (or ``"angular_velocity"``) and the
+        one with role ``"position"`` (or ``"angle"``): :attr:`motion`.
+    feedthrough : bool
+        The input acts on the measured output directly (not only through the states):
+        only then may a discovered output term use the input
+        (:func:`hhra_phys.discover.input_followers`). Default ``False``.
 
     Notes
     -----
@@ -158,6 +169,9 @@ class Model:
         overrides: Mapping[str, Any] | None = None,
         pinned: Sequence[str] = (),
         held: Sequence[str] = (),
+        velocity: str | None = None,
+        position: str | None = None,
+        feedthrough: bool = False,
     ) -> None:
         if isinstance(stages, str):
             raise ModelError(
@@ -180,6 +194,11 @@ class Model:
             raise ModelError(f"held parameters {unknown} are not parameters of the model")
         self.held: tuple[str, ...] = tuple(held)
         self.states: tuple[State, ...] = tuple(states)
+        self._motion_given = (velocity, position)
+        #: Whether the input acts on the output directly (declared; see ``feedthrough``).
+        self.feedthrough = bool(feedthrough)
+        #: The velocity whose rate forces act on and its position (bound by role).
+        self.motion: Motion = resolve_motion(self.states, velocity, position)
         self.n_lags = max((part.n_lags for part in self.parts), default=0)
         self._cache: dict[float, dict[str, ca.Function]] = {}
         self._signal_names: tuple[str, ...] | None = None
@@ -292,6 +311,16 @@ class Model:
         """States whose initial value a fit estimates (``fit_initial`` and not pinned)."""
         return [s.name for s in self.states if s.fit_initial and s.name not in self.pinned]
 
+    def role_of(self, state: str) -> str | None:
+        """The declared role of ``state`` (:data:`hhra_phys.parts.ROLES`), or ``None``."""
+        return self.states[self.state_names.index(state)].role
+
+    def sensor_states(self) -> list[str]:
+        """States of sensor effects (:attr:`hhra_phys.parts.Effect.sensor`, a drift's
+        ``y_drift``): the measurement's, never read inside the dynamics."""
+        return [s.name for part in self.parts if getattr(part, "sensor", False)
+                for s in part.states]
+
     def signal_names(self) -> list[str]:
         """Names of the signals the assembled model provides (``"y"`` among them)."""
         if self._signal_names is None:
@@ -307,7 +336,9 @@ class Model:
         pinned = [s for s in self.pinned if s in names]
         pnames = {par.name for q in parts for par in q.parameters}
         held = [n for n in self.held if n in pnames]
-        Model.__init__(new, parts, keep_stages, self.name, overrides, pinned, held)
+        velocity, position = (n if n in names else None for n in self._motion_given)
+        Model.__init__(new, parts, keep_stages, self.name, overrides, pinned, held,
+                       velocity, position, self.feedthrough)
         return new
 
     def with_parts(self, *parts: Part) -> Model:
@@ -399,6 +430,7 @@ class Model:
             {name: p[i] for i, name in enumerate(self.params.names)},
             u_lags,
             dt,
+            self.motion,
         )
         for part in self._ordered:
             try:
@@ -487,6 +519,10 @@ class Model:
             "stages": list(self._stages_given) if self._stages_given is not None else None,
             "pinned": list(self.pinned),
             "held": list(self.held),
+            # Only where declared: a model bound by its states' roles saves as before.
+            **{k: v for k, v in zip(("velocity", "position"), self._motion_given,
+                                     strict=True) if v is not None},
+            **({"feedthrough": True} if self.feedthrough else {}),
         }
 
     @classmethod
@@ -521,7 +557,8 @@ class Model:
         new = Model.__new__(target)
         stages = spec.get("stages")
         Model.__init__(new, parts, stages, spec.get("name", "model"), spec.get("overrides"),
-                       spec.get("pinned", ()), spec.get("held", ()))
+                       spec.get("pinned", ()), spec.get("held", ()), spec.get("velocity"),
+                       spec.get("position"), bool(spec.get("feedthrough", False)))
         return new
 
 

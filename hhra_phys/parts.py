@@ -44,6 +44,11 @@ from hhra_phys.parameters import Parameter
 
 __all__ = [
     "State",
+    "ROLES",
+    "VELOCITY_ROLES",
+    "POSITION_ROLES",
+    "Motion",
+    "resolve_motion",
     "Context",
     "Part",
     "PART_TYPES",
@@ -66,6 +71,22 @@ __all__ = [
 INPUT_STAGE = "input"
 #: Conventional last stage: where output-side effects attach.
 OUTPUT_STAGE = "output"
+
+#: Physical roles a state may declare (``State(..., role=...)``), and what each means.
+#: Library effects bind to a model by role, not by name (:class:`Motion`).
+ROLES: dict[str, str] = {
+    "position": "a linear position (any length unit: m, mm, or the output's unit)",
+    "velocity": "the rate of a linear position (its unit per second): forces act on its rate",
+    "angle": "a rotary position [rad]",
+    "angular_velocity": "the rate of an angle [rad/s]: torques act on its rate",
+    "effort": "what drives the motion: a pressure, force, torque or motor current",
+    "level": "a stored quantity: a tank level, a volume, a charge, a temperature",
+    "flow": "a flow into or out of a store",
+}
+#: Roles of a velocity whose rate forces (torques) act on.
+VELOCITY_ROLES: tuple[str, ...] = ("velocity", "angular_velocity")
+#: Roles of a position (the integral of a velocity).
+POSITION_ROLES: tuple[str, ...] = ("position", "angle")
 
 
 @dataclass(frozen=True)
@@ -90,7 +111,20 @@ class State:
         (:class:`hhra_phys.model.Model`, ``pinned``).
     scale : float
         Typical size of the state (its unit): a fitted initial value is searched
-        within ``+- scale`` of its estimate from the first output sample.
+        within ``+- scale`` of its estimate from the first output sample. For a
+        velocity it also scales the library's velocity widths (friction switching
+        and Stribeck velocities, :func:`hhra_phys.effects.make_effect`).
+    role : str, optional
+        Physical role, one of :data:`ROLES`: ``"position"``, ``"velocity"``,
+        ``"angle"`` [rad], ``"angular_velocity"`` [rad/s], ``"effort"``,
+        ``"level"``, ``"flow"``. Library effects bind by role: friction, a
+        constant force and gravity act on the rate of the model's velocity
+        (:class:`Motion`) whatever its name. ``None`` (default): no role.
+
+    Raises
+    ------
+    ModelError
+        ``role`` is not one of :data:`ROLES`.
     """
 
     name: str
@@ -99,6 +133,123 @@ class State:
     description: str = ""
     fit_initial: bool = True
     scale: float = 1.0
+    role: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.role is not None and self.role not in ROLES:
+            raise ModelError(f"state {self.name!r}: unknown role {self.role!r}; roles: "
+                             f"{', '.join(ROLES)}")
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The velocity whose rate forces act on, and its position, of a model.
+
+    Attributes
+    ----------
+    velocity : str or None
+        Name of the velocity state (``None``: the model has none; see ``why``).
+    position : str or None
+        Name of the matching position state, if the model has one.
+    rotary : bool
+        Whether the motion is rotary (angle [rad], angular velocity [rad/s]).
+    why : str
+        Why ``velocity`` or ``position`` is ``None`` and how to declare it.
+    """
+
+    velocity: str | None = None
+    position: str | None = None
+    rotary: bool = False
+    why: str = ""
+
+
+_DECLARE_VELOCITY = ("declare State(..., role='velocity') (or role='angular_velocity' "
+                     "for a rotary one) on the state whose rate forces act on")
+_DECLARE_POSITION = ("declare State(..., role='position') (or role='angle' [rad] for a "
+                     "rotary one) on the state whose rate is the velocity")
+
+
+def _by_role(states: Sequence[State], roles: Sequence[str]) -> list[State]:
+    return [s for s in states if s.role in roles]
+
+
+def _pick_velocity(states: Sequence[State], given: str | None) -> tuple[State | None, str]:
+    """The velocity state: declared by name, else the one with a velocity role, else a
+    state named ``omega`` (models written before roles)."""
+    names = {s.name: s for s in states}
+    if given is not None:
+        return names[given], ""
+    found = _by_role(states, VELOCITY_ROLES)
+    if len(found) > 1:
+        return None, (f"several states have a velocity role ({', '.join(s.name for s in found)}):"
+                      f" name the one forces act on with Model(..., velocity='{found[0].name}')")
+    if found:
+        return found[0], ""
+    if "omega" in names and names["omega"].role is None:
+        return names["omega"], ""
+    return None, f"the model has no state with role 'velocity'; {_DECLARE_VELOCITY}"
+
+
+def _pick_position(states: Sequence[State], velocity: State | None, rotary: bool,
+                   given: str | None) -> tuple[State | None, str]:
+    """The position state: declared, else the one position role of the velocity's kind
+    (or the only one), else ``theta`` beside a legacy ``omega``."""
+    names = {s.name: s for s in states}
+    if given is not None:
+        return names[given], ""
+    found = _by_role(states, POSITION_ROLES)
+    same = [s for s in found if (s.role == "angle") == rotary] if velocity is not None else []
+    pick = same if len(same) == 1 else found
+    if len(pick) > 1:
+        return None, (f"several states have a position role ({', '.join(s.name for s in pick)}):"
+                      f" name the velocity's with Model(..., position='{pick[0].name}')")
+    if pick:
+        return pick[0], ""
+    if velocity is not None and velocity.name == "omega" and "theta" in names \
+            and names["theta"].role is None:
+        return names["theta"], ""
+    return None, f"the model has no state with role 'position'; {_DECLARE_POSITION}"
+
+
+def resolve_motion(states: Sequence[State], velocity: str | None = None,
+                   position: str | None = None) -> Motion:
+    """The :class:`Motion` of a model with ``states``.
+
+    Parameters
+    ----------
+    states : sequence of State
+        The model's states.
+    velocity, position : str, optional
+        Names declared by the model (:class:`hhra_phys.model.Model`, ``velocity=``,
+        ``position=``); by default the states with a velocity role
+        (:data:`VELOCITY_ROLES`) and a position role (:data:`POSITION_ROLES`), one of
+        each. A model written before roles with states ``omega`` and ``theta`` (and no
+        roles on them) binds those as a rotary motion.
+
+    Returns
+    -------
+    Motion
+
+    Raises
+    ------
+    ModelError
+        A declared name is not a state.
+    """
+    names = [s.name for s in states]
+    for what, given in (("velocity", velocity), ("position", position)):
+        if given is not None and given not in names:
+            raise ModelError(f"declared {what} {given!r} is not a state of the model "
+                             f"({', '.join(names)})")
+    v, why_v = _pick_velocity(states, velocity)
+    rotary = v is not None and (v.role == "angular_velocity"
+                                or (v.role is None and v.name == "omega"))
+    q, why_q = _pick_position(states, v, rotary, position)
+    if v is None and q is not None:
+        rotary = q.role == "angle"
+    elif v is not None and v.role is None and q is not None and q.role is not None:
+        rotary = q.role == "angle"
+    return Motion(v.name if v else None, q.name if q else None, rotary,
+                  "; ".join(w for w in (why_v, why_q) if w))
 
 
 class Context:
@@ -130,6 +281,7 @@ class Context:
         p: dict[str, ca.SX],
         u_lags: ca.SX,
         dt: float,
+        motion: Motion | None = None,
     ) -> None:
         self.x = x
         self.p = p
@@ -138,6 +290,24 @@ class Context:
         self.dt = dt
         self.signals: dict[str, ca.SX] = {}
         self.rates: dict[str, ca.SX] = {name: ca.SX(0) for name in x}
+        #: The model's velocity and position (:class:`Motion`); without one, a context of
+        #: states named ``omega`` and ``theta`` binds those (models before roles).
+        self.motion = motion if motion is not None else resolve_motion(
+            [State(n, "") for n in x])
+
+    def velocity(self, part: str = "") -> str:
+        """Name of the model's velocity state (:class:`Motion`), or a clear error."""
+        if self.motion.velocity is None or self.motion.velocity not in self.x:
+            who = f"{part} " if part else ""
+            raise ModelError(f"{who}needs a state with role 'velocity': {self.motion.why}")
+        return self.motion.velocity
+
+    def position(self, part: str = "") -> str:
+        """Name of the model's position state (:class:`Motion`), or a clear error."""
+        if self.motion.position is None or self.motion.position not in self.x:
+            who = f"{part} " if part else ""
+            raise ModelError(f"{who}needs a state with role 'position': {self.motion.why}")
+        return self.motion.position
 
     def add_rate(self, state: str, expr: ca.SX) -> None:
         """Add ``expr`` to the time derivative of ``state``."""
@@ -276,6 +446,9 @@ class Signals:
         Simulated states by name, each shape (N,).
     y : ndarray or None
         Simulated output, shape (N,).
+    velocity, position : ndarray or None
+        The model's velocity and position states (:class:`Motion`, bound by role),
+        each shape (N,); by default ``omega`` and ``theta``.
     """
 
     u: np.ndarray
@@ -285,6 +458,8 @@ class Signals:
     output: str = ""
     states: Mapping[str, np.ndarray] = field(default_factory=dict)
     y: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    position: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         merged = dict(self.states)
@@ -295,6 +470,9 @@ class Signals:
             elif name in merged:
                 object.__setattr__(self, name, merged[name])
         object.__setattr__(self, "states", merged)
+        for bound, legacy in (("velocity", "omega"), ("position", "theta")):
+            if getattr(self, bound) is None and getattr(self, legacy) is not None:
+                object.__setattr__(self, bound, getattr(self, legacy))
 
 
 @dataclass(frozen=True)
@@ -312,10 +490,16 @@ class Effect(Part):
         is the output). :meth:`applicable` checks that the model has them.
     writes : tuple of str
         States whose rate the effect changes and signals it sets.
+    binds : tuple of str
+        Roles the effect binds to (:class:`Motion`): ``"velocity"`` (the model's
+        velocity, linear or rotary), ``"position"`` (its position) or ``"angle"``
+        (a rotary position [rad]). :meth:`applicable` checks them and says how to
+        declare a missing one.
     entry : str
         Where the effect enters, for its first-order signature: ``"input"``
-        (the model's input), ``"output"``, or ``"rate:<state>"`` (the time derivative
-        of a state).
+        (the model's input), ``"output"``, ``"rate:<state>"`` (the time derivative
+        of a state) or ``"rate:@velocity"`` (the rate of the model's velocity,
+        whatever its name: :meth:`entry_at`).
     signature : str
         What the effect leaves in the residual of a model without it.
     regressors : tuple of str
@@ -333,6 +517,7 @@ class Effect(Part):
     stage: ClassVar[str] = INPUT_STAGE
     reads: ClassVar[tuple[str, ...]] = ()
     writes: ClassVar[tuple[str, ...]] = ()
+    binds: ClassVar[tuple[str, ...]] = ()
     entry: ClassVar[str] = "input"
     signature: ClassVar[str] = ""
     regressors: ClassVar[tuple[str, ...]] = ()
@@ -342,9 +527,11 @@ class Effect(Part):
     def applicable(self, model: Any) -> str | None:
         """``None`` if the effect can be added to ``model``, else the reason why not.
 
-        Checks the parameter and state names against the model's, every name in
-        :attr:`reads` and :attr:`writes` against the model's states and signals,
-        and then that the model with the effect assembles. Never raises.
+        Checks the parameter and state names against the model's, the roles in
+        :attr:`binds` against the model's :attr:`~hhra_phys.model.Model.motion`
+        (:meth:`unbound`), every name in :attr:`reads` and :attr:`writes` against the
+        model's states and signals, and then that the model with the effect
+        assembles. Never raises.
         """
         if self.name in model.part_names():
             return "already in the model"
@@ -354,6 +541,9 @@ class Effect(Part):
         clash = set(model.state_names) & {s.name for s in self.states}
         if clash:
             return f"model already has states {sorted(clash)}"
+        why = self.unbound(model)
+        if why:
+            return why
         have = set(model.state_names) | set(model.signal_names()) | {"u", "y"}
         missing = [n for n in dict.fromkeys((*self.reads, *self.writes)) if n not in have]
         if missing:
@@ -366,6 +556,30 @@ class Effect(Part):
             return f"the model with it does not assemble: {exc}"
         return None
 
+    def unbound(self, model: Any) -> str | None:
+        """``None`` if the model has every role in :attr:`binds`, else which one it lacks
+        and how to declare it."""
+        motion: Motion = model.motion
+        for role in self.binds:
+            if role == "velocity" and motion.velocity is None:
+                return (f"{self.name} needs a state with role 'velocity' (or "
+                        f"'angular_velocity'); {_why(motion, 'velocity', _DECLARE_VELOCITY)}")
+            if role in ("position", "angle") and motion.position is None:
+                return (f"{self.name} needs a state with role '{role}'; "
+                        f"{_why(motion, 'position', _DECLARE_POSITION)}")
+            if role == "angle" and not motion.rotary:
+                return (f"{self.name} needs a rotary position (a state with role 'angle' "
+                        f"[rad]); the model's position {motion.position!r} is linear: "
+                        "declare State(..., role='angle') if it is an angle in rad")
+        return None
+
+    def entry_at(self, model: Any) -> str:
+        """:attr:`entry` on ``model``: ``"rate:@velocity"`` becomes ``"rate:<name>"`` of
+        the model's velocity state (:attr:`Model.motion`); other entries as declared."""
+        if self.entry == "rate:@velocity" and model.motion.velocity is not None:
+            return f"rate:{model.motion.velocity}"
+        return self.entry
+
     def probe(self) -> dict[str, float]:
         """Parameter values of a small but relevant size of the effect."""
         return {p.name: p.nominal for p in self.parameters}
@@ -377,6 +591,14 @@ class Effect(Part):
         signature: the loop then refits it without a ranking score.
         """
         return None
+
+
+def _why(motion: Motion, what: str, how: str) -> str:
+    """The model's own reason for a missing role (several candidates...) or ``how``."""
+    for part in motion.why.split("; "):
+        if what in part and "several" in part:
+            return part
+    return how
 
 
 #: Registry: effect name -> effect class (candidates of the diagnosis loop).

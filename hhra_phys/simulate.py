@@ -530,6 +530,8 @@ class Simulator:
             for named in part.stiff_states(values):
                 x = m.x0().astype(float)
                 for name, v in named.items():
+                    # "@velocity": the model's velocity state, bound by role.
+                    name = m.motion.velocity if name == "@velocity" else name
                     x[m.state_names.index(name)] = v
                 out.append(x)
         return out

@@ -404,7 +404,8 @@ class CylinderChambers(Part):
 
     @property
     def states(self) -> Sequence[State]:
-        return (State("p", "-", 0.0, "load pressure (p1 - p2) / supply pressure p_s"),)
+        return (State("p", "-", 0.0, "load pressure (p1 - p2) / supply pressure p_s",
+                      role="effort"),)
 
     def apply(self, ctx: Context) -> None:
         ctx.add_rate("p", ctx.signal("flow", self.name))
@@ -430,8 +431,9 @@ class LinearMotion(Part):
     @property
     def states(self) -> Sequence[State]:
         return (
-            State("x", "m", 0.0, "piston position from mid-stroke", scale=0.02),
-            State("v", "m/s", 0.0, "piston velocity"),
+            State("x", "m", 0.0, "piston position from mid-stroke", scale=0.02,
+                  role="position"),
+            State("v", "m/s", 0.0, "piston velocity", role="velocity"),
         )
 
     def apply(self, ctx: Context) -> None:

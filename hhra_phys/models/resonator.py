@@ -77,8 +77,10 @@ class ResonatorMotion(Part):
 
     @property
     def states(self) -> Sequence[State]:
-        return (State("x", "output", 0.0, "output (position)", scale=self.scale),
-                State("v", "output/s", 0.0, "rate of the output", scale=self.scale * self.w_n))
+        return (State("x", "output", 0.0, "output (position)", scale=self.scale,
+                      role="position"),
+                State("v", "output/s", 0.0, "rate of the output", scale=self.scale * self.w_n,
+                      role="velocity"))
 
     def apply(self, ctx: Context) -> None:
         w, z = ctx.p["w_n"], ctx.p["zeta"]

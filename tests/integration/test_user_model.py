@@ -88,7 +88,7 @@ def test_loop_finds_the_users_effect_and_nothing_on_clean_records():
         data = two_tank.simulate_record(seed=seed)
         res = augment(data, two_tank.make_model(), candidates=CANDIDATES, max_effects=2,
                       seed=seed)
-        assert "coulomb_friction" in res.skipped and "omega" in res.skipped["coulomb_friction"]
+        assert "coulomb_friction" in res.skipped and "velocity" in res.skipped["coulomb_friction"]
         if res.chosen[:1] == ["side_inflow"]:
             found += 1
             step = next(s for s in res.steps if s.accepted)

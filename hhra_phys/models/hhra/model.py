@@ -137,7 +137,8 @@ class ChamberPressure(Part):
 
     @property
     def states(self) -> Sequence[State]:
-        return (State("p", "-", 0.0, "load pressure P_L / supply pressure p_s", scale=0.5),)
+        return (State("p", "-", 0.0, "load pressure P_L / supply pressure p_s", scale=0.5,
+                      role="effort"),)
 
     def apply(self, ctx: Context) -> None:
         ctx.add_rate("p", ctx.signal("flow", self.name))
@@ -163,8 +164,8 @@ class RotaryMotion(Part):
     @property
     def states(self) -> Sequence[State]:
         return (
-            State("theta", "rad", 0.0, "shaft angle", scale=math.radians(10.0)),
-            State("omega", "rad/s", 0.0, "shaft angular velocity"),
+            State("theta", "rad", 0.0, "shaft angle", scale=math.radians(10.0), role="angle"),
+            State("omega", "rad/s", 0.0, "shaft angular velocity", role="angular_velocity"),
         )
 
     def apply(self, ctx: Context) -> None:
