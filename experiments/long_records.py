@@ -103,8 +103,8 @@ class DriveCarriage(Part):
 
     @property
     def states(self):
-        return (State("q", "m", 0.0, "carriage position", scale=0.05),
-                State("v", "m/s", 0.0, "carriage velocity", scale=0.05))
+        return (State("q", "m", 0.0, "carriage position", scale=0.05, role="position"),
+                State("v", "m/s", 0.0, "carriage velocity", scale=0.05, role="velocity"))
 
     def apply(self, ctx):
         v = ctx.x["v"]
@@ -210,8 +210,8 @@ class BeamMode(Part):
 
     @property
     def states(self):
-        return (State("x", "mm", 0.0, "displacement", scale=1.0),
-                State("v", "mm/s", 0.0, "velocity", scale=200.0))
+        return (State("x", "mm", 0.0, "displacement", scale=1.0, role="position"),
+                State("v", "mm/s", 0.0, "velocity", scale=200.0, role="velocity"))
 
     def apply(self, ctx):
         w, z = ctx.p["w_n"], ctx.p["zeta"]
