@@ -32,8 +32,18 @@ Initial state: one rule for every model, from the states' declarations
     every fitted state's initial value is a free parameter ``x0_<state>``,
     started at its ``"data"`` value and searched within ``+- scale`` of it.
 
-On another record (validation, prediction) the ``"data"`` rule starts it and,
-under ``"fit"``, the whole initial state is then re-estimated on that record
+A later part of a record (the loop's selection and test parts, a fit's validation part:
+a :class:`~hhra_phys.data.Dataset` that knows its place, ``origin``) starts from the
+state the model reaches at its first sample through a *leading window*, the samples just
+before it in its record, which the part's score never sees (:meth:`RecordProblem.lead_window`,
+issue 33): the state at the window's start by the ``"data"`` rule and, under ``"fit"``,
+re-estimated on the window's outputs (its first samples, whose inputs a delay or a
+filter would need from before the window, not counted), then the model runs through the
+window into the part, so a delay holds the inputs before the part and a lag its state
+there. Before, each part started at its own first sample (the input before it held at
+its first value) and, under ``"fit"``, with a state re-estimated on the part itself.
+On another record (a separate validation record, prediction) the ``"data"`` rule starts
+it and, under ``"fit"``, the whole initial state is then re-estimated on that record
 with the parameters fixed (:func:`estimate_initial_state`).
 """
 
@@ -54,6 +64,7 @@ from hhra_phys.simulate import Simulator, accuracy_tolerance
 
 __all__ = [
     "COSTS",
+    "LEAD_FRACTION",
     "Problem",
     "RecordProblem",
     "as_records",
@@ -77,6 +88,13 @@ DATA_RULE_STEPS = 3
 #: working actuator can plausibly differ from the rig's; further out a group at its edge is
 #: a model or unit error, which the edge warning reports.
 MAX_WIDEN_DECADES = 3
+
+
+#: A held-out part's leading window (:meth:`RecordProblem.lead_window`), as a fraction of
+#: the part's length beyond the model's input memory: long enough to set the state
+#: (several periods of a resonance a quarter-record part shows), short enough that the
+#: model's error drifts little across it; the window's samples are never scored.
+LEAD_FRACTION = 0.25
 
 
 def default_free(model: Model, fixed: Mapping[str, float] | None = None) -> list[str]:
@@ -498,15 +516,24 @@ class RecordProblem(_Coordinates):
     def initial_states(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
         """Initial states (n_pop, nx) for free-parameter values (n_pop, n_free).
 
-        For another record (``data``, e.g. validation) the ``"data"`` rule is
-        applied to it, and under ``"fit"`` the whole initial state is
-        re-estimated on it (:meth:`fit_initial_state`): the fitted one belongs to
-        the estimation record.
+        For a later part of a record (``data`` with a :meth:`lead_window`: the loop's
+        selection and test parts, a fit's validation part) the state the model reaches
+        at its first sample through the window. For another record (``data``, e.g. a
+        separate validation record) the ``"data"`` rule is applied to it, and under
+        ``"fit"`` the whole initial state is re-estimated on it
+        (:meth:`fit_initial_state`): the fitted one belongs to the estimation record.
         """
         v = np.atleast_2d(np.asarray(values, dtype=float))
         if self.initial_state == "zero":
             return np.tile(self.model.x0(), (v.shape[0], 1))
         P = self.full(v)
+        lead = None if data is None else self.lead_window(data)
+        if lead is not None:  # through the leading window to the part's first sample
+            u_w, _, _ = lead
+            _, X = self.simulator_for(data).simulate(
+                np.concatenate([u_w, data.u[:1]]), P, x0=self._window_states(P, data, lead),
+                states=True)
+            return X[:, u_w.size]
         if data is not None:
             X0 = self._x0_from_data(P, data)
             if self.initial_state == "fit":
@@ -544,6 +571,47 @@ class RecordProblem(_Coordinates):
             x0[self.model.state_names.index(state)] = vals[nm + k]
         return p_full, ca.vertcat(*x0)
 
+    def lead_window(self, data: Dataset) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """The samples just before ``data`` in its record: ``(u, y, memory)`` or ``None``.
+
+        Defined when ``data`` was cut from a record (:attr:`Dataset.origin
+        <hhra_phys.data.Dataset.origin>`: the loop's selection and test parts, a fit's
+        validation part) after that record's first sample, at the problem's sample rate,
+        and the rule is ``"data"`` or ``"fit"``. The window holds ``memory`` samples
+        (the model's input lags and the inter-sample rule's neighbours: what a delay or
+        an interpolation reads before a sample) and then :data:`LEAD_FRACTION` of the
+        part's length, at least ``memory`` samples, as far as the record reaches back.
+        The part's score never sees them; its own samples set nothing but the score.
+        ``None`` otherwise (a separate record: its initial state by the rule on itself).
+        """
+        if self.initial_state == "zero" or data.origin is None:
+            return None
+        root, a = data.origin
+        if a <= 0 or abs(data.fs - self.data.fs) > 1e-9 * data.fs:
+            return None
+        memory = self.model.n_lags + 2
+        n = min(a, memory + max(memory, int(round(LEAD_FRACTION * data.n))))
+        return (np.asarray(root.u[a - n:a], dtype=float), np.asarray(root.y[a - n:a],
+                                                                        dtype=float),
+                min(memory, n - 1))
+
+    def _window_states(self, P: np.ndarray, data: Dataset,
+                       lead: tuple[np.ndarray, np.ndarray, int]) -> np.ndarray:
+        """States (n_pop, nx) at the start of ``data``'s leading window: the ``"data"``
+        rule on its first sample, under ``"fit"`` re-estimated on its outputs after its
+        first ``memory`` samples."""
+        u_w, y_w, memory = lead
+        rule = data_rule_function(self.model, 1.0 / data.fs)
+        n = P.shape[0]
+        fn = rule if n == 1 else rule.map(n)
+        X0 = np.array(fn(float(y_w[0]), float(u_w[0]), P.T), dtype=float)
+        X0 = X0.reshape(self.model.nx, n).T
+        if self.initial_state == "fit":
+            sim = self.simulator_for(data)
+            X0 = np.array([estimate_initial_state(sim, u_w, y_w, P[i], X0[i], skip=memory)
+                           for i in range(n)])
+        return X0
+
     def fit_initial_state(
         self, data: Dataset, p: np.ndarray, x0: np.ndarray, iterations: int = 4
     ) -> np.ndarray:
@@ -562,14 +630,21 @@ class RecordProblem(_Coordinates):
     def simulate_values(self, values: np.ndarray, data: Dataset | None = None) -> np.ndarray:
         """Simulated output for free-parameter values, (n_free,) -> (N,) or (n, n_free) -> (n, N).
 
-        With ``data`` (e.g. the validation part) the simulation runs on its input,
-        starting from its first measured output by the ``"data"`` rule.
+        With ``data`` (e.g. the validation part) the simulation runs on its input: a
+        later part of a record through its leading window (:meth:`lead_window`, not
+        scored, cut off here), another record from the initial state the problem's rule
+        gives it (:meth:`initial_states`).
         """
         single = np.ndim(values) == 1
         v = np.atleast_2d(np.asarray(values, dtype=float))
         P = self.full(v)
+        lead = None if data is None or self.initial_state == "zero" else self.lead_window(data)
         if data is None:
             Y = self.sim.simulate(self.u, P, x0=self.initial_states(v))
+        elif lead is not None:
+            Y = self.simulator_for(data).simulate(
+                np.concatenate([lead[0], data.u]), P,
+                x0=self._window_states(P, data, lead))[:, lead[0].size:]
         else:
             Y = self.simulator_for(data).simulate(data.u, P, x0=self.initial_states(v, data))
         return Y[0] if single else Y
@@ -998,6 +1073,7 @@ def estimate_initial_state(
     p: np.ndarray,
     x0: np.ndarray,
     iterations: int = 4,
+    skip: int = 0,
 ) -> np.ndarray:
     """Least-squares estimate of the whole initial state of a record, parameters fixed.
 
@@ -1021,6 +1097,9 @@ def estimate_initial_state(
         Initial guess.
     iterations : int
         Gauss-Newton steps.
+    skip : int
+        Samples at the start left out of the fit (simulated, not compared: a leading
+        window's first samples, whose delayed inputs lie before it).
 
     Returns
     -------
@@ -1039,16 +1118,16 @@ def estimate_initial_state(
         Y = sim.simulate(u, np.tile(p, (2 * nx + 1, 1)), x0=X)
         if not np.isfinite(Y).all():
             break
-        r = Y[0] - y
+        r = Y[0, skip:] - y[skip:]
         best = min(best, float(r @ r))
-        J = (Y[2::2] - Y[1::2]).T / (2 * step)
+        J = (Y[2::2, skip:] - Y[1::2, skip:]).T / (2 * step)
         delta, *_ = np.linalg.lstsq(J, -r, rcond=1e-10)
         # Damped step: halve until the cost falls (a stiff extra state can make the
         # linearisation a poor guide far from the guess).
         for _ in range(8):
             trial = x + delta
-            y_trial = sim.simulate(u, p, x0=trial)
-            cost = float((y_trial - y) @ (y_trial - y)) if np.isfinite(y_trial).all() else np.inf
+            e = sim.simulate(u, p, x0=trial)[skip:] - y[skip:]
+            cost = float(e @ e) if np.isfinite(e).all() else np.inf
             if cost < best:
                 break
             delta = delta / 2
