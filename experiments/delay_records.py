@@ -11,13 +11,14 @@ chosen effects, the fitted delay of the ``input_delay`` step, the test RMSEs (lo
 final, true refit, their ratio) and the wall seconds of the diagnosis.
 
     PYTHONPATH=$PWD python experiments/delay_records.py [--delays 2,5,10] [--seeds 1,2]
-        [--out experiments/results/delay_records.json]
+        [--out experiments/results/delay_records.json] [--root OTHER_CHECKOUT --no-refit]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -58,11 +59,11 @@ def _true_refit(rec, seed: int) -> dict:
             "true_test_rmse": float(np.sqrt(np.mean((test.y - y) ** 2)))}
 
 
-def _diagnose(rec, seed: int) -> dict:
+def _diagnose(rec, seed: int, root: Path) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         csv, out = Path(tmp) / "rec.csv", Path(tmp) / "out.json"
         save_csv(rec, csv)
-        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        env = dict(os.environ, PYTHONPATH=str(root))
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "hhra_phys.cli", "diagnose", str(csv),
                         "--seed", str(seed), "--json", str(out)],
@@ -87,6 +88,10 @@ def main() -> None:
     ap.add_argument("--delays", default="2,5,10")
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--root", default=str(ROOT),
+                    help="the package's checkout the diagnosis runs (e.g. another worktree, "
+                         "for a before/after); the true refit runs this one's")
+    ap.add_argument("--no-refit", action="store_true", help="the diagnosis only")
     args = ap.parse_args()
     rows = []
     print("| delay | seed | chosen | delay fitted | test RMSE loop / true refit (ratio) | s |")
@@ -95,7 +100,10 @@ def main() -> None:
         for s in (int(x) for x in args.seeds.split(",")):
             rec = reference_record(seed=s, duration=20.0,
                                    effects={"input_delay": {"delay": float(d)}})
-            row = {"delay": d, "seed": s, **_diagnose(rec, s), **_true_refit(rec, s)}
+            row = {"delay": d, "seed": s, "root": args.root,
+                   **_diagnose(rec, s, Path(args.root))}
+            row.update({"true_delay_fit": None, "true_test_rmse": math.nan} if args.no_refit
+                       else _true_refit(rec, s))
             row["ratio"] = row["test_rmse"] / row["true_test_rmse"]
             rows.append(row)
             step = row["input_delay_step"] or {}
