@@ -4,11 +4,15 @@ The cost issue's side-by-side measurement: each record is written once (the inde
 reference implementation, :func:`hhra_phys.reference.reference_record`, 20 s at 250 Hz by
 default, ``--duration`` for longer), then each command runs on it as a subprocess under
 every checkout in turn (this one first, then each ``--against`` folder, a checkout of
-another commit: ``git worktree add --detach DIR COMMIT``), so the load of the machine
-falls alike on all. Each checkout has its own compiled-code cache, warmed by one unrecorded
-run of each command first. Per run: CPU seconds (the command's and every process it waited
-for: workers, the C compiler) beside wall seconds, and the score the command reports (fit:
-validation RMSE; diagnose: the final model's test RMSE and the chosen effects).
+another commit: ``git worktree add --detach DIR COMMIT``), so the load of the machine falls
+alike on all. Each checkout has its own compiled-code cache, warmed by one unrecorded run of
+each command on every record first (steady state: what a user's second run costs; warmed on
+the first record only, a later record's diagnose compiled the candidates the first one's
+settled round never refitted: 55 objects, 16 of a delay record's 30 CPU seconds), or, with
+``--cold``, emptied before every run (what a first run on a new machine costs). Per run: CPU
+seconds (the command's and every process it waited for: workers, the C compiler) beside wall
+seconds, and the score the command reports (fit: validation RMSE; diagnose: the final
+model's test RMSE and the chosen effects).
 
     python benchmarks/bench_cost.py --commands fit --set fit [--against ../old]
     python benchmarks/bench_cost.py --commands fit,diagnose --set diagnose --json OUT.json
@@ -24,6 +28,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -131,6 +136,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0,
                     help="record length [s] at 250 Hz (20: 5000 samples; the cost's growth "
                          "with the record: run at 20, 80 and 200)")
+    ap.add_argument("--cold", action="store_true",
+                    help="an empty compiled-code cache for every run (default: warmed on "
+                         "every record first)")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
@@ -149,17 +157,19 @@ def main() -> None:
             Path(tmp, f"run{k}").mkdir()
             envs[tree] = dict(os.environ, PYTHONPATH=tree,
                               HHRA_PHYS_CACHE=str(Path(tmp, f"run{k}", "cache")))
-            for c in commands:  # warm the compiled-code cache, unrecorded
-                _run(_command(c, paths[0], Path(tmp, "warm.json"), extra), envs[tree])
+            for c, rec in ((c, r) for c in commands for r in ([] if args.cold else paths)):
+                _run(_command(c, rec, Path(tmp, "warm.json"), extra), envs[tree])  # unrecorded
         for (name, seed, _), rec in zip(recs, paths, strict=True):
             for c, (k, tree) in ((c, kt) for c in commands for kt in enumerate(trees)):
                 out = Path(tmp, f"out{k}.json")
                 out.unlink(missing_ok=True)
+                if args.cold:
+                    shutil.rmtree(envs[tree]["HHRA_PHYS_CACHE"], ignore_errors=True)
                 wall, cpu, rc = _run(_command(c, rec, out, extra), envs[tree])
                 row = {"record": f"{name}-{seed}", "command": c, "tree": tree,
                        "samples": int(round(args.duration * 250)), "commit": _commit(tree),
                        "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": rc,
-                       **_score(c, out)}
+                       "cache": "cold" if args.cold else "warm", **_score(c, out)}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     print(f"\nload average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")

@@ -127,7 +127,7 @@ def main() -> None:
                     help="N (seeds 1..N) or a comma-separated list of seeds")
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--effects", default=",".join(EFFECTS))
-    ap.add_argument("--out", default="docs/figures/diagnosis_closed_loop.json")
+    ap.add_argument("--out", default="experiments/results/diagnosis_closed_loop.json")
     ap.add_argument("--cases", default="clean,single,pairs",
                     help="which cases to run: clean, single, pairs (comma-separated)")
     ap.add_argument("--top", type=int, default=None,

@@ -22,7 +22,7 @@ two-sample input delay, and with a valve current linear between samples but read
 held), 8 s each, fitted with the HHRA (H-GWO 20 x 20, IPOPT) as zoh.
 
     python experiments/intersample.py [--seeds 1 2 3 4 5] [--spp 9] [--noise 0.05]
-        [--cubic 0.003] [--json docs/figures/intersample_study.json]
+        [--cubic 0.003] [--json experiments/results/intersample_study.json]
         [--figure docs/figures/intersample_fit.png] [--records DIR]
     python experiments/intersample.py --hhra
     python experiments/intersample.py --floor [--bands 1.25 1.5 2] [--spps 8 9 10]

@@ -12,8 +12,8 @@ discovery proposing in every round, one rule, the backward step, box widening):
     the seed's excitation: a quick base-fit probe found it above the noise on 0/5 seeds
     at 150, 2/5 at 300, 4/5 at 600; hence the default 600. At 2000, ``--size
     drag=2000``, the base's selection RMSE is 1.08-1.16 x its noise and its estimation
-    RMSE 1.17-1.31 x on every seed: the study of docs/diagnosis.md, "The drag at sizes
-    the base cannot absorb".)
+    RMSE 1.17-1.31 x on every seed: the study of experiments/notes/diagnosis.md, "The drag
+    at sizes the base cannot absorb".)
 ``gravity``
     a gravity load far beyond the effect's default box (``g_grav_sin`` = ``size``,
     ``g_grav_cos`` = ``-size/5``) on an actuator whose damping group lies beyond the base

@@ -11,7 +11,7 @@ modes, :mod:`hhra_phys.discover`).
     HHRA_SHARED_DATA=/work/shared/data python experiments/public_case.py
         [--pop 60] [--iters 100] [--seed 0] [--max-effects 4] [--probe-resonance]
 
-Writes docs/figures/diagnosis_public.json and the residual figures
+Writes experiments/results/diagnosis_public.json (``--json``) and the residual figures
 docs/figures/diagnosis_public_before.png / _after.png (and _discovery.png: residuals
 just before and after each discovered term), and prints the summary.
 
@@ -123,7 +123,10 @@ def main() -> None:
     ap.add_argument("--max-effects", type=int, default=4,
                     help="most additions, library effects and discovered terms alike "
                          "(default 4, the loop's)")
-    ap.add_argument("--prefix", default="docs/figures/diagnosis_public")
+    ap.add_argument("--prefix", default="docs/figures/diagnosis_public",
+                    help="the figures: PREFIX_before.png, _after.png, _discovery.png")
+    ap.add_argument("--json", default="experiments/results/diagnosis_public.json",
+                    help="the loop's result (raw rows of the study)")
     ap.add_argument("--probe-resonance", action="store_true",
                     help="after the loop, refit the final model from other own-mode periods")
     args = ap.parse_args()
@@ -138,7 +141,7 @@ def main() -> None:
                       pop_size=args.pop, max_iter=args.iters, cand_pop=20, cand_iter=30,
                       seed=args.seed, progress=print)
     out = res.to_json()
-    atomic_write_text(f"{args.prefix}.json", json.dumps(jsonable(out), indent=1))
+    atomic_write_text(args.json, json.dumps(jsonable(out), indent=1))
     plot_loop_residuals(res, data, f"{args.prefix}_before.png", f"{args.prefix}_after.png",
                         overwrite=True, label="public record")
     found = [s for s in res.steps if getattr(s, "residuals", None)]

@@ -331,9 +331,11 @@ def _discrete_response(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float,
     cols = np.asarray(cols, dtype=float)
     x = np.zeros((A.shape[0], cols.shape[1]))
     out = np.empty_like(cols)
-    for i, ui in enumerate(cols):
-        out[i] = c @ x + d * ui
-        x = A @ x + np.outer(b, ui)
+    # An unstable A overflows to inf/nan; the callers check the response's finiteness.
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i, ui in enumerate(cols):
+            out[i] = c @ x + d * ui
+            x = A @ x + np.outer(b, ui)
     return out
 
 
@@ -564,6 +566,15 @@ def _candidate_evidence(name: str, kw: dict[str, Any], fit: _FittedResidual) -> 
     except Exception as exc:  # noqa: BLE001 - report, do not abort the ranking
         return EffectEvidence(name, 0.0, float("nan"), {}, False, eff.signature,
                               rel, note=f"no first-order signature: {exc}")
+    if not np.isfinite(S).all():
+        # A fit whose linearisation is unstable at this entry (a discovered term with a
+        # positive slope, accepted on a long record): the response grows without bound
+        # over the record, and a least-squares fit of it fails (SVD does not converge).
+        return EffectEvidence(
+            name, 0.0, float("nan"), {}, True, eff.signature, rel,
+            note=(f"no first-order signature: the model linearised at the fit is unstable "
+                  f"at {eff.entry} (its response grows without bound over the record): "
+                  "ranked last, decided by its refit"))
     return _projected_evidence(name, eff, S, cols.shape[1], rel, fit)
 
 

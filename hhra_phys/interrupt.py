@@ -204,8 +204,9 @@ def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T],
     jobs : iterable
     ahead : int, optional
         Most jobs submitted and not yet taken by the caller (``None``: all at once, as
-        ``Executor.map``). A caller that may stop early (the loop's round, settled by a
-        candidate at the noise level) then leaves at most ``ahead`` jobs run for nothing:
+        ``Executor.map``); the next job is submitted when the caller asks for the next
+        result. A caller that may stop early (the loop's round, settled by a candidate at
+        the noise level) then leaves at most ``ahead - 1`` jobs run for nothing:
         closing the iterator cancels the queued ones, but leaving a ``with
         ProcessPoolExecutor()`` block waits for the running ones. The results are those
         of ``Executor.map``; only when the jobs run changes.
@@ -226,10 +227,13 @@ def map_stopping(executor: Executor, fn: Callable[[T], R], jobs: Iterable[T],
             for job in islice(pending, max(1, int(ahead))):
                 running.append(executor.submit(fn, job))
             while running:
-                result = running.popleft().result()
-                for job in islice(pending, 1):  # the next one starts before the caller works
+                yield running.popleft().result()
+                # The next one is submitted only when the caller asks for more: a caller
+                # that stops on this result (a settled round) starts nothing more, where
+                # submitting before the yield ran one more refit for nothing (a backlash
+                # refit of 2.5 CPU s after the friction that settled the round).
+                for job in islice(pending, 1):
                     running.append(executor.submit(fn, job))
-                yield result
     finally:
         for fut in running:
             fut.cancel()

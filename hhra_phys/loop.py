@@ -354,8 +354,10 @@ def _lookahead(executor: Executor) -> int | None:
 
     The round may settle early (a candidate at the noise level), after which the rest
     of the library is not refitted; jobs already running would still be waited for
-    when the executor closes. Submitting one per worker keeps them busy and wastes at
-    most that many. ``None`` (all at once) for executors of unknown size (Dask).
+    when the executor closes. Submitting one per worker keeps them busy, and since the
+    next is submitted only when the round asks for the next result (after judging this
+    one), a settled round wastes at most one fewer. ``None`` (all at once) for executors
+    of unknown size (Dask).
     """
     n = getattr(executor, "_max_workers", None)
     return n if isinstance(n, int) and n > 0 else None
@@ -1345,6 +1347,13 @@ class _Loop:
     """One run of :func:`augment`: its state, and one method per stage of the data path
     (base fit, inter-sample candidates, rounds of candidates, acceptance, result)."""
 
+    #: The current round's estimate in units of the base fit (library, plus discovery
+    #: once screened) and its start (:meth:`_estimate`, :meth:`_end_round`): the next
+    #: round's estimate runs at this round's pace; none before the first round.
+    round_units: float = 0.0
+    round_discovery_units: float = 0.0
+    round_t0: float = 0.0
+
     def __init__(self, data: Dataset | Sequence[Dataset], model: Model | None,
                  opts: LoopOptions, validation: Any, base: FitResult | None,
                  executor: Executor | None, progress: Callable[[str], None] | None) -> None:
@@ -1768,7 +1777,7 @@ class _Loop:
         """Close the round: its bar, its pace (the next estimate's unit), the library
         refits not started, and the notes of what settled it."""
         bar.close()
-        if getattr(self, "round_units", 0):
+        if self.round_units:
             self.unit_seconds = (time.perf_counter() - self.round_t0) / self.round_units
         for stream in library.values():
             if hasattr(stream, "close"):
@@ -1784,8 +1793,7 @@ class _Loop:
         if spares:
             not_refitted.setdefault(spares[0], []).append("discovery (not screened)")
             return None
-        self.round_units = (getattr(self, "round_units", 0.0)
-                            + getattr(self, "round_discovery_units", 0.0))
+        self.round_units += self.round_discovery_units
         disc, more = self._discovered(rnd)
         queue += more
         bar.total += len(more)

@@ -69,10 +69,19 @@ def pytest_collection_modifyitems(items):
                                                                 if _in_background(i)]
 
 
-class _Background:
-    """A ``python -m hhra_phys`` command started at the session's start (see ``background``)."""
+def _lower_priority() -> None:
+    """In a background command's child before it starts: nice 10 (see ``_Background``)."""
+    os.nice(10)
 
-    def __init__(self, argv: list[str], out: Path):
+
+class _Background:
+    """A command started at the session's start (see ``background``): ``python -m hhra_phys
+    ARGV``, or, for an argument list that starts with ``"python"``, the interpreter under test
+    with the rest (a script of the repository). It runs at ``nice`` 10: it takes the core
+    that pytest leaves idle, never the one the tests in progress (and the loop's worker
+    processes they wait for) run on."""
+
+    def __init__(self, argv: list[str], out: Path, env: dict[str, str] | None = None):
         import subprocess
         import sys
 
@@ -80,19 +89,24 @@ class _Background:
         # files, not pipes: a long run's output never fills a pipe nobody reads yet
         self._stdout = open(out / "stdout.txt", "w+")
         self._stderr = open(out / "stderr.txt", "w+")
-        env = dict(os.environ, MPLBACKEND="Agg")
-        self.proc = subprocess.Popen([sys.executable, "-m", "hhra_phys", *argv], cwd=out,
-                                     stdout=self._stdout, stderr=self._stderr, env=env)
+        self._result: tuple[int, str, str] | None = None
+        env = dict(os.environ, MPLBACKEND="Agg", **(env or {}))
+        cmd = ([sys.executable, *argv[1:]] if argv[:1] == ["python"]
+               else [sys.executable, "-m", "hhra_phys", *argv])
+        self.proc = subprocess.Popen(cmd, cwd=out, stdout=self._stdout, stderr=self._stderr,
+                                     env=env, preexec_fn=_lower_priority)
 
     def result(self, timeout: float = 900.0) -> tuple[int, str, str]:
-        """Wait for the command: (exit code, stdout, stderr)."""
-        code = self.proc.wait(timeout=timeout)
-        texts = []
-        for f in (self._stdout, self._stderr):
-            f.seek(0)
-            texts.append(f.read())
-            f.close()
-        return code, texts[0], texts[1]
+        """Wait for the command: (exit code, stdout, stderr). Several tests may read one."""
+        if self._result is None:
+            code = self.proc.wait(timeout=timeout)
+            texts = []
+            for f in (self._stdout, self._stderr):
+                f.seek(0)
+                texts.append(f.read())
+                f.close()
+            self._result = (code, texts[0], texts[1])
+        return self._result
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -109,7 +123,9 @@ def background(request, tmp_path_factory):
 
     A test module may declare ``BACKGROUND = {"test name": [arguments of hhra-phys]}``
     (``{out}`` in an argument is the run's own empty folder; or a function of that folder
-    that writes the command's inputs there and returns its arguments); when that test is
+    that writes the command's inputs there and returns its arguments, or the arguments and
+    extra environment variables; arguments that start with ``"python"`` run a script with
+    the interpreter under test instead of ``hhra-phys``); when that test is
     selected, the command starts with the session and the test, moved to the end of the
     run (``pytest_collection_modifyitems``), reads ``background[name].result()``. pytest
     runs the tests on one core: on the 2-core CI machine such a run uses the other while
@@ -124,7 +140,9 @@ def background(request, tmp_path_factory):
             spec = item.module.BACKGROUND[name]
             # a callable writes the command's inputs into its folder and gives its arguments
             argv = spec(out) if callable(spec) else [a.format(out=out) for a in spec]
-            jobs[name] = _Background(argv, out)
+            # a callable may also give the command's extra environment: (arguments, env)
+            argv, env = argv if isinstance(argv, tuple) else (argv, None)
+            jobs[name] = _Background(argv, out, env)
     yield jobs
     for job in jobs.values():
         job.stop()

@@ -219,15 +219,24 @@ def test_a_failed_write_leaves_no_file(records, tmp_path, capsys, monkeypatch) -
     assert not list(tmp_path.iterdir())  # neither the file nor its temporary
 
 
-def test_the_readme_python_block_runs(tmp_path: Path) -> None:
+def _readme_python_block(folder: Path) -> tuple[list[str], dict[str, str]]:
+    """The README's first Python block, run with this checkout first on the path."""
     text = (REPO / "README.md").read_text()
     code = text.split("```python\n", 1)[1].split("```", 1)[0]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
-                          text=True, env=env, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "(8, 5000)" in proc.stdout and (tmp_path / "fit.json").exists()
-    assert math.isfinite(json.loads((tmp_path / "fit.json").read_text())["val"]["rmse"])
+    return ["python", "-c", code], {"PYTHONPATH": str(REPO)}
+
+
+#: The README's block (a fit and its files, several seconds) starts with the session in a
+#: process of its own (tests/conftest.py, ``background``); its test reads the outcome.
+BACKGROUND = {"test_the_readme_python_block_runs": _readme_python_block}
+
+
+def test_the_readme_python_block_runs(background) -> None:
+    run = background["test_the_readme_python_block_runs"]
+    code, out, err = run.result()
+    assert code == 0, err[-2000:]
+    assert "(8, 5000)" in out and (run.out / "fit.json").exists()
+    assert math.isfinite(json.loads((run.out / "fit.json").read_text())["val"]["rmse"])
 
 
 def test_python_fit_converts_and_warns_with_the_default_model() -> None:

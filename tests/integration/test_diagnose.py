@@ -5,7 +5,7 @@ the two best-ranked candidates refitted per round: the CI version of
 experiments/closed_loop.py. The loop's claims are rates over seeds on records of the
 independent reference rig (:func:`hhra_phys.reference.reference_record`), with the
 counts asserted set from the study of the same settings in docs/diagnosis.md
-("Simulated study", raw rows ``docs/figures/diagnosis_reference_study_*.json``), not
+("Simulated study", raw rows ``experiments/results/diagnosis_reference_study_*.json``), not
 tuned to one seed.
 """
 
@@ -115,7 +115,7 @@ def test_loop_finds_each_hidden_effect_at_the_measured_rate(loop_workers):
     """Each library effect hidden alone: found, with the truth in the 95 % CI.
 
     Measured (same settings, reference records, every effect on seeds 1-5,
-    ``docs/figures/diagnosis_reference_study_ci_single.json``): 24 of 25 found with the
+    ``experiments/results/diagnosis_reference_study_ci_single.json``): 24 of 25 found with the
     truth in the 95 % CI (friction, dead zone, delay and angle load 5 of 5; backlash 4 of
     5: on seed 4 the two best-ranked candidates did not include it), no wrong effect, test
     RMSE after at most 1.10 x the noise. Here one seed per effect: at least 4 of the 5.
@@ -146,7 +146,7 @@ def test_two_hidden_effects_are_both_found(loop_workers):
     Every candidate refitted: with the two best-ranked only, delay ranked 5th of 8 after
     the dead zone and the measured rate was 0 of 5 (valve_dynamics accepted in its place on
     2). Measured with every candidate (seeds 1-5,
-    ``docs/figures/diagnosis_reference_study_pair_dz_delay.json``): both found on 5 of 5,
+    ``experiments/results/diagnosis_reference_study_pair_dz_delay.json``): both found on 5 of 5,
     truth in the CI on 5 of 5, no other effect. Here seed 2 (one pair loop keeps the CI
     time in check), and the JSON layout.
     """

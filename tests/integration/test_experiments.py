@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 # Each runs a script in a subprocess: the fits' scripts are slow (deselected by default),
-# the optimiser table and the controller design run by default.
+# the optimiser table, the controller design and the long records' quick run by default
+# (in the background, below).
 
 REPO = Path(__file__).resolve().parents[2]
 PUBLIC = REPO.parent / "shared" / "data"
@@ -89,10 +90,30 @@ def test_fit_public(tmp_path):
     assert abs(res["val_std"] - 1.58) < 0.01
 
 
-def test_position_control(tmp_path):
-    out = tmp_path / "pc"
-    _run("position_control.py", "--out", str(out), "--pop", "6", "--iters", "3",
-         "--samples", "50", cwd=tmp_path)
+#: The default run's scripts start with the session, each in a process of its own
+#: (tests/conftest.py, ``background``: the core pytest leaves idle); their tests read the
+#: outcome. The same commands as before, in their own empty folders.
+BACKGROUND = {
+    "test_position_control": ["python", str(REPO / "experiments" / "position_control.py"),
+                              "--out", "{out}/pc", "--pop", "6", "--iters", "3",
+                              "--samples", "50"],
+    "test_table2": ["python", str(REPO / "experiments" / "table2.py"), "--out", "{out}/t2",
+                    "--runs", "1"],
+    "test_long_records_quick": ["python", str(REPO / "experiments" / "long_records.py"),
+                                "--out", "{out}/lr", "--quick", "--no-truth"],
+}
+
+
+def _result(background, name: str) -> Path:
+    """The folder of a background script that must have succeeded."""
+    run = background[name]
+    code, text, err = run.result()
+    assert code == 0, f"{name}: the script failed:\n{text[-2000:]}\n{err[-3000:]}"
+    return run.out
+
+
+def test_position_control(background):
+    out = _result(background, "test_position_control") / "pc"
     for name in ("summary.json", "control_steps.png", "control_tracking.png",
                  "control_bode_family.png"):
         assert (out / name).exists(), name
@@ -105,9 +126,9 @@ def test_position_control(tmp_path):
     assert margins["stable"] == 1.0 and margins["gm"] > 6 and margins["pm"] > 30
 
 
-def test_table2(tmp_path):
-    prefix = tmp_path / "t2"
-    _run("table2.py", "--out", str(prefix), "--runs", "1", cwd=tmp_path)
+def test_table2(background):
+    folder = _result(background, "test_table2")
+    prefix = folder / "t2"
     assert prefix.with_suffix(".json").exists() and prefix.with_suffix(".md").exists()
     res = json.loads(prefix.with_suffix(".json").read_text())["results"]
     # The paper's protocol spends about twice GWO's evaluations on H-GWO, and the six-hump
@@ -115,7 +136,7 @@ def test_table2(tmp_path):
     assert res["f1"]["hgwo"]["nfev"] == pytest.approx(2 * res["f1"]["gwo"]["nfev"], rel=0.05)
     for method in ("hgwo", "gwo"):
         assert res["f7"][method]["mean"] == pytest.approx(-1.0316285, abs=1e-3)
-    again = _call("table2.py", "--out", str(prefix), "--runs", "1", cwd=tmp_path)
+    again = _call("table2.py", "--out", str(prefix), "--runs", "1", cwd=folder)
     assert again.returncode == 2  # an existing output is never replaced
 
 
@@ -132,11 +153,10 @@ def test_one_loop_size_is_checked_before_any_loop(tmp_path, size, says):
     assert not out.exists()  # refused before any loop ran or any row was written
 
 
-def test_long_records_quick(tmp_path):
+def test_long_records_quick(background):
     # Both records, short, through the CLI from the user's model files; a tiny search,
     # one library candidate, no truth refit: the script runs end to end and writes its rows.
-    out = tmp_path / "lr"
-    _run("long_records.py", "--out", str(out), "--quick", "--no-truth", cwd=tmp_path)
+    out = _result(background, "test_long_records_quick") / "lr"
     rows = json.loads((out / "rows.json").read_text())["rows"]
     assert [r["record"] for r in rows] == ["drive_seed1", "duffing_seed1"]
     for r in rows:

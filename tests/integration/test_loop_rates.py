@@ -6,7 +6,7 @@ The loop (:func:`hhra_phys.loop.augment`, three-way split, library effects only,
 package's model, so the library model never matches it exactly. The rates asserted
 are those measured in the study of ``docs/diagnosis.md`` ("Simulated study",
 ``experiments/closed_loop.py``, raw rows in
-``docs/figures/diagnosis_reference_study*.json``) on the same seeds and settings,
+``experiments/results/diagnosis_reference_study*.json``) on the same seeds and settings,
 set at or below the measured counts, not tuned.
 """
 
@@ -81,9 +81,9 @@ def test_clean_records_add_nothing(loop_workers):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "regression measured 2026-11-26 (docs/diagnosis.md, pair rerun at dd64702, again on the "
-    "session's merged main): seed 2 ends with the friction alone, its dead-zone refit ends "
-    "worse than the model without it; the pair study is 3 of 5 (4 of 5 before)"))
+    "regression measured 2026-11-26 (experiments/notes/diagnosis.md, pair rerun at dd64702, "
+    "again on the session's merged main): seed 2 ends with the friction alone, its dead-zone "
+    "refit ends worse than the model without it; the pair study is 3 of 5 (4 of 5 before)"))
 def test_dead_zone_and_sharp_friction_both_found(loop_workers):
     """A dead zone and exact stick-slip friction hidden together (issue 16).
 
@@ -91,7 +91,7 @@ def test_dead_zone_and_sharp_friction_both_found(loop_workers):
     the friction sticks), 6 s, both at the study's large sizes; every candidate refitted
     (with the two best-ranked only, the friction ranked 7th of 8 after the dead zone and a
     backlash stand-in was accepted: 0 of 5). Measured with these settings (docs/diagnosis.md,
-    seeds 1-5, ``docs/figures/diagnosis_reference_study_pair_dz_friction.json``): both
+    seeds 1-5, ``experiments/results/diagnosis_reference_study_pair_dz_friction.json``): both
     found on 4 of 5 (seed 3: the friction alone), no other effect, selection RMSE
     0.050-0.058 deg. Here on seeds 1-2: both found on both, no other effect, selection
     RMSE within 20 % of the noise.

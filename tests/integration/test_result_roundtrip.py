@@ -97,21 +97,38 @@ def test_fit_summary_shows_derived_quantities(fitted):
     assert f"[{lo:.6g}, {hi:.6g}]" in row
 
 
-def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tmp_path):
-    from hhra_phys.cli import main
-    from hhra_phys.data import load, save
+def _cli_diagnose(folder):
+    """The dead-zone record in ``folder`` and the CLI's diagnosis of it into ``folder/cli``."""
+    from hhra_phys.data import save
+
+    path = folder / "rec.csv"
+    save(_record(3, {"valve_deadzone": {"i_dead": 0.15}}), path)
+    (folder / "cli").mkdir()
+    return ["diagnose", str(path), "--report", str(folder / "cli" / "d.md"), "--json",
+            str(folder / "cli" / "d.json"), "--max-effects", "1", "--top", "1", "--pop", "20",
+            "--iters", "30", "--no-discover", "--workers", "1", "--effects",
+            "valve_deadzone,coulomb_friction"]
+
+
+#: The CLI's half of the test below starts with the session in a process of its own
+#: (tests/conftest.py, ``background``); the test runs the Python half and compares.
+BACKGROUND = {"test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips":
+              _cli_diagnose}
+
+
+def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tmp_path,
+                                                                              background):
+    from hhra_phys.data import load
     from hhra_phys.fit import default_model
     from hhra_phys.loop import LoopResult, augment
 
-    path = tmp_path / "rec.csv"
-    save(_record(3, {"valve_deadzone": {"i_dead": 0.15}}), path)
-    (tmp_path / "cli").mkdir()
+    run = background["test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips"]
+    code, _, err = run.result()
+    assert code == 0, err[-2000:]
+    path = run.out / "rec.csv"
+    (tmp_path / "cli").symlink_to(run.out / "cli")
     (tmp_path / "py").mkdir()
     cli_md = tmp_path / "cli" / "d.md"
-    assert main(["diagnose", str(path), "--report", str(cli_md), "--json",
-                 str(tmp_path / "cli" / "d.json"), "--max-effects", "1", "--top", "1",
-                 "--pop", "20", "--iters", "30", "--no-discover", "--workers", "1",
-                 "--effects", "valve_deadzone,coulomb_friction"]) == 0
     data = load(path)
     model, bounds = default_model(data)
     res = augment(data, model, split=0.5, test=0.25, default_bounds=bounds,

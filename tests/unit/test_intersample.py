@@ -405,7 +405,8 @@ def test_a_straight_line_under_a_smooth_input_leaves_its_curvature() -> None:
         assert not hold_suspected(other), other
 
 
-@pytest.mark.parametrize("seed", [21, 23])
+# Seed 23 is the same case on another draw (the slow set); seed 21 runs by default.
+@pytest.mark.parametrize("seed", [21, pytest.param(23, marks=pytest.mark.slow)])
 def test_a_round_takes_the_other_hold_once_the_model_is_right(seed) -> None:
     """A smooth input read as foh under a large sensor offset: the base residual is the
     offset's, so nothing points at the hold; once round 1 took the offset, the straight

@@ -36,4 +36,20 @@ def test_closing_early_runs_at_most_ahead_more_jobs(ahead: int) -> None:
         taken = [next(it) for _ in range(3)]
         it.close()  # the caller stops: the queued jobs are cancelled
     assert taken == [0, 1, 2]
-    assert len(started) <= 3 + ahead
+    assert len(started) <= 3 + ahead - 1
+
+
+def test_next_job_waits_for_the_caller() -> None:
+    # One ahead: a job starts only when the caller asks for its result, so a caller that
+    # stops after a result (a round settled by it) starts nothing more.
+    started: list[int] = []
+
+    def job(x: int) -> int:
+        started.append(x)
+        return x
+
+    with ThreadPoolExecutor(2) as ex:
+        it = map_stopping(ex, job, range(10), ahead=1)
+        assert [next(it) for _ in range(3)] == [0, 1, 2]
+        it.close()
+    assert started == [0, 1, 2]
