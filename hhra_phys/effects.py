@@ -525,7 +525,11 @@ class InputDelay(Effect):
     Parameters
     ----------
     max_delay : int
-        Largest delay the part can represent [samples] (the upper bound).
+        Upper bound of the delay's box [samples]. The part holds twice as many lags
+        (``n_lags = 2*max_delay + 1``), so a box widened at its edge (the loop's, a
+        fit's) can reach a delay up to ``2*max_delay + 1``; within the box the extra lags
+        weigh exactly zero (issue 33: with ``n_lags = max_delay + 1`` a 10-sample delay
+        ended at 9.00 and a stand-in made up the rest).
     """
 
     max_delay: int = 8
@@ -550,7 +554,7 @@ class InputDelay(Effect):
 
     @property
     def n_lags(self) -> int:
-        return int(self.max_delay) + 1
+        return 2 * int(self.max_delay) + 1
 
     def apply(self, ctx: Context) -> None:
         d = ctx.p["delay"]

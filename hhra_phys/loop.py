@@ -83,6 +83,7 @@ from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
 from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
+from hhra_phys.regime import regime_coverage
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -793,6 +794,8 @@ def refit_candidate(job: _Job) -> _Outcome:
     entry_at = getattr(eff, "entry_at", None)
     step.entry = str((entry_at(job.model) if entry_at else getattr(eff, "entry", "")) or "")
     step.sensor = bool(getattr(eff, "sensor", False))
+    step.regime = regime_coverage(eff, p2.per_record_values(_free_values(p2, r2)),
+                                  {"est": [None] * len(p2.records), "sel": as_records(cfg.sel)})
     bad = _unidentified(r2, new, model_c)
     if bad:
         step.identifiable = False

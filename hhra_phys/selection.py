@@ -218,6 +218,10 @@ class Step:
     #: :attr:`hhra_phys.parts.Effect.sensor`, or the input's inter-sample behaviour,
     #: :mod:`hhra_phys.intersample`), not the dynamics.
     sensor: bool = False
+    #: How much of the candidate's regime each deciding part holds
+    #: (:func:`hhra_phys.regime.regime_coverage`; ``None``: not measured, e.g. no
+    #: first-order column). A report: it decides nothing.
+    regime: dict[str, Any] | None = None
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.
     discovered: ClassVar[bool] = False
@@ -233,7 +237,7 @@ class Step:
             "val_rmse_before": self.val_rmse_before, "accepted": self.accepted,
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
             "seconds": self.seconds, "action": self.action, "removed": self.removed,
-            "entry": self.entry, "sensor": self.sensor,
+            "entry": self.entry, "sensor": self.sensor, "regime": self.regime,
         }
 
 

@@ -193,7 +193,22 @@ class Dataset:
     # ---------------------------------------------------------------- derived datasets
 
     def _replace(self, **changes: Any) -> Dataset:
-        return dataclasses.replace(self, **changes)
+        new = dataclasses.replace(self, **changes)
+        if not {"t", "u", "y"} & changes.keys():  # the same samples: the same place
+            new.__dict__["_origin"] = self.origin
+        return new
+
+    @property
+    def origin(self) -> tuple[Dataset, int] | None:
+        """The record this one was cut from (:meth:`split`, :meth:`split_at`,
+        :meth:`slice`) and the index of its first sample there, or ``None``.
+
+        Kept through copies that keep the samples (:meth:`with_metadata`,
+        :meth:`with_intersample`), dropped by any that change them (a unit conversion):
+        what precedes a part in its record is then unknown. A part's leading window
+        (:meth:`hhra_phys.problem.RecordProblem.lead_window`) reads the samples before it.
+        """
+        return self.__dict__.get("_origin")
 
     def _segment(self, start: int, stop: int, part: str | None = None, **split: Any) -> Dataset:
         """Samples ``start:stop`` as a new dataset; metadata["segment"] holds absolute indices."""
@@ -206,7 +221,7 @@ class Dataset:
         if part is not None:
             name = f"{self.name} ({part})" if self.name else part
         try:
-            return self._replace(
+            part = self._replace(
                 t=self.t[start:stop],
                 u=self.u[start:stop],
                 y=self.y[start:stop],
@@ -216,6 +231,9 @@ class Dataset:
             )
         except DataError as exc:
             raise type(exc)(f"{exc} [segment {start}:{stop} of {self.n} samples]") from None
+        root, offset = self.origin or (self, 0)
+        part.__dict__["_origin"] = (root, offset + start)
+        return part
 
     def split(self, fraction: float = 0.5) -> tuple[Dataset, Dataset]:
         """Split into an estimation part (first) and a validation part.

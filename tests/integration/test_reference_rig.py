@@ -218,7 +218,8 @@ EFFECT_CASES: dict[str, tuple[dict, dict, list[dict[str, float]]]] = {
 }
 
 #: A distinct input history, so that a delay reading the wrong lag shows.
-U_HISTORY = np.array([0.7, -0.4, 0.15, 1.0, -0.9, 0.05, 0.5, -0.25, 0.8, -0.6])
+U_HISTORY = np.array([0.7, -0.4, 0.15, 1.0, -0.9, 0.05, 0.5, -0.25, 0.8, -0.6,
+                      0.3, -0.8, 0.9, -0.1, 0.45, -0.55, 0.2, 0.65])
 
 
 def _extra_states(name: str) -> list[tuple[float, ...]]:
