@@ -47,6 +47,8 @@ values and optional settings; parameter values not given there are taken from
     sensor_offset     y += y_offset
     sensor_drift      y += y_drift, dy_drift/dt = drift_rate [deg/s] (y_drift from 0)
     asymmetric_valve  q *= 1 + asym*sgn(c); settings u_scale, eps
+    input_offset      c -> c + u_offset (in the input stage's order, after the delay)
+    constant_force    domega/dt += g_const (before friction: part of what drives it)
 
 Smoothing. With ``smooth=True`` (default) the documented smoothings of the
 package are used, so that a comparison with it can be tight:
@@ -122,7 +124,7 @@ REFERENCE_GROUPS: dict[str, float] = {
 EFFECT_NAMES: tuple[str, ...] = (
     "coulomb_friction", "valve_deadzone", "valve_saturation", "input_delay",
     "valve_dynamics", "gravity_load", "backlash", "sensor_offset", "asymmetric_valve",
-    "sensor_drift",
+    "sensor_drift", "input_offset", "constant_force",
 )
 
 _INPUT_EFFECTS = ("input_delay", "valve_deadzone", "valve_saturation", "valve_dynamics")
@@ -139,6 +141,8 @@ _SETTINGS: dict[str, dict[str, float]] = {
     "gravity_load": {},
     "sensor_offset": {},
     "sensor_drift": {},
+    "input_offset": {},
+    "constant_force": {},
 }
 
 #: Parameters each effect needs (``coulomb_friction`` also takes the optional
@@ -154,6 +158,8 @@ _EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "sensor_offset": ("y_offset",),
     "sensor_drift": ("drift_rate",),
     "asymmetric_valve": ("asym",),
+    "input_offset": ("u_offset",),
+    "constant_force": ("g_const",),
 }
 
 #: Optional parameters of an effect (taken from ``params`` too when given there).
@@ -320,6 +326,8 @@ def _command(x: dict[str, float], u_lags: np.ndarray, s: _Spec, rates: dict[str,
         elif name == "valve_dynamics":
             rates["x_spool"] = (c - x["x_spool"]) / v["tau_spool"]
             c = x["x_spool"]
+        elif name == "input_offset":
+            c = c + v["u_offset"]
     return c
 
 
@@ -337,6 +345,8 @@ def _rates(
     if "gravity_load" in s.effects:
         v = s.effects["gravity_load"]
         acc -= v["g_grav_cos"] * math.cos(th) + v["g_grav_sin"] * math.sin(th)
+    if "constant_force" in s.effects:
+        acc += s.effects["constant_force"]["g_const"]
     if "coulomb_friction" in s.effects:
         acc = _with_friction(acc, w, s, mode)
     rates["theta"] = w

@@ -215,6 +215,8 @@ EFFECT_CASES: dict[str, tuple[dict, dict, list[dict[str, float]]]] = {
     "sensor_drift": ({}, {}, [{"drift_rate": -0.4}, {"drift_rate": 0.02}]),
     "asymmetric_valve": ({}, {}, [{"asym": -0.3}, {"asym": 0.2}, {"asym": 0.7}]),
     "asymmetric_valve@scale": ({"u_scale": 0.5}, {"u_scale": 0.5}, [{"asym": 0.4}]),
+    "input_offset": ({}, {}, [{"u_offset": 0.2}, {"u_offset": -0.05}]),
+    "constant_force": ({}, {}, [{"g_const": 40.0}, {"g_const": -7.5}]),
 }
 
 #: A distinct input history, so that a delay reading the wrong lag shows.
