@@ -58,6 +58,7 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
+from scipy.optimize import least_squares
 
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.errors import ParameterError
@@ -1095,10 +1096,14 @@ def estimate_initial_state(
     Like initial-condition estimation when comparing models on validation data
     (MATLAB's ``compare``): a record cut from the middle of a motion starts with
     unknown velocity and pressure, and its first noisy sample would set a
-    constant offset that a free-run angle never forgets. A few Gauss-Newton
-    steps with central differences through the compiled simulator
-    (``2*nx + 1`` trajectories per step, one population call); the model
-    parameters are untouched.
+    constant offset that a free-run angle never forgets. SciPy's trust-region
+    least squares (``least_squares``, ``"trf"``, scaled by the Jacobian's columns)
+    with the Jacobian by central differences through the compiled simulator
+    (``2*nx`` trajectories, one population call); the model parameters are untouched.
+    A trust region, not plain Gauss-Newton steps: a discovered stiff or non-smooth term
+    (``omega^3`` with a large coefficient, ``|theta|``) makes the linearisation a poor
+    guide far from the guess, where undamped or halved Gauss-Newton steps stall (on such
+    a held-out part they stopped at 0.080 deg where the state's optimum gives 0.052).
 
     Parameters
     ----------
@@ -1111,7 +1116,8 @@ def estimate_initial_state(
     x0 : ndarray, shape (nx,)
         Initial guess.
     iterations : int
-        Gauss-Newton steps.
+        Budget: at most ``4 * iterations + 4`` simulations of the trajectory (each
+        iteration of the trust region takes one or, after a rejected step, a few).
     skip : int
         Samples at the start left out of the fit (simulated, not compared: a leading
         window's first samples, whose delayed inputs lie before it).
@@ -1119,38 +1125,37 @@ def estimate_initial_state(
     Returns
     -------
     ndarray, shape (nx,)
-        The estimate (the guess itself if a step fails).
+        The estimate (the guess itself if its trajectory is not finite, or if no
+        state lowers the cost).
     """
     nx = x0.size
     step = 1e-4
     x = np.asarray(x0, dtype=float).copy()
-    best = np.inf
-    for _ in range(iterations):
-        X = np.tile(x, (2 * nx + 1, 1))
+    y_cmp = np.asarray(y, dtype=float)[skip:]
+    P = np.tile(p, (2 * nx, 1))
+
+    def residual(xk: np.ndarray) -> np.ndarray:
+        return sim.simulate(u, p, x0=xk)[skip:] - y_cmp
+
+    def jacobian(xk: np.ndarray) -> np.ndarray:
+        X = np.tile(xk, (2 * nx, 1))
         for i in range(nx):
-            X[1 + 2 * i, i] -= step
-            X[2 + 2 * i, i] += step
-        Y = sim.simulate(u, np.tile(p, (2 * nx + 1, 1)), x0=X)
-        if not np.isfinite(Y).all():
-            break
-        r = Y[0, skip:] - y[skip:]
-        best = min(best, float(r @ r))
-        J = (Y[2::2, skip:] - Y[1::2, skip:]).T / (2 * step)
-        delta, *_ = np.linalg.lstsq(J, -r, rcond=1e-10)
-        # Damped step: halve until the cost falls (a stiff extra state can make the
-        # linearisation a poor guide far from the guess).
-        for _ in range(8):
-            trial = x + delta
-            e = sim.simulate(u, p, x0=trial)[skip:] - y[skip:]
-            cost = float(e @ e) if np.isfinite(e).all() else np.inf
-            if cost < best:
-                break
-            delta = delta / 2
-        else:
-            break  # no step lowers the cost: keep x
-        x, best = trial, cost
-        if np.all(np.abs(delta) < 1e-8):
-            break
+            X[2 * i, i] -= step
+            X[2 * i + 1, i] += step
+        Y = sim.simulate(u, P, x0=X)[:, skip:]
+        J = (Y[1::2] - Y[0::2]).T / (2 * step)
+        return np.where(np.isfinite(J), J, 0.0)
+
+    r0 = residual(x)
+    if not np.isfinite(r0).all() or r0.size == 0:
+        return x
+    try:
+        sol = least_squares(residual, x, jac=jacobian, method="trf", x_scale="jac",
+                            max_nfev=4 * iterations + 4, xtol=1e-6, ftol=1e-4)
+    except (ValueError, np.linalg.LinAlgError):
+        return x
+    if np.isfinite(sol.fun).all() and float(sol.fun @ sol.fun) < float(r0 @ r0):
+        return np.asarray(sol.x, dtype=float)
     return x
 
 
