@@ -1076,7 +1076,9 @@ class Simulator:
         if key in self._entries:
             return self._entries[key]
         entry = None
-        if self.simd is not None and n_pop >= self.simd.width and self._use_simd():
+        # Any population of two or more in vector code: padded to width x threads it still
+        # runs faster than the scalar lanes, and compiles faster (docs/performance.md).
+        if self.simd is not None and n_pop > 1 and self._use_simd():
             lanes, n_members = self._layout(n_pop, kind, self.simd.width)
             entry = self._population_function(n_members, lanes, kind, self.simd)
             if not entry.native:  # vector code did not compile: scalar code instead
