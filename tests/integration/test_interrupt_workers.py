@@ -149,3 +149,21 @@ def test_stop_workers_ends_a_busy_process_pool_at_once() -> None:
     while not all(f.done() for f in futures) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert all(f.done() for f in futures)  # cancelled, or failed with the broken pool
+
+
+def test_the_executor_block_ends_work_nobody_waits_for() -> None:
+    """``cluster.executor``: a job still running when the block ends (a candidate refit of a
+    round another candidate settled) is ended, not waited for, and no worker is left."""
+    from hhra_phys.cluster import executor
+
+    t0 = time.monotonic()
+    with executor(2) as pool:
+        done = pool.submit(_sleepy, 0.0)
+        abandoned = pool.submit(_sleepy, 60.0)
+        assert done.result(timeout=30) == 0.0
+        deadline = time.monotonic() + 30
+        while not abandoned.running() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        procs = list(pool._processes.values())  # type: ignore[union-attr]
+    assert time.monotonic() - t0 < 40  # not the 60 s of the abandoned job
+    assert procs and not any(_alive(p.pid) for p in procs)
