@@ -97,6 +97,7 @@ import numpy as np
 
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import linear_response, noise_level, nuisance_basis
+from hhra_phys.effects import library_twins
 from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
 from hhra_phys.problem import Problem
@@ -748,8 +749,12 @@ class DiscoveredStep(Step):
 
     def __init__(self, *args: Any, expression: str = "", uses: Sequence[str] = (),
                  entry: str = "", method: str = "", screening: Mapping[str, Any] | None = None,
-                 extrapolated: Sequence[str] = (), **kw: Any) -> None:
+                 extrapolated: Sequence[str] = (), same_as: Sequence[str] = (),
+                 **kw: Any) -> None:
         super().__init__(*args, **kw)
+        #: Library effects whose shape the term holds at their entry
+        #: (:func:`~hhra_phys.effects.library_twins`): the same physics, discovered.
+        self.same_as = list(same_as)
         self.expression = expression
         self.uses = list(uses)
         self.entry = entry
@@ -762,11 +767,13 @@ class DiscoveredStep(Step):
 
     def to_json(self) -> dict[str, Any]:
         """The loop's step layout plus ``expression``, ``uses``, ``entry``, ``method``,
-        ``screening`` and ``extrapolated`` (variables leaving their estimation range)."""
+        ``screening``, ``extrapolated`` (variables leaving their estimation range) and
+        ``same_as`` (library effects it is the discovered form of)."""
         out = super().to_json()
         out.update({"expression": self.expression, "uses": self.uses, "entry": self.entry,
                     "method": self.method, "screening": self.screening,
-                    "extrapolated": self.extrapolated, "discovered": True})
+                    "extrapolated": self.extrapolated, "discovered": True,
+                    "same_as": self.same_as})
         return out
 
 
@@ -1378,7 +1385,9 @@ class Discovery:
             dict(res.metrics["est"]), dict(res.metrics["val"]), fitted.crit, self.crit_cur,
             self.rmse_cur, expression=term.expression(res.values), uses=term.uses,
             entry=scr.entry, method=self.method, screening=scr.to_json(),
-            extrapolated=_extrapolated(view, self._val()))
+            extrapolated=_extrapolated(view, self._val()),
+            same_as=(library_twins(scr.entry, term.terms, cur_prob.model)
+                     if isinstance(term, DiscoveredTerm) else ()))
         if isinstance(term, DiscoveredMode):
             # The period and its 95 % CI (2 pi / w is monotone: the CI's ends map over).
             wn = term.pname["w"]

@@ -70,7 +70,7 @@ from hhra_phys.parts import (
 
 __all__ = ["EFFECTS", "EFFECT_ALIASES", "LIBRARY", "Effect", "Signals", "effect_name",
            "make_effect", "motion_scales", "register_effect", "RIG_ACCEL",
-           "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu",
+           "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu", "library_twins",
            "output_offsets", "output_slope"]
 
 RAD2DEG = 180.0 / math.pi
@@ -163,6 +163,7 @@ class CoulombFriction(Effect):
     v_unit: str = "rad/s"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "coulomb_friction"
+    twin: ClassVar[tuple[str, ...]] = ("sign(@velocity)",)
     binds: ClassVar[tuple[str, ...]] = ("velocity",)
     entry: ClassVar[str] = "rate:@velocity"
     signature: ClassVar[str] = (
@@ -255,6 +256,7 @@ class GravityLoad(Effect):
     v_unit: str = "rad/s"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "gravity_load"
+    twin: ClassVar[tuple[str, ...]] = ("sin(@angle)", "cos(@angle)")
     binds: ClassVar[tuple[str, ...]] = ("velocity", "angle")
     entry: ClassVar[str] = "rate:@velocity"
     signature: ClassVar[str] = (
@@ -320,6 +322,7 @@ class ConstantForce(Effect):
     v_unit: str = "rad/s"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "constant_force"
+    twin: ClassVar[tuple[str, ...]] = ("one()",)
     binds: ClassVar[tuple[str, ...]] = ("velocity",)
     entry: ClassVar[str] = "rate:@velocity"
     signature: ClassVar[str] = (
@@ -439,6 +442,7 @@ class ValveSaturation(_InputCorner, Effect):
     width: float = CORNER_WIDTH
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "valve_saturation"
+    twin: ClassVar[tuple[str, ...]] = ("sat(u)",)
     entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "the apparent gain falls at the largest inputs (the residual follows the input "
@@ -484,6 +488,7 @@ class InputOffset(Effect):
     u_scale: float = 1.0
     stage: ClassVar[str] = "input"
     name: ClassVar[str] = "input_offset"
+    twin: ClassVar[tuple[str, ...]] = ("one()",)
     entry: ClassVar[str] = "input"
     signature: ClassVar[str] = (
         "the model is driven by a constant input it does not see: a trend (integrating "
@@ -818,6 +823,7 @@ class SensorOffset(Effect):
     y_scale: float = 1.0
     stage: ClassVar[str] = "output"
     name: ClassVar[str] = "sensor_offset"
+    twin: ClassVar[tuple[str, ...]] = ("one()",)
     sensor: ClassVar[bool] = True
     writes: ClassVar[tuple[str, ...]] = ("y",)
     entry: ClassVar[str] = "output"
@@ -1022,6 +1028,60 @@ def output_offsets(model: Any) -> list[str]:
         di = dy[0, i]
         if di.is_constant() and float(ca.evalf(di)) == 1.0 and dx[:, i].nnz() == 0:
             out.append(name)
+    return out
+
+
+def library_twins(entry: str, terms: Sequence[str], model: Any) -> list[str]:
+    """Library effects whose own shape a discovered term holds at the same entry.
+
+    A discovered term at ``entry`` whose pieces include an effect's :attr:`~hhra_phys.
+    parts.Effect.twin` (``d v/dt += -0.3*sgn(v)`` at the velocity's rate: Coulomb
+    friction; a constant at the input: an input offset) is that physics in its
+    discovered form, whatever else it holds. The report and the diagnose JSON name it
+    so (``steps[].same_as``): a reader sees the friction, not "a term outside the
+    library". Roles resolve on ``model`` (:attr:`~hhra_phys.model.Model.motion`); an
+    effect whose role the model lacks is no twin. Registered user effects that declare
+    their own ``twin`` count as well (one inherited from a library class does not). It
+    decides nothing.
+
+    Parameters
+    ----------
+    entry : str
+        The discovered term's entry (``"input"``, ``"output"``, ``"rate:<state>"``).
+    terms : sequence of str
+        Its pieces (:attr:`~hhra_phys.terms.DiscoveredTerm.terms`, e.g. ``"sign(v)"``).
+    model : Model
+        The model it was discovered on.
+
+    Returns
+    -------
+    list of str
+        Library effect names, in library order (empty: none).
+    """
+    motion = model.motion
+    roles = {"@velocity": motion.velocity, "@position": motion.position,
+             "@angle": motion.position if motion.rotary else None}
+    have = set(terms)
+    out = []
+    for name, cls in EFFECTS.items():
+        # Each effect's own declaration: a user's subclass of the friction is not named
+        # the friction unless it says so.
+        if not cls.__dict__.get("twin"):
+            continue
+        at = cls.entry
+        if at == "rate:@velocity":
+            if motion.velocity is None:
+                continue
+            at = f"rate:{motion.velocity}"
+        if at != entry:
+            continue
+        for piece in cls.twin:
+            for role, state in roles.items():
+                if role in piece:
+                    piece = piece.replace(role, state or "\0")
+            if piece in have:
+                out.append(name)
+                break
     return out
 
 

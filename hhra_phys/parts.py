@@ -512,6 +512,12 @@ class Effect(Part):
         physics candidate that settles a round does not skip them (a drift and a
         biased valve leave the same trend; both explanations must meet in the tie
         rule).
+    twin : tuple of str
+        Discovered-term pieces that have the effect's own shape at its :attr:`entry`
+        (``"sign(@velocity)"`` for a Coulomb friction; ``@velocity``, ``@position`` and
+        ``@angle`` stand for the model's states of those roles): a discovered term holding
+        one of them is named as this physics in its discovered form
+        (:func:`~hhra_phys.effects.library_twins`). Empty: none.
     """
 
     stage: ClassVar[str] = INPUT_STAGE
@@ -523,6 +529,7 @@ class Effect(Part):
     regressors: ClassVar[tuple[str, ...]] = ()
     position_dependent: ClassVar[bool] = False
     sensor: ClassVar[bool] = False
+    twin: ClassVar[tuple[str, ...]] = ()
 
     def applicable(self, model: Any) -> str | None:
         """``None`` if the effect can be added to ``model``, else the reason why not.

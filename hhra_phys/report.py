@@ -224,11 +224,13 @@ def discovery_section(res: Any) -> list[str]:
     if not found:
         return lines + ["Discovery ran; no entry point gave a term that survived its sparse refit.",
                         ""]
-    lines += ["| term | expression | uses | selection RMSE before -> after | accepted | notes |",
-              "|---|---|---|---|---|---|"]
+    lines += ["| term | expression | same physics as | uses | selection RMSE before -> after "
+              "| accepted | notes |",
+              "|---|---|---|---|---|---|---|"]
     for s in found:
         notes = "; ".join(n for n in s.notes if "outside the range" in n)
-        lines.append(f"| {s.effect} | `{s.expression}` | {', '.join(s.uses)} | "
+        twins = ", ".join(f"{n} (discovered form)" for n in getattr(s, "same_as", ()))
+        lines.append(f"| {s.effect} | `{s.expression}` | {twins or '-'} | {', '.join(s.uses)} | "
                      f"{_fmt(s.val_rmse_before)} -> {_fmt(s.val.get('rmse'))} | "
                      f"{'yes' if s.accepted else 'no'} | {s.reason}"
                      f"{'; ' + notes if notes else ''} |")

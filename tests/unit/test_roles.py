@@ -19,7 +19,7 @@ import pytest
 
 from hhra_phys import Model, Parameter, Part, State
 from hhra_phys.discover import entry_points
-from hhra_phys.effects import EFFECTS, make_effect, motion_scales
+from hhra_phys.effects import EFFECTS, library_twins, make_effect, motion_scales
 from hhra_phys.errors import ModelError
 from hhra_phys.models.cylinder import LinearCylinderModel
 from hhra_phys.models.hhra import HHRAModel
@@ -176,3 +176,20 @@ def test_no_discovered_term_reads_a_sensors_state():
     assert model.sensor_states() == ["y_drift"]
     entries = entry_points(model)
     assert "rate:y_drift" not in entries and "rate:v" in entries
+
+
+@pytest.mark.parametrize(("model", "entry", "terms", "twins"), [
+    (drive.make_model(), "rate:v", ("cube(v)", "sign(v)"), ["coulomb_friction"]),
+    (drive.make_model(), "rate:v", ("one()",), ["constant_force"]),
+    (drive.make_model(), "rate:v", ("sign(u)", "lin(q)"), []),  # the command's sign: none
+    (drive.make_model(), "input", ("one()", "sat(u)"), ["valve_saturation", "input_offset"]),
+    (drive.make_model(), "output", ("one()",), ["sensor_offset"]),
+    (drive.make_model(), "output", ("sign(v)",), []),  # friction's shape, not its entry
+    (HHRAModel(), "rate:omega", ("sign(omega)",), ["coulomb_friction"]),
+    (HHRAModel(), "rate:omega", ("sin(theta)", "lin(p)"), ["gravity_load"]),
+    (two_tank.make_model(), "rate:h1", ("one()",), []),  # no velocity: no force
+])
+def test_a_discovered_term_is_named_by_the_library_shape_it_holds(model, entry, terms, twins):
+    """A discovered term holding a library effect's own shape at its entry is that physics
+    in discovered form (issue 32, item 3), bound by role on any model."""
+    assert sorted(library_twins(entry, terms, model)) == sorted(twins)
