@@ -131,8 +131,13 @@ def ignore_sigint() -> None:
     it and break the pool before the parent decides. A job that runs :func:`fit
     <hhra_phys.fit.fit>` still stops at once (:func:`interruptible` sets its own handler
     for the job's duration), and the parent ends the workers (:func:`stop_workers`).
+
+    SIGTERM gets its default action back: a forked worker inherits the CLI's handler,
+    which raises ``KeyboardInterrupt`` and printed a traceback from every worker that
+    :func:`stop_workers` ended, idle or busy. The parent decides, so a worker just ends.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def stop_workers(executor: Executor) -> None:

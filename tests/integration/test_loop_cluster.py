@@ -128,9 +128,10 @@ def _without_times(obj):
     return obj
 
 
-def test_cli_default_workers_give_the_serial_json(tmp_path, monkeypatch):
+def test_cli_default_workers_give_the_serial_json(tmp_path, monkeypatch, capfd):
     """``diagnose`` refits candidates in one process per core by default (``--workers
-    auto``); its JSON is the serial run's (``--workers 0``) but for wall times."""
+    auto``); its JSON is the serial run's (``--workers 0``) but for wall times. The workers
+    ended at the end print nothing (no traceback of an inherited SIGTERM handler)."""
     from hhra_phys import cluster
     from hhra_phys.cli import main
     from hhra_phys.data import save
@@ -150,6 +151,7 @@ def test_cli_default_workers_give_the_serial_json(tmp_path, monkeypatch):
     assert len(s["steps"]) >= 2
     assert a["settings"]["executor"] == "ProcessPoolExecutor"
     assert _without_times(a) == _without_times(s)
+    assert "Traceback" not in capfd.readouterr().err
 
 
 def test_auto_workers_is_one_per_core_and_none_on_one():
