@@ -141,7 +141,7 @@ def ignore_sigint() -> None:
 
 
 def stop_workers(executor: Executor) -> None:
-    """Cancel the queued jobs of ``executor`` and end its running ones, after Ctrl-C.
+    """Cancel the queued jobs of ``executor`` and end its running ones (Ctrl-C, or a block done).
 
     A ``ProcessPoolExecutor``'s worker processes are terminated (killed if they do not
     exit within :data:`TERMINATE_WAIT` s), so none is left running; the pool cannot be

@@ -101,6 +101,9 @@ BACKGROUND = {
                     "--runs", "1"],
     "test_long_records_quick": ["python", str(REPO / "experiments" / "long_records.py"),
                                 "--out", "{out}/lr", "--quick", "--no-truth"],
+    "test_cluster_equality_quick": ["python", str(REPO / "experiments" / "cluster_equality.py"),
+                                    "--only", "4", "--duration", "4",
+                                    "--out", "{out}/ce.json"],
 }
 
 
@@ -171,3 +174,13 @@ def test_long_records_quick(background):
     # The side-car says the input's inter-sample behaviour.
     side = json.loads((out / "duffing_seed1.json").read_text())
     assert "cubic" in json.dumps(side)
+
+
+def test_cluster_equality_quick(background):
+    # One short clean record, in one process and on a two-worker LocalCluster (loopback):
+    # the script runs end to end, and the two runs wrote the same JSON.
+    rows = json.loads((_result(background, "test_cluster_equality_quick") / "ce.json")
+                      .read_text())
+    assert [r["record"] for r in rows] == ["clean-5"]
+    assert rows[0]["identical"], rows[0]["first_difference"]
+    assert rows[0]["executor"] == "ClientExecutor"
