@@ -663,6 +663,8 @@ class _Job:
     #: Noise levels of the selection and estimation parts at the current model and the
     #: loop's noise tolerance (:func:`~hhra_phys.selection.round_settled`; NaN: unknown).
     noise: tuple[float, float, float] = (math.nan, math.nan, NOISE_TOL)
+    #: Search a sharper switching width for the effect (``LoopOptions.fit_shapes``).
+    fit_shapes: bool = False
 
 
 def _widening_worth(res: FitResult, noise_est: float) -> float:
@@ -874,7 +876,8 @@ _SHAPE_PARAMS = ("v_switch", "w_contact")
 def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list[str],
              notes: list[str]
              ) -> tuple[Problem, FitResult, Model, Any, str, tuple[float, float]] | None:
-    """The candidate with a sharper switching width fitted, where that fits clearly better.
+    """The candidate with a sharper switching width fitted, where that fits clearly better
+    (with ``LoopOptions.fit_shapes``; off by default, see there).
 
     A library effect with a smooth edge (Coulomb friction's smooth sign, a backlash's
     contact) is first refitted at its default width, which is physical but may be far
@@ -910,7 +913,8 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     mse = float(res.metrics["est"].get("mse", math.inf))
     noise_sel, noise_est, tol = job.noise
     scores = SimpleNamespace(est=res.metrics["est"], val=res.metrics["val"])  # as a Step
-    if ("fit_width" not in getattr(eff, "__dataclass_fields__", {}) or eff.fit_width
+    if (not job.fit_shapes or "fit_width" not in getattr(eff, "__dataclass_fields__", {})
+            or eff.fit_width
             or "fit_width" in job.effect_kw or not mse <= job.widen_below
             or round_settled(scores, noise_sel, noise_est, tol, True)):
         return None
@@ -1273,6 +1277,14 @@ class LoopOptions:
     progress_bar : bool
         A progress bar per round on standard error, naming the candidate being refitted
         and how many remain (shown on a terminal only; the CLI turns it on).
+    fit_shapes : bool
+        Fit the switching width of a library effect with a smooth edge (Coulomb
+        friction's ``v_switch``, a backlash's ``w_contact``) where a sharper one fits
+        better (:func:`_sharpen`; CLI ``--fit-shapes``). Off by default: on the one-loop
+        study's record of an exact dead zone beside an exact friction (seed 1) the
+        sharpened friction took round 1 from the dead zone and absorbed it, where the
+        default width leaves both to be named; on a 1 kHz drive whose friction switches
+        within 1e-4 m/s it is what names the friction (docs/diagnosis.md).
     """
 
     split: float = 0.5
@@ -1304,6 +1316,7 @@ class LoopOptions:
     intersample: bool = True
     budget: float | None = None
     progress_bar: bool = False
+    fit_shapes: bool = False
 
     def validate(self) -> LoopOptions:
         """Check every setting; returns ``self``.
@@ -1326,6 +1339,8 @@ class LoopOptions:
                                      and not isinstance(self.budget, bool)
                                      and math.isfinite(self.budget) and self.budget > 0),
              f"budget must be a number of seconds > 0, got {self.budget!r}")
+        need(isinstance(self.fit_shapes, bool),
+             f"fit_shapes must be True or False, got {self.fit_shapes!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -1778,7 +1793,7 @@ class _Loop:
             jobs = [_Job(self.cfg, rnd, ev.name, dict((o.effect_kw or {}).get(ev.name, {})),
                          cur_prob.model, tuple(self.cur_free), _values(cur), dict(cur.x0),
                          ev.to_json(), o.cand_pop, o.cand_iter, crit_cur, rmse_cur,
-                         self.est_range, previous, widen_below, noise)
+                         self.est_range, previous, widen_below, noise, o.fit_shapes)
                     for ev in (ranked if o.top_k is None else ranked[:o.top_k])]
             queue += [((not job.evidence["identifiable"], _KIND_ORDER["effect"],
                         -float(job.evidence["score"])), _kind(job.effect), job)
@@ -2036,7 +2051,7 @@ class _Loop:
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
             "stopped_by_budget": self.budget_spent,
-            "not_refitted_by_budget": list(self.budget_left),
+            "not_refitted_by_budget": list(self.budget_left), "fit_shapes": o.fit_shapes,
             "noise_levels": self.levels + [final_level],
             "seconds": time.perf_counter() - self.t0,
             "data": {"name": data.name, "n": data.n, "fs": data.fs, "n_est": self.est.n,

@@ -104,6 +104,11 @@ def register(subparsers: Any) -> None:
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
                         "rule would no longer accept it)")
+    p.add_argument("--fit-shapes", action="store_true",
+                   help="also fit the switching width of a library effect with a smooth edge "
+                        "(Coulomb friction, a backlash's contact) where a sharper one fits "
+                        "better: for machines whose friction switches far more sharply than "
+                        "the library's default (docs/diagnosis.md); off by default")
     p.add_argument("--no-revisit", action="store_true",
                    help="do not revisit a round a discovered term won over an acceptable library "
                         "effect (by default, when the loop then ends above the noise level, the "
@@ -194,6 +199,7 @@ def _augment(args: argparse.Namespace) -> Any:
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
             intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
+            fit_shapes=args.fit_shapes,
         )
     res.warnings.extend(data_warnings)
     for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON

@@ -1,6 +1,6 @@
-"""A library effect is as sharp as the machine: the loop fits a friction's switching width
-where the record resolves it, and keeps the library's default where it does not (issue 32,
-item 3).
+"""A library effect is as sharp as the machine, on request (``fit_shapes``, CLI
+``--fit-shapes``): the loop fits a friction's switching width where the record resolves it,
+and keeps the library's default where it does not (issue 32, item 3).
 
 The user's drive (``user_models/drive.py``: ``q`` [m], ``v`` [m/s], declared by role) on
 records of its independent NumPy plant with a Coulomb friction of 0.3 m/s^2 that switches
@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent / "user_models"))
 import drive  # noqa: E402
 
 LOOP_KW = {"candidates": ["coulomb_friction"], "max_effects": 1, "discover": False,
-           "pop_size": 20, "max_iter": 20}
+           "pop_size": 20, "max_iter": 20, "fit_shapes": True}
 
 
 def _friction_step(res):
@@ -54,6 +54,35 @@ def test_a_sharp_friction_gets_its_fitted_width(seed):
                    effect_kw={"coulomb_friction": {"fit_width": False}}, **LOOP_KW)
     assert _width(held) == (False, None)
     assert step.val["rmse"] < _friction_step(held).val["rmse"]
+    # off by default: the same loop without the option keeps the library's default width
+    default = augment(data, drive.make_model(), seed=seed,
+                      **{**LOOP_KW, "fit_shapes": False})
+    assert _width(default) == (False, None)
+    assert _friction_step(default).val == _friction_step(held).val
+
+
+def test_the_cli_fits_shapes_on_request(tmp_path):
+    """``diagnose --fit-shapes`` on the user's drive model file: the JSON's final model
+    holds the friction with ``fit_width`` and its fitted ``v_switch``."""
+    import json
+
+    from hhra_phys.cli import main
+    from hhra_phys.data import save
+
+    data = tmp_path / "drive.csv"
+    save(drive.simulate_record(seed=0, coulomb=0.3, width=5e-5, noise=0.0005), data)
+    model = Path(__file__).resolve().parent / "user_models" / "drive.py"
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(data), "--model", f"{model}:make_model", "--effects",
+                 "coulomb_friction", "--max-effects", "1", "--no-discover", "--pop", "20",
+                 "--iters", "20", "--workers", "0", "--fit-shapes", "--json", str(out)]) == 0
+    js = json.loads(out.read_text())
+    assert js["chosen"] == ["coulomb_friction"]
+    part = next(p for p in js["fits"]["final"]["model"]["parts"]
+                if p["type"] == "CoulombFriction")
+    assert part["args"]["fit_width"] is True
+    assert js["fits"]["final"]["params"]["v_switch"]["value"] < 5e-4
+    assert js["settings"]["fit_shapes"] is True
 
 
 def test_a_friction_as_wide_as_the_default_keeps_the_default():
