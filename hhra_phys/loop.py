@@ -884,8 +884,10 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     wider than the machine's: on a 1 kHz drive whose friction switches within 1e-4 m/s,
     the true structure with library effects left 1.2e-4 m of estimation error and 2.7e-4 m
     on a separate test record at the default width (2.5e-4 m/s), 1.1e-5 m and 9.9e-6 m
-    with the width fitted (8e-5 m/s); on the reference rig's exact Coulomb friction the
-    library's, at its default width, lost to its discovered twin (a sharper ``sgn``).
+    with the width fitted (8e-5 m/s); an outside check on the reference rig's exact Coulomb
+    friction saw the library's, at its default width, lose to its discovered twin (a
+    sharper ``sgn``; not reproduced here: on our exact-friction rig records the default
+    width already reaches the noise).
 
     So the candidate is searched once more over its width alone (the rest held at its
     refit, then IPOPT over all), from the effect's lower bound up to the default width.
