@@ -1066,14 +1066,7 @@ def library_twins(entry: str, terms: Sequence[str], model: Any) -> list[str]:
     for name, cls in EFFECTS.items():
         # Each effect's own declaration: a user's subclass of the friction is not named
         # the friction unless it says so.
-        if not cls.__dict__.get("twin"):
-            continue
-        at = cls.entry
-        if at == "rate:@velocity":
-            if motion.velocity is None:
-                continue
-            at = f"rate:{motion.velocity}"
-        if at != entry:
+        if not cls.__dict__.get("twin") or cls.entry_at(model) != entry:
             continue
         for piece in cls.twin:
             for role, state in roles.items():

@@ -822,7 +822,7 @@ def refit_candidate(job: _Job) -> _Outcome:
     # A fitted switching width is the effect's shape, not its size: it is kept only where
     # it fits clearly better (_sharpen), and a sharp edge the record cannot resolve below
     # a sample (an interval reaching to zero) does not make the effect unidentified.
-    bad = _unidentified(r2, [n for n in new if n not in _SHAPE_PARAMS], model_c)
+    bad = _unidentified(r2, [n for n in new if n != _width_param(eff)], model_c)
     if bad:
         step.identifiable = False
         step.notes.append(
@@ -869,8 +869,15 @@ def _first_order_start(job: _Job, model: Model, new: Sequence[str]
     return start, boxes
 
 
-#: Shape parameters of library effects that offer ``fit_width`` (:func:`_sharpen`).
-_SHAPE_PARAMS = ("v_switch", "w_contact")
+def _width_param(eff: Any) -> str | None:
+    """The parameter an effect adds with ``fit_width=True`` (its fitted switching width:
+    ``v_switch``, ``w_contact``), whether or not it has it now; ``None`` for effects
+    without that option."""
+    if "fit_width" not in getattr(eff, "__dataclass_fields__", {}):
+        return None
+    names = {p.name for p in replace(eff, fit_width=False).parameters}
+    return next((p.name for p in replace(eff, fit_width=True).parameters
+                 if p.name not in names), None)
 
 
 def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list[str],
@@ -915,14 +922,13 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     mse = float(res.metrics["est"].get("mse", math.inf))
     noise_sel, noise_est, tol = job.noise
     scores = SimpleNamespace(est=res.metrics["est"], val=res.metrics["val"])  # as a Step
-    if (not job.fit_shapes or "fit_width" not in getattr(eff, "__dataclass_fields__", {})
-            or eff.fit_width
-            or "fit_width" in job.effect_kw or not mse <= job.widen_below
+    width = _width_param(eff) if job.fit_shapes else None
+    if (width is None or eff.fit_width or "fit_width" in job.effect_kw
+            or not mse <= job.widen_below
             or round_settled(scores, noise_sel, noise_est, tol, True)):
         return None
     eff_s = replace(eff, fit_width=True)
     model_s = job.model.with_parts(eff_s)
-    width = next(p.name for p in eff_s.parameters if p.name in _SHAPE_PARAMS)
     free_s = all_free + [width]
     held = {n: res.values[n] for n in all_free if n in res.values}
     job_s = replace(job, values=_values(res), x0=dict(res.x0))

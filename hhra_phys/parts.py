@@ -580,12 +580,15 @@ class Effect(Part):
                         "declare State(..., role='angle') if it is an angle in rad")
         return None
 
-    def entry_at(self, model: Any) -> str:
+    @classmethod
+    def entry_at(cls, model: Any) -> str:
         """:attr:`entry` on ``model``: ``"rate:@velocity"`` becomes ``"rate:<name>"`` of
-        the model's velocity state (:attr:`Model.motion`); other entries as declared."""
-        if self.entry == "rate:@velocity" and model.motion.velocity is not None:
+        the model's velocity state (:attr:`Model.motion`); other entries as declared (a
+        class attribute: callable on the class, as :func:`~hhra_phys.effects.library_twins`
+        does)."""
+        if cls.entry == "rate:@velocity" and model.motion.velocity is not None:
             return f"rate:{model.motion.velocity}"
-        return self.entry
+        return cls.entry
 
     def probe(self) -> dict[str, float]:
         """Parameter values of a small but relevant size of the effect."""

@@ -1169,17 +1169,16 @@ def estimate_initial_state(
         J = (Y[1::2] - Y[0::2]).T / (2 * step)
         return np.where(np.isfinite(J), J, 0.0)
 
-    r0 = residual(x)
-    if not np.isfinite(r0).all() or r0.size == 0:
+    if y_cmp.size == 0:
         return x
     try:
+        # A guess whose trajectory is not finite raises ValueError; the trust region only
+        # accepts steps that lower the cost, so its answer is never worse than the guess.
         sol = least_squares(residual, x, jac=jacobian, method="trf", x_scale="jac",
                             max_nfev=4 * iterations + 4, xtol=1e-6, ftol=1e-4)
     except (ValueError, np.linalg.LinAlgError):
         return x
-    if np.isfinite(sol.fun).all() and float(sol.fun @ sol.fun) < float(r0 @ r0):
-        return np.asarray(sol.x, dtype=float)
-    return x
+    return np.asarray(sol.x, dtype=float) if np.isfinite(sol.fun).all() else x
 
 
 def initial_guess(model: Model, y0: float, p: np.ndarray, u0: float = 0.0,
