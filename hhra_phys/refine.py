@@ -198,7 +198,10 @@ def _block_least_squares(
         zm[k] -= step
         dx0[:, k] = (pr.initial_states(pr.from_z(zp))[0]
                      - pr.initial_states(pr.from_z(zm))[0]) / (2 * step)
-    return y - pr.y, dy[:, :nx] @ dx0 + dy[:, nx:] @ dp
+    # A diverged simulation gives non-finite sensitivities: the cost is then infinite and
+    # IPOPT steps back, so the Jacobian's NaN needs no warning.
+    with np.errstate(invalid="ignore", over="ignore"):
+        return y - pr.y, dy[:, :nx] @ dx0 + dy[:, nx:] @ dp
 
 
 class _ResidualCallback(ca.Callback):
@@ -449,6 +452,9 @@ def _ipopt_options(max_iter: int, tol: float, verbose: bool) -> dict[str, Any]:
         "ipopt.print_level": 5 if verbose else 0,
         "print_time": bool(verbose),
         "ipopt.sb": "yes",
+        # A trial point where the model blows up is an infinite cost IPOPT steps back
+        # from (as a failed simulation in a population): not a warning for the user.
+        "show_eval_warnings": bool(verbose),
     }
 
 

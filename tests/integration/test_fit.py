@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import ClassVar
@@ -10,7 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from hhra_phys import HHRAModel
+from hhra_phys import HHRAModel, Model, Simulator, State
 from hhra_phys.data import DataError, Dataset
 from hhra_phys.fit import fit, fit_many
 from hhra_phys.models.hhra.rig import perturbed_physical, simulate_rig
@@ -245,3 +246,53 @@ def test_result_crosses_a_process_boundary_and_predicts_the_same():
     assert back.problem is None and back.values == res.values
     other = simulate_rig(seed=5, duration=2.0)
     np.testing.assert_array_equal(back.predict(other), res.predict(other))
+
+
+@dataclass(frozen=True)
+class _Growth(Part):
+    """``dx/dt = a*x + u``, ``y = x``: at a large ``a`` the state overflows to infinity."""
+
+    stage: ClassVar[str] = "motion"
+    name: ClassVar[str] = "growth"
+
+    @property
+    def parameters(self):
+        return (Parameter("a", "1/s", -1.0, -5.0, 2000.0, "linear", "growth rate"),)
+
+    @property
+    def states(self):
+        return (State("x", "m", 0.0, "state"),)
+
+    def apply(self, ctx: Context) -> None:
+        ctx.add_rate("x", ctx.p["a"] * ctx.x["x"] + ctx.u)
+
+
+@dataclass(frozen=True)
+class _Read(Part):
+    stage: ClassVar[str] = "sensor"
+    name: ClassVar[str] = "read_x"
+
+    def apply(self, ctx: Context) -> None:
+        ctx.signals["y"] = ctx.x["x"]
+
+
+def test_ipopt_steps_back_from_a_diverged_simulation_without_warnings(capfd):
+    """A start where the simulation overflows is an infinite cost IPOPT steps back from;
+    CasADi's evaluation warnings and NumPy's on the NaN Jacobian stay out of the user's
+    terminal (a long diagnosis printed dozens of them)."""
+    t = np.arange(400) * 0.005
+    u = np.sin(3 * t) + 0.5 * np.sign(np.sin(0.7 * t))
+    model = Model([_Growth(), _Read()], name="growth")
+    y = Simulator(model, fs=200.0).simulate(u, np.array([-2.0]))
+    data = Dataset(t=t, u=u, y=np.asarray(y).ravel(), name="growth")
+    problem = Problem(model, data)
+    z0 = problem.to_z(np.array([1500.0]))
+    assert not np.isfinite(least_squares_cost(problem, z0))  # the start overflows
+    capfd.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NumPy RuntimeWarning fails the test
+        st = refine_ipopt(problem, z0)
+    err = capfd.readouterr()
+    assert "Inf detected" not in err.out + err.err
+    assert "CasADi" not in err.out + err.err
+    assert np.isfinite(st.cost) or st.cost == st.cost_before
