@@ -71,7 +71,7 @@ from hhra_phys.parts import (
 __all__ = ["EFFECTS", "EFFECT_ALIASES", "LIBRARY", "Effect", "Signals", "effect_name",
            "make_effect", "motion_scales", "register_effect", "RIG_ACCEL",
            "FRICTION_WIDTH", "BACKLASH_WIDTH", "CORNER_WIDTH", "corner_relu", "library_twins",
-           "output_offsets", "output_slope"]
+           "output_offsets", "output_slope", "SIGN_PROFILES"]
 
 RAD2DEG = 180.0 / math.pi
 
@@ -86,6 +86,10 @@ REMOVED_SETTINGS: dict[str, str] = {
     "eps_omega": "the soft backlash contact; set the contact 'width' [deg] instead "
                  "(or fit_width=True)",
 }
+
+
+#: Shapes of :class:`CoulombFriction`'s smooth sign (its ``profile``).
+SIGN_PROFILES = ("algebraic", "tanh")
 
 
 def _smooth_np(v: np.ndarray, eps: float) -> np.ndarray:
@@ -138,6 +142,15 @@ class CoulombFriction(Effect):
     fit_width : bool
         Fit the switching width as parameter ``v_switch`` [rad/s] (log scale,
         0.0005 to 0.5 rad/s, nominal ``width``).
+    profile : {"algebraic", "tanh"}
+        Shape of the smooth sign: ``"algebraic"`` (default) ``omega/sqrt(omega^2 +
+        width^2)``, or ``"tanh"`` ``tanh(omega/width)``. Both have the slope ``1/width``
+        at rest (the same stiffness); away from rest the algebraic sign approaches its
+        level as ``1 - width^2/(2 omega^2)``, the tanh exponentially, so a friction that
+        switches fully within a few widths (a sharp seal, or a record made with a tanh
+        law) is followed by the tanh where the algebraic leaves a slow tail (a 1 kHz drive:
+        4e-6 m of selection error against its 1e-6 m noise, ``docs/diagnosis.md``).
+        The loop's shape stage (``LoopOptions.fit_shapes``) tries both.
     accel_scale : float
         Typical acceleration [rad/s^2] (the model's ``g_torque``); sets the bounds.
     v_scale : float
@@ -161,6 +174,7 @@ class CoulombFriction(Effect):
     fit_width: bool = False
     v_scale: float = 1.0
     v_unit: str = "rad/s"
+    profile: str = "algebraic"
     stage: ClassVar[str] = "motion"
     name: ClassVar[str] = "coulomb_friction"
     twin: ClassVar[tuple[str, ...]] = ("sign(@velocity)",)
@@ -178,6 +192,9 @@ class CoulombFriction(Effect):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ParameterError(f"coulomb_friction {key} must be > 0 {self.v_unit}, "
                                      f"got {v!r}")
+        if self.profile not in SIGN_PROFILES:
+            raise ParameterError(f"coulomb_friction profile must be one of "
+                                 f"{', '.join(map(repr, SIGN_PROFILES))}, got {self.profile!r}")
 
     @property
     def parameters(self) -> Sequence[Parameter]:
@@ -212,7 +229,9 @@ class CoulombFriction(Effect):
         level = ctx.p["g_coulomb"]
         if self.stribeck:
             level = level + ctx.p["g_stribeck"] * ca.exp(-(w / ctx.p["v_stribeck"]) ** 2)
-        rate = -level * smooth_sign(w, self._width(level, ctx.p))
+        width = self._width(level, ctx.p)
+        rate = -level * (ca.tanh(w / width) if self.profile == "tanh"
+                         else smooth_sign(w, width))
         if self.viscous:
             rate = rate - ctx.p["g_viscous"] * w
         ctx.add_rate(v, rate)
@@ -224,7 +243,10 @@ class CoulombFriction(Effect):
         if sig.velocity is None:
             raise ModelError("coulomb_friction needs the simulated velocity")
         g = self.probe()["g_coulomb"]
-        return -g * _smooth_np(sig.velocity, self._width(g))[:, None]
+        w = self._width(g)
+        shape = (np.tanh(sig.velocity / w) if self.profile == "tanh"
+                 else _smooth_np(sig.velocity, w))
+        return -g * shape[:, None]
 
 
 @register_effect

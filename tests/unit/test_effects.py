@@ -171,6 +171,31 @@ def test_bad_smoothing_settings_are_refused_by_name():
             make_effect(name, **bad)
 
 
+def test_friction_profile_is_the_shape_of_its_sign():
+    """``profile="tanh"``: the same level and slope at rest as the algebraic sign, the
+    level reached sooner (at three widths 0.995 against 0.949), a different motion, and
+    saved with the model."""
+    from hhra_phys.errors import ParameterError
+
+    u = _input()
+    tanh = make_effect("coulomb_friction", profile="tanh", fit_width=True)
+    alg = make_effect("coulomb_friction", fit_width=True)
+    y_t = _sim(HHRAModel(effects=[tanh]), u, g_coulomb=30.0, v_switch=0.05)
+    y_a = _sim(HHRAModel(effects=[alg]), u, g_coulomb=30.0, v_switch=0.05)
+    assert np.isfinite(y_t).all() and 1e-3 < np.max(np.abs(y_t - y_a)) < 0.5
+    v = np.array([-3.0, 0.0, 1e-3, 3.0])
+    sig = Signals(u=np.zeros(4), dt=0.004, velocity=v * tanh.width)
+    g = tanh.probe()["g_coulomb"]
+    col_t, col_a = tanh.first_order(sig)[:, 0], alg.first_order(sig)[:, 0]
+    np.testing.assert_allclose(col_t, -g * np.tanh(v), rtol=1e-12)
+    np.testing.assert_allclose(col_a, -g * v / np.sqrt(v * v + 1), rtol=1e-12)
+    assert col_t[-1] < col_a[-1] < 0  # nearer the level (-g) at three widths
+    again = Model.from_json(HHRAModel(effects=[tanh]).to_json())
+    assert np.allclose(_sim(again, u, g_coulomb=30.0, v_switch=0.05), y_t)
+    with pytest.raises(ParameterError, match="profile"):
+        make_effect("coulomb_friction", profile="exact")
+
+
 def test_backlash_width_can_be_fitted():
     eff = make_effect("backlash", fit_width=True, width=0.02)
     p = {q.name: q for q in eff.parameters}
