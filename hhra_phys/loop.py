@@ -57,7 +57,7 @@ from scipy.stats import chi2
 from hhra_phys.data import Dataset
 from hhra_phys.diagnose import Diagnosis, analyse, noise_level, whiteness
 from hhra_phys.discover import DiscoveredStep, Discovery
-from hhra_phys.effects import EFFECTS, effect_name, make_effect
+from hhra_phys.effects import EFFECTS, SIGN_PROFILES, effect_name, make_effect
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit import (
     MAX_WIDEN_DECADES,
@@ -90,6 +90,7 @@ from hhra_phys.selection import (
     METRIC_KEYS,
     NOISE_TOL,
     Step,
+    acceptance,
     backward_decision,
     choose,
     information_criterion,
@@ -110,7 +111,12 @@ __all__ = [
     "selection_noise",
     "noise_stop",
     "refit_candidate",
+    "SHAPE_MODES",
 ]
+
+#: Where the loop fits a smooth-edged library effect's shape (``LoopOptions.fit_shapes``):
+#: the round's chosen effect, every contender's refit, or nowhere.
+SHAPE_MODES = ("chosen", "contenders", "off")
 
 #: IPOPT iteration limit of an accepted candidate's polish (the old loop's limit for
 #: every candidate); the base fit keeps the plain fit's limit.
@@ -396,6 +402,34 @@ def _stiff_substeps(problem: Problem) -> Problem:
     return problem
 
 
+def _as_refitted(cfg: _Settings, problem: Problem, integration: Mapping[str, Any] | None
+                 ) -> Problem:
+    """An accepted model's problem for its polish, simulated at least as finely as its
+    refit ended (``integration``: the refit's ``settings["integration"]``).
+
+    The polish keeps the base fit's substeps (as the loop's models always had) unless the
+    refit ended with more (the fit's accuracy check at its fitted values refines them):
+    then the refit's method and count, with its accuracy record, so the polish checks them
+    again. Why: a drive's friction sharpened to 1e-4 m/s was refitted at ROS4 x 16
+    (selection 2.0e-6 m) and, polished at the base fit's x 8, ended at 9.2e-6 m, from
+    which the next round chose a stand-in. Not coarser than the base: polished at the
+    accuracy rule's coarser count, the one-loop study's dead zone beside an exact friction
+    (seed 1) lost its next round to a discovered stand-in.
+    """
+    prob = problem
+    n = (integration or {}).get("substeps")
+    if (len(prob.records) > 1 or not isinstance(n, int) or n <= prob.sim.substeps
+            or (integration or {}).get("method") != prob.sim.method):
+        return prob
+    sim = Simulator(prob.model, fs=prob.sim.fs, substeps=n, method=prob.sim.method,
+                    backend=cfg.backend, block=CANDIDATE_BLOCK,
+                    intersample=prob.sim.intersample)
+    sim.accuracy = {k: integration[k] for k in ("method", "substeps", "error_estimate",
+                                                 "tolerance", "within")
+                    if integration and k in integration}
+    return prob.with_simulator(sim)
+
+
 def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[str, float],
              start: Mapping[str, float], x0: Mapping[str, float] | None = None,
              simulator: Simulator | Mapping[float, Simulator] | None = None) -> Problem:
@@ -665,6 +699,9 @@ class _Job:
     noise: tuple[float, float, float] = (math.nan, math.nan, NOISE_TOL)
     #: Search a sharper switching width for the effect (``LoopOptions.fit_shapes``).
     fit_shapes: bool = False
+    #: The loop's acceptance margin (``LoopOptions.margin``): a sharper shape passes the
+    #: rule a candidate passes (:func:`_sharpen`).
+    margin: float = 0.1
 
 
 def _widening_worth(res: FitResult, noise_est: float) -> float:
@@ -691,6 +728,9 @@ class _Outcome:
     #: Settings of the effect chosen during its refit beyond the job's (``fit_width``
     #: where :func:`_sharpen` kept a fitted width; kept on acceptance).
     effect_kw: dict[str, Any] = field(default_factory=dict)
+    #: How the refit was integrated at its end (its ``settings["integration"]``): the
+    #: accepted model's polish is simulated at least as finely (:func:`_as_refitted`).
+    integration: dict[str, Any] = field(default_factory=dict)
 
 
 def _search_size(n_new: int, pop: int | None, iters: int | None) -> tuple[int, int]:
@@ -798,8 +838,11 @@ def refit_candidate(job: _Job) -> _Outcome:
         p2, r2 = _widen_candidate(search, boxes, all_free, widened_notes, job.widen_below)
         shaped = _sharpen(replace(cfg, default_bounds={**cfg.default_bounds, **boxes}),
                           job, eff, r2, all_free, widened_notes)
-        chosen_kw = {} if shaped is None else {"fit_width": True}
+        chosen_kw: dict[str, Any] = {}
         if shaped is not None:
+            profile = getattr(shaped[3], "profile", None)
+            same = profile in (None, getattr(eff, "profile", None))
+            chosen_kw = {"fit_width": True, **({} if same else {"profile": profile})}
             p2, r2, model_c, eff, width, box = shaped
             new, all_free = new + [width], all_free + [width]
             boxes[width] = box
@@ -838,7 +881,7 @@ def refit_candidate(job: _Job) -> _Outcome:
     step.notes.extend(widened_notes)
     step.seconds = time.perf_counter() - ts
     return _Outcome(step, _values(r2), dict(r2.x0), all_free, boxes=boxes,
-                    effect_kw=chosen_kw)
+                    effect_kw=chosen_kw, integration=dict(r2.settings.get("integration") or {}))
 
 
 def _first_order_start(job: _Job, model: Model, new: Sequence[str]
@@ -897,21 +940,30 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     width already reaches the noise).
 
     So the candidate is searched once more over its width alone (the rest held at its
-    refit, then IPOPT over all), from the effect's lower bound up to the default width.
+    refit, then IPOPT over all), from the effect's lower bound up to the default width,
+    once for each profile of its smooth sign (a Coulomb friction's algebraic and tanh,
+    :data:`~hhra_phys.effects.SIGN_PROFILES`, unless the user chose one): at the drive's
+    fitted width the algebraic sign's slow approach to its level left 4e-6 m of
+    selection error where the tanh reached the 1e-6 m noise; the lower criterion wins.
     Sharper only: a switch wider than the default is no longer a Coulomb friction but a
     smooth damping, a stand-in for a velocity-dependent damping that discovery names
     (``omega*|omega|``); unbounded, the drive's first round took 0.017 m/s, 70 times the
-    default. The default is replaced only where the information criterion on estimation
-    improves and the selection error does not grow (a width the data do not resolve
-    costs a parameter and stays at the default). Only a contender is sharpened, one whose
+    default. The default is replaced only where the sharper shape passes the rule a
+    candidate effect passes against the model at the default width
+    (:func:`~hhra_phys.selection.acceptance`: the selection error falls by the margin or
+    to the noise, beyond the noise allowance, and the criterion falls; a width the data
+    do not resolve costs a parameter and stays at the default). Why the whole rule: on the
+    one-loop study's dead zone beside an exact friction (seed 2) a sharper width taken
+    for a 1 % gain on selection left the friction absorbing the dead zone, whose refit
+    then ended above the current model. Only a contender is sharpened, one whose
     refit took at least :data:`~hhra_phys.fit.WIDEN_CLEAR_GAIN` of the current model's
     estimation error above the noise (as for widening, :func:`_widening_worth`), and not
     one already at the noise level on both parts (:func:`~hhra_phys.selection.
     round_settled`: a sharper shape cannot beat it by more than the noise allowance).
     Measured: sharpening every friction refit cost 4-5 CPU s on each 20 s dead-zone record
     of ``benchmarks/bench_cost.py`` (+35-40 % of its diagnosis) and 2.4 s on the friction
-    record, whose friction was at the noise at its default width. A ``fit_width`` the user
-    set is left as given.
+    record, whose friction was at the noise at its default width. A ``fit_width`` or
+    ``profile`` the user set is left as given.
 
     Returns
     -------
@@ -927,26 +979,49 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
             or not mse <= job.widen_below
             or round_settled(scores, noise_sel, noise_est, tol, True)):
         return None
-    eff_s = replace(eff, fit_width=True)
-    model_s = job.model.with_parts(eff_s)
     free_s = all_free + [width]
     held = {n: res.values[n] for n in all_free if n in res.values}
     job_s = replace(job, values=_values(res), x0=dict(res.x0))
     pop, iters = _search_size(1, job.cand_pop, job.cand_iter)
-    box = (float(model_s.params[width].lower), float(eff.width))
-    cfg = replace(cfg, default_bounds={**cfg.default_bounds, width: box})
-    p_s, r_s = _search_candidate(cfg, model_s, [width], held, free_s, job_s, pop, iters,
-                                 {width: float(eff.width)})
-    crit, crit_s = (information_criterion(r, cfg.criterion) for r in (res, r_s))
-    sel, sel_s = (float(r.metrics["val"].get("rmse", math.inf)) for r in (res, r_s))
-    if not (crit_s < crit and sel_s <= sel):
-        notes.append(f"its switching width fitted ({r_s.values[width]:.3g}) fits no better "
-                     f"than the default {eff.width:.3g}: kept the default")
+    crit = information_criterion(res, cfg.criterion)
+    sel = float(res.metrics["val"].get("rmse", math.inf))
+    # The profile of the smooth sign too (a Coulomb friction's algebraic or tanh), unless
+    # the user chose it: at one width the two differ in how fast they reach the level.
+    profiles = [getattr(eff, "profile", None)]
+    if profiles[0] is not None and "profile" not in job.effect_kw:
+        profiles += [p for p in SIGN_PROFILES if p != profiles[0]]
+    best: tuple[float, float, Any] | None = None
+    tried: list[str] = []
+    for profile in profiles:
+        eff_s = replace(eff, fit_width=True, **({} if profile is None else {"profile": profile}))
+        model_s = job.model.with_parts(eff_s)
+        box = (float(model_s.params[width].lower), float(eff.width))
+        # An explicit bound, as a user's: the fit's widening opens a guessed box a group
+        # ends at, and a width widened past the default is a damping (the drive's first
+        # round took 0.0104 m/s, 40 times the default, through that door).
+        cfg_s = replace(cfg, bounds={**cfg.bounds, width: box})
+        p_s, r_s = _search_candidate(cfg_s, model_s, [width], held, free_s, job_s, pop,
+                                     iters, {width: float(eff.width)})
+        crit_s = information_criterion(r_s, cfg.criterion)
+        sel_s = float(r_s.metrics["val"].get("rmse", math.inf))
+        tried.append(f"{r_s.values[width]:.3g}" + (f" ({profile})" if len(profiles) > 1 else "")
+                     + f": {cfg.criterion.upper()} {crit_s:.1f}, selection RMSE {sel_s:.4g}")
+        ok, _ = acceptance(sel, sel_s, crit, crit_s, job.margin, cfg.criterion, noise_sel, tol)
+        if ok and (best is None or crit_s < best[0]):
+            best = (crit_s, sel_s, (p_s, r_s, model_s, eff_s, width, box))
+    if best is None:
+        notes.append(f"its switching width fitted ({'; '.join(tried)}) passes the acceptance "
+                     f"rule against the default {eff.width:.3g} ({cfg.criterion.upper()} "
+                     f"{crit:.1f}, selection RMSE {sel:.4g}) with neither: kept the default")
         return None
-    notes.append(f"its switching width fitted: {r_s.values[width]:.3g} instead of the "
+    crit_s, sel_s, out = best
+    r_s, eff_s = out[1], out[3]
+    shape = f" with the {eff_s.profile} sign" if len(profiles) > 1 else ""
+    notes.append(f"its switching width fitted: {r_s.values[width]:.3g}{shape} instead of the "
                  f"default {eff.width:.3g} ({cfg.criterion.upper()} {crit:.1f} -> "
-                 f"{crit_s:.1f}, selection RMSE {sel:.4g} -> {sel_s:.4g})")
-    return p_s, r_s, model_s, eff_s, width, box
+                 f"{crit_s:.1f}, selection RMSE {sel:.4g} -> {sel_s:.4g}; tried "
+                 f"{'; '.join(tried)})")
+    return out
 
 
 def _search_candidate(cfg: _Settings, model: Model, searched: list[str],
@@ -1285,14 +1360,21 @@ class LoopOptions:
     progress_bar : bool
         A progress bar per round on standard error, naming the candidate being refitted
         and how many remain (shown on a terminal only; the CLI turns it on).
-    fit_shapes : bool
+    fit_shapes : {"chosen", "contenders", "off"} or bool
         Fit the switching width of a library effect with a smooth edge (Coulomb
         friction's ``v_switch``, a backlash's ``w_contact``) where a sharper one fits
-        better (:func:`_sharpen`; CLI ``--fit-shapes``). Off by default: on the one-loop
-        study's record of an exact dead zone beside an exact friction (seed 1) the
-        sharpened friction took round 1 from the dead zone and absorbed it, where the
-        default width leaves both to be named; on a 1 kHz drive whose friction switches
-        within 1e-4 m/s it is what names the friction (docs/diagnosis.md).
+        better, and a friction's sign profile (algebraic or tanh) with it
+        (:func:`_sharpen`; CLI ``--fit-shapes [MODE]``). ``"chosen"`` (default): the
+        round's chosen effect, once accepted and after the backward step, so the shape
+        never decides which effect wins a round; ``"contenders"`` (``True``): every
+        contender in its refit, before the round is decided (a library friction whose
+        default width loses to its sharper discovered twin can then win); ``"off"``
+        (``False``): the library's default widths. Why not contenders by default: on
+        the one-loop study's record of an exact dead zone beside an exact friction (seed
+        1) the sharpened friction took round 1 from the dead zone and absorbed it, where
+        the default width leaves both to be named; on a 1 kHz drive whose friction
+        switches within 1e-4 m/s the sharpened width is what names the friction
+        (docs/diagnosis.md).
     """
 
     split: float = 0.5
@@ -1324,7 +1406,15 @@ class LoopOptions:
     intersample: bool = True
     budget: float | None = None
     progress_bar: bool = False
-    fit_shapes: bool = False
+    fit_shapes: bool | str = "chosen"
+
+    @property
+    def shape_mode(self) -> str:
+        """:attr:`fit_shapes` as one of :data:`SHAPE_MODES` (``True``: ``"contenders"``,
+        ``False``: ``"off"``)."""
+        if isinstance(self.fit_shapes, bool):
+            return "contenders" if self.fit_shapes else "off"
+        return str(self.fit_shapes)
 
     def validate(self) -> LoopOptions:
         """Check every setting; returns ``self``.
@@ -1347,8 +1437,9 @@ class LoopOptions:
                                      and not isinstance(self.budget, bool)
                                      and math.isfinite(self.budget) and self.budget > 0),
              f"budget must be a number of seconds > 0, got {self.budget!r}")
-        need(isinstance(self.fit_shapes, bool),
-             f"fit_shapes must be True or False, got {self.fit_shapes!r}")
+        need(isinstance(self.fit_shapes, bool) or self.fit_shapes in SHAPE_MODES,
+             f"fit_shapes must be one of {', '.join(map(repr, SHAPE_MODES))} (or True for "
+             f"'contenders', False for 'off'), got {self.fit_shapes!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -1801,7 +1892,8 @@ class _Loop:
             jobs = [_Job(self.cfg, rnd, ev.name, dict((o.effect_kw or {}).get(ev.name, {})),
                          cur_prob.model, tuple(self.cur_free), _values(cur), dict(cur.x0),
                          ev.to_json(), o.cand_pop, o.cand_iter, crit_cur, rmse_cur,
-                         self.est_range, previous, widen_below, noise, o.fit_shapes)
+                         self.est_range, previous, widen_below, noise,
+                         o.shape_mode == "contenders", o.margin)
                     for ev in (ranked if o.top_k is None else ranked[:o.top_k])]
             queue += [((not job.evidence["identifiable"], _KIND_ORDER["effect"],
                         -float(job.evidence["score"])), _kind(job.effect), job)
@@ -1999,19 +2091,29 @@ class _Loop:
             # Rebuild the accepted fit here from its values (wherever it ran), so the
             # serial and distributed loops continue from the same numbers.
             job, best = payload
-            model_c, _, _ = _candidate_model(replace(
+            model_c, _, eff_c = _candidate_model(replace(
                 job, effect_kw={**job.effect_kw, **best.effect_kw}))
-            if best.boxes:  # its widened boxes stay with it
-                cfg = self.cfg = replace(cfg, default_bounds={**cfg.default_bounds,
-                                                               **best.boxes})
-            free_c, vals_c, x0_c = best.free, best.values, best.x0
+            boxes = dict(best.boxes)
+            # A fitted switching width keeps its box as a bound (sharper than the default
+            # only, _sharpen); the other boxes it widened stay with it as guessed boxes.
+            width = _width_param(eff_c) if best.effect_kw.get("fit_width") else None
+            if width in boxes:
+                cfg = self.cfg = replace(cfg, bounds={**cfg.bounds, width: boxes.pop(width)})
+            if boxes:  # its widened boxes stay with it
+                cfg = self.cfg = replace(cfg, default_bounds={**cfg.default_bounds, **boxes})
+            free_c, vals_c, x0_c, integ = best.free, best.values, best.x0, best.integration
         else:
             model_c = payload.problem.model
             free_c = payload.free
             vals_c, x0_c = _values(payload.result), dict(payload.result.x0)
+            integ = payload.result.settings.get("integration")
         # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one is
-        # polished to convergence before the next round.
-        self.cur_prob = _problem(cfg, model_c, free_c, {}, vals_c, x0_c)
+        # polished to convergence before the next round, with substeps by the accuracy
+        # rule at its values as its refit had (the base fit's substeps, given, skip the
+        # rule: a sharp friction refitted at ROS4 x 16 and polished at x 8 left the drive's
+        # selection at 1.26e-6 m where its refit had reached the 1.0e-6 m noise).
+        self.cur_prob = _as_refitted(cfg, _problem(cfg, model_c, free_c, {}, vals_c, x0_c),
+                                     integ)
         self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
         self.cur_free = list(free_c)
         self.say(f"round {rnd}: accepted {best_step.effect}")
@@ -2023,6 +2125,55 @@ class _Loop:
             if gone is not None:
                 self.chosen.remove(gone)
                 self.dropped.append(gone)
+        if (o.shape_mode == "chosen" and best_step.effect in self.chosen
+                and not self._over_budget()):
+            self._sharpen_chosen(rnd, best_step)
+
+    def _sharpen_chosen(self, rnd: int, step: Step) -> None:
+        """The chosen effect's shape (``fit_shapes="chosen"``): its switching width, and its
+        sign's profile, fitted in the current model where that fits clearly better
+        (:func:`_sharpen`, the rules of a contender's), then the model polished.
+
+        After the backward step, so the shape is fitted in the model the next round
+        starts from: on a drive record a dead zone accepted first and removed once the
+        friction came made the algebraic sign fit best beside it, the tanh without it.
+        """
+        cur, prob, o = self.cur, self.cur_prob, self.o
+        eff = next((p for p in prob.model.parts if p.name == step.effect), None)
+        width = _width_param(eff) if eff is not None else None
+        if width is None or getattr(eff, "fit_width", True):
+            return
+        noise = ((float(self.levels[-1]["noise"]),
+                  float(self.levels[-1]["estimation"]["noise"]), float(self.tol))
+                 if self.levels else (math.nan, math.nan, float(self.tol)))
+        job = _Job(self.cfg, rnd, step.effect, dict((o.effect_kw or {}).get(step.effect, {})),
+                   prob.model.without(step.effect), tuple(self.cur_free), _values(cur),
+                   dict(cur.x0), {}, o.cand_pop, o.cand_iter, math.nan, math.nan,
+                   self.est_range, noise=noise, fit_shapes=True, margin=o.margin)
+        notes: list[str] = []
+        ts = time.perf_counter()
+        try:
+            shaped = _sharpen(self.cfg, job, eff, cur, list(self.cur_free), notes)
+        except Exception as exc:  # noqa: BLE001 - the model as accepted stays
+            notes.append(f"its shape could not be fitted ({type(exc).__name__}: {exc})")
+            shaped = None
+        step.notes += [f"after acceptance: {n}" for n in notes]
+        if shaped is None:
+            if notes:
+                self.say(f"  shape of {step.effect}: {notes[-1]} "
+                         f"[{time.perf_counter() - ts:.1f} s]")
+            return
+        _, r_s, model_s, _, width, box = shaped
+        self.cfg = replace(self.cfg, bounds={**self.cfg.bounds, width: box})
+        free = [*self.cur_free, width]
+        self.cur_prob = _as_refitted(
+            self.cfg, _problem(self.cfg, model_s, free, {}, _values(r_s), dict(r_s.x0)),
+            r_s.settings.get("integration"))
+        self.cur = _run(self.cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER,
+                        stall=False)
+        self.cur_free = free
+        step.params[width] = float(self.cur.values[width])
+        self.say(f"  shape of {step.effect}: {notes[-1]} [{time.perf_counter() - ts:.1f} s]")
 
     # -- result -----------------------------------------------------------------------------
     def _result(self) -> LoopResult:
@@ -2059,7 +2210,7 @@ class _Loop:
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
             "stopped_by_budget": self.budget_spent,
-            "not_refitted_by_budget": list(self.budget_left), "fit_shapes": o.fit_shapes,
+            "not_refitted_by_budget": list(self.budget_left), "fit_shapes": o.shape_mode,
             "noise_levels": self.levels + [final_level],
             "seconds": time.perf_counter() - self.t0,
             "data": {"name": data.name, "n": data.n, "fs": data.fs, "n_est": self.est.n,

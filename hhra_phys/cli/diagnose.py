@@ -41,6 +41,9 @@ from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text
 
+#: :data:`hhra_phys.loop.SHAPE_MODES`, named here: the loop is imported only when it runs.
+_SHAPE_MODES = ("chosen", "contenders", "off")
+
 
 def register(subparsers: Any) -> None:
     """Add the ``diagnose`` sub-command to the ``hhra-phys`` parser."""
@@ -104,11 +107,14 @@ def register(subparsers: Any) -> None:
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
                         "rule would no longer accept it)")
-    p.add_argument("--fit-shapes", action="store_true",
-                   help="also fit the switching width of a library effect with a smooth edge "
-                        "(Coulomb friction, a backlash's contact) where a sharper one fits "
-                        "better: for machines whose friction switches far more sharply than "
-                        "the library's default (docs/diagnosis.md); off by default")
+    p.add_argument("--fit-shapes", nargs="?", const="contenders", default="chosen",
+                   choices=_SHAPE_MODES, metavar="{" + ",".join(_SHAPE_MODES) + "}",
+                   help="where to fit the switching width (and a friction's sign profile, "
+                        "algebraic or tanh) of a library effect with a smooth edge (Coulomb "
+                        "friction, a backlash's contact) where a sharper one fits better: "
+                        "'chosen' (default) the round's accepted effect, 'contenders' (the "
+                        "flag alone) every contender before the round is decided, 'off' the "
+                        "library's default widths (docs/diagnosis.md)")
     p.add_argument("--no-revisit", action="store_true",
                    help="do not revisit a round a discovered term won over an acceptable library "
                         "effect (by default, when the loop then ends above the noise level, the "

@@ -1,6 +1,7 @@
-"""A library effect is as sharp as the machine, on request (``fit_shapes``, CLI
-``--fit-shapes``): the loop fits a friction's switching width where the record resolves it,
-and keeps the library's default where it does not (issue 32, item 3).
+"""A library effect is as sharp as the machine (``fit_shapes``, CLI ``--fit-shapes``): the
+loop fits a friction's switching width, and its sign's profile, where the record resolves
+them, and keeps the library's default where it does not (issue 32, item 3); by default in
+the accepted effect, on request in every contender.
 
 The user's drive (``user_models/drive.py``: ``q`` [m], ``v`` [m/s], declared by role) on
 records of its independent NumPy plant with a Coulomb friction of 0.3 m/s^2 that switches
@@ -54,11 +55,43 @@ def test_a_sharp_friction_gets_its_fitted_width(seed):
                    effect_kw={"coulomb_friction": {"fit_width": False}}, **LOOP_KW)
     assert _width(held) == (False, None)
     assert step.val["rmse"] < _friction_step(held).val["rmse"]
-    # off by default: the same loop without the option keeps the library's default width
-    default = augment(data, drive.make_model(), seed=seed,
-                      **{**LOOP_KW, "fit_shapes": False})
-    assert _width(default) == (False, None)
-    assert _friction_step(default).val == _friction_step(held).val
+    # off: the library's default width, as the user's explicit fit_width=False
+    off = augment(data, drive.make_model(), seed=seed, **{**LOOP_KW, "fit_shapes": "off"})
+    assert _width(off) == (False, None)
+    assert _friction_step(off).val == _friction_step(held).val
+    # the default ("chosen"): the friction wins at its default width, then its width is
+    # fitted in the accepted model; the final model is as sharp as the contenders' mode's
+    chosen = augment(data, drive.make_model(), seed=seed,
+                     **{**LOOP_KW, "fit_shapes": "chosen"})
+    step = _friction_step(chosen)
+    assert step.val == _friction_step(held).val  # judged at the default width
+    fitted, v_switch = _width(chosen)
+    assert fitted and v_switch < 5e-4, (fitted, v_switch)
+    assert any(n.startswith("after acceptance: its switching width fitted:")
+               for n in step.notes), step.notes
+    assert chosen.final.metrics["val"]["rmse"] < off.final.metrics["val"]["rmse"]
+
+
+def _profile(res):
+    return next(p for p in res.final.model.parts if p.name == "coulomb_friction").profile
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_a_tanh_friction_gets_the_tanh_profile(seed):
+    """A friction that reaches its level as ``tanh(v/width)`` does: the shape stage tries
+    both profiles at a fitted width and keeps the tanh, whose selection error is below the
+    same loop's with the profile held at the algebraic sign (the user's choice, left as
+    given)."""
+    data = drive.simulate_record(seed=seed, coulomb=0.3, width=5e-5, noise=0.0005,
+                                 profile="tanh")
+    res = augment(data, drive.make_model(), seed=seed, **LOOP_KW)
+    assert res.chosen == ["coulomb_friction"], res.chosen
+    assert _profile(res) == "tanh" and _width(res)[0], _friction_step(res).notes
+    assert any("with the tanh sign" in n for n in _friction_step(res).notes)
+    held = augment(data, drive.make_model(), seed=seed,
+                   effect_kw={"coulomb_friction": {"profile": "algebraic"}}, **LOOP_KW)
+    assert _profile(held) == "algebraic"
+    assert _friction_step(res).val["rmse"] < _friction_step(held).val["rmse"]
 
 
 def test_the_cli_fits_shapes_on_request(tmp_path):
@@ -82,7 +115,20 @@ def test_the_cli_fits_shapes_on_request(tmp_path):
                 if p["type"] == "CoulombFriction")
     assert part["args"]["fit_width"] is True
     assert js["fits"]["final"]["params"]["v_switch"]["value"] < 5e-4
-    assert js["settings"]["fit_shapes"] is True
+    assert js["settings"]["fit_shapes"] == "contenders"
+
+
+def test_shape_modes_are_checked_by_name():
+    from hhra_phys.cli.diagnose import _SHAPE_MODES
+    from hhra_phys.errors import ParameterError
+    from hhra_phys.loop import SHAPE_MODES, LoopOptions
+
+    assert _SHAPE_MODES == SHAPE_MODES
+    assert LoopOptions().shape_mode == "chosen"
+    assert LoopOptions(fit_shapes=True).shape_mode == "contenders"
+    assert LoopOptions(fit_shapes=False).shape_mode == "off"
+    with pytest.raises(ParameterError, match="fit_shapes must be one of"):
+        LoopOptions(fit_shapes="sharp").validate()
 
 
 def test_a_friction_as_wide_as_the_default_keeps_the_default():

@@ -81,13 +81,16 @@ TRUTH = {"k_motor": 2.5, "c_visc": 6.0}
 
 def simulate_record(seed: int = 0, n: int = 3000, fs: float = 1000.0, coulomb: float = 0.0,
                     const: float = 0.0, u_offset: float = 0.0, noise: float = 0.002,
-                    width: float = 1e-4, substeps: int = 4, kp: float = 20.0) -> Dataset:
+                    width: float = 1e-4, substeps: int = 4, kp: float = 20.0,
+                    profile: str = "algebraic") -> Dataset:
     """A closed-loop record of the drive (set points and sines on the command), seeded.
 
     Parameters
     ----------
     coulomb : float
         Coulomb friction over mass [m/s^2] (smooth sign of width ``width`` [m/s]).
+    profile : {"algebraic", "tanh"}
+        Shape of that sign: ``v/sqrt(v^2 + width^2)`` or ``tanh(v/width)``.
     const : float
         Constant force over mass [m/s^2] at the velocity's rate.
     u_offset : float
@@ -111,10 +114,12 @@ def simulate_record(seed: int = 0, n: int = 3000, fs: float = 1000.0, coulomb: f
                  for a, f in ((0.3, 0.9), (0.2, 2.3), (0.15, 4.7)))
     km, cv = TRUTH["k_motor"], TRUTH["c_visc"]
 
+    def sign(v):
+        return np.tanh(v / width) if profile == "tanh" else v / np.sqrt(v * v + width * width)
+
     def rate(x, uk):
         q, v = x
-        return np.array([v, km * (uk + u_offset) - cv * v
-                         - coulomb * v / np.sqrt(v * v + width * width) + const])
+        return np.array([v, km * (uk + u_offset) - cv * v - coulomb * sign(v) + const])
 
     h = 1.0 / (fs * substeps)
     x = np.zeros(2)
