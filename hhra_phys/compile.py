@@ -34,6 +34,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from hhra_phys.errors import ModelError
 from hhra_phys.vectorize import SimdTarget, transform_source
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "find_compiler",
     "CompiledFunction",
     "compile_function",
+    "MAX_SOURCE_BYTES",
 ]
 
 #: Flags for the generated code. No -ffast-math: it would let the compiler drop
@@ -51,6 +53,14 @@ CFLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared", "-pthread", "-ffp-contract
 #: Extra flags of the vectorised C++: -fno-math-errno lets sqrt become one vector
 #: instruction (errno is never read).
 SIMD_CFLAGS: tuple[str, ...] = ("-x", "c++", "-fno-math-errno")
+
+#: Largest generated C source compiled [bytes]. The simulators and sensitivities of the
+#: package's models generate 30-110 kB (108 functions of a rig loop with discovery,
+#: measured); a candidate of the one-loop study generated 82 MB, one per-sample function
+#: of 3 million lines, whose compile ran over 30 CPU minutes and 3 GB before it was
+#: stopped. Such an expression is no model to simulate (CasADi's virtual machine would
+#: evaluate the same 3 million operations per sample): it is refused at once.
+MAX_SOURCE_BYTES = 8_000_000
 
 _CASADI_INT = ctypes.c_longlong  # the generated code's default ``casadi_int``
 _lock = threading.Lock()  # guards _locks
@@ -263,6 +273,13 @@ def compile_function(
     _check_dense(fn)
     name = fn.name()
     source = _c_source(fn)
+    if len(source) > MAX_SOURCE_BYTES:
+        raise ModelError(
+            f"the generated code of {name} is {len(source) / 1e6:.0f} MB, more than the "
+            f"{MAX_SOURCE_BYTES / 1e6:.0f} MB a simulator may have: its expression has grown "
+            "beyond any model's (a loop's candidate gets an infinite cost and is skipped); "
+            "compiling it would take tens of minutes, and backend='casadi' would evaluate "
+            "as many operations per sample")
     flags = CFLAGS
     if simd is not None:
         source = transform_source(source.decode()).encode()

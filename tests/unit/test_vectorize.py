@@ -237,3 +237,23 @@ def test_members_starting_from_different_states_keep_their_own(population, opts)
         assert cost[i] == pytest.approx(np.sum((y - yi) ** 2), rel=1e-12), f"member {i}"
     # The starts matter: the members' first outputs are their own initial angles.
     np.testing.assert_allclose(Y[:, 0], np.degrees(X0[:, 0]), rtol=1e-12)
+
+
+def test_a_simulator_whose_code_has_exploded_is_refused_at_once(monkeypatch):
+    """Generated code beyond ``MAX_SOURCE_BYTES`` is refused before the compiler starts
+    (a loop candidate's 82 MB once compiled for over 30 CPU minutes): a clear error naming
+    the function and its size, which a loop turns into a failed candidate."""
+    import hhra_phys.compile as comp
+    from hhra_phys.errors import ModelError
+
+    x = ca.SX.sym("x", 3)
+    fn = ca.Function("exploded", [x], [ca.sin(x) * ca.cos(x) + x ** 3])
+    monkeypatch.setattr(comp, "MAX_SOURCE_BYTES", 200)
+    called = []
+    monkeypatch.setattr(comp, "_build", lambda *a, **k: called.append(a) or False)
+    with pytest.raises(ModelError, match=r"generated code of exploded is .* MB"):
+        compile_function(fn)
+    assert not called  # the compiler never ran
+    sim = Simulator(HHRAModel(), fs=250.0)
+    with pytest.raises(ModelError, match="generated code"):
+        sim.simulate(default_input(seed=0, duration=0.4), HHRAModel().params.vector())
