@@ -107,14 +107,15 @@ def register(subparsers: Any) -> None:
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
                         "rule would no longer accept it)")
-    p.add_argument("--fit-shapes", nargs="?", const="contenders", default="chosen",
-                   choices=_SHAPE_MODES, metavar="{" + ",".join(_SHAPE_MODES) + "}",
+    p.add_argument("--shapes", choices=_SHAPE_MODES, default="chosen",
                    help="where to fit the switching width (and a friction's sign profile, "
                         "algebraic or tanh) of a library effect with a smooth edge (Coulomb "
                         "friction, a backlash's contact) where a sharper one fits better: "
-                        "'chosen' (default) the round's accepted effect, 'contenders' (the "
-                        "flag alone) every contender before the round is decided, 'off' the "
-                        "library's default widths (docs/diagnosis.md)")
+                        "'chosen' (default) the round's accepted effect, 'contenders' every "
+                        "contender before the round is decided, 'off' the library's default "
+                        "widths (docs/diagnosis.md)")
+    p.add_argument("--fit-shapes", action="store_true",
+                   help="the same as --shapes contenders")
     p.add_argument("--no-revisit", action="store_true",
                    help="do not revisit a round a discovered term won over an acceptable library "
                         "effect (by default, when the loop then ends above the noise level, the "
@@ -205,7 +206,7 @@ def _augment(args: argparse.Namespace) -> Any:
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
             intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
-            fit_shapes=args.fit_shapes,
+            fit_shapes="contenders" if args.fit_shapes else args.shapes,
         )
     res.warnings.extend(data_warnings)
     for name, why in res.skipped.items():  # a candidate that broke: said, not only in JSON

@@ -124,6 +124,14 @@ def test_shape_modes_are_checked_by_name():
     from hhra_phys.loop import SHAPE_MODES, LoopOptions
 
     assert _SHAPE_MODES == SHAPE_MODES
+    from hhra_phys.cli import build_parser
+
+    parse = build_parser().parse_args
+    assert parse(["diagnose", "d.csv"]).shapes == "chosen"
+    assert parse(["diagnose", "--shapes", "off", "d.csv"]).shapes == "off"
+    # the bare flag never swallows the record that follows it
+    args = parse(["diagnose", "--fit-shapes", "d.csv"])
+    assert args.fit_shapes is True and args.data == ["d.csv"]
     assert LoopOptions().shape_mode == "chosen"
     assert LoopOptions(fit_shapes=True).shape_mode == "contenders"
     assert LoopOptions(fit_shapes=False).shape_mode == "off"
