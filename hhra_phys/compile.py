@@ -277,7 +277,7 @@ def compile_function(
         raise ModelError(
             f"the generated code of {name} is {len(source) / 1e6:.0f} MB, more than the "
             f"{MAX_SOURCE_BYTES / 1e6:.0f} MB a simulator may have: its expression has grown "
-            "beyond any model's (a loop's candidate gets an infinite cost and is skipped); "
+            "beyond any model's (a loop's candidate with it fails its refit and is skipped); "
             "compiling it would take tens of minutes, and backend='casadi' would evaluate "
             "as many operations per sample")
     flags = CFLAGS
