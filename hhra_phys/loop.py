@@ -402,8 +402,7 @@ def _stiff_substeps(problem: Problem) -> Problem:
     return problem
 
 
-def _as_refitted(cfg: _Settings, problem: Problem, integration: Mapping[str, Any] | None
-                 ) -> Problem:
+def _as_refitted(problem: Problem, integration: Mapping[str, Any] | None) -> Problem:
     """An accepted model's problem for its polish, simulated at least as finely as its
     refit ended (``integration``: the refit's ``settings["integration"]``).
 
@@ -416,18 +415,15 @@ def _as_refitted(cfg: _Settings, problem: Problem, integration: Mapping[str, Any
     accuracy rule's coarser count, the one-loop study's dead zone beside an exact friction
     (seed 1) lost its next round to a discovered stand-in.
     """
-    prob = problem
-    n = (integration or {}).get("substeps")
-    if (len(prob.records) > 1 or not isinstance(n, int) or n <= prob.sim.substeps
-            or (integration or {}).get("method") != prob.sim.method):
-        return prob
-    sim = Simulator(prob.model, fs=prob.sim.fs, substeps=n, method=prob.sim.method,
-                    backend=cfg.backend, block=CANDIDATE_BLOCK,
-                    intersample=prob.sim.intersample)
+    integration = integration or {}
+    n = integration.get("substeps")
+    if (len(problem.records) > 1 or not isinstance(n, int) or n <= problem.sim.substeps
+            or integration.get("method") != problem.sim.method):
+        return problem
+    sim = problem.sim.with_substeps(n)
     sim.accuracy = {k: integration[k] for k in ("method", "substeps", "error_estimate",
-                                                 "tolerance", "within")
-                    if integration and k in integration}
-    return prob.with_simulator(sim)
+                                                 "tolerance", "within") if k in integration}
+    return problem.with_simulator(sim)
 
 
 def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[str, float],
@@ -840,10 +836,9 @@ def refit_candidate(job: _Job) -> _Outcome:
                           job, eff, r2, all_free, widened_notes)
         chosen_kw: dict[str, Any] = {}
         if shaped is not None:
-            profile = getattr(shaped[3], "profile", None)
-            same = profile in (None, getattr(eff, "profile", None))
-            chosen_kw = {"fit_width": True, **({} if same else {"profile": profile})}
             p2, r2, model_c, eff, width, box = shaped
+            chosen_kw = {"fit_width": True, **({"profile": eff.profile}
+                                               if hasattr(eff, "profile") else {})}
             new, all_free = new + [width], all_free + [width]
             boxes[width] = box
     except Exception as exc:  # noqa: BLE001 - a failing candidate must not end the loop
@@ -1886,9 +1881,7 @@ class _Loop:
                         if o.joint_search else ())
             widen_below = _widening_worth(cur, float(self.levels[-1]["estimation"]["noise"])
                                           if self.levels else math.nan)
-            noise = ((float(self.levels[-1]["noise"]),
-                      float(self.levels[-1]["estimation"]["noise"]), float(self.tol))
-                     if self.levels else (math.nan, math.nan, float(self.tol)))
+            noise = self._noise_now()
             jobs = [_Job(self.cfg, rnd, ev.name, dict((o.effect_kw or {}).get(ev.name, {})),
                          cur_prob.model, tuple(self.cur_free), _values(cur), dict(cur.x0),
                          ev.to_json(), o.cand_pop, o.cand_iter, crit_cur, rmse_cur,
@@ -2112,8 +2105,7 @@ class _Loop:
         # rule at its values as its refit had (the base fit's substeps, given, skip the
         # rule: a sharp friction refitted at ROS4 x 16 and polished at x 8 left the drive's
         # selection at 1.26e-6 m where its refit had reached the 1.0e-6 m noise).
-        self.cur_prob = _as_refitted(cfg, _problem(cfg, model_c, free_c, {}, vals_c, x0_c),
-                                     integ)
+        self.cur_prob = _as_refitted(_problem(cfg, model_c, free_c, {}, vals_c, x0_c), integ)
         self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
         self.cur_free = list(free_c)
         self.say(f"round {rnd}: accepted {best_step.effect}")
@@ -2129,6 +2121,14 @@ class _Loop:
                 and not self._over_budget()):
             self._sharpen_chosen(rnd, best_step)
 
+    def _noise_now(self) -> tuple[float, float, float]:
+        """Noise levels of the selection and estimation parts at the current model (the
+        last round's start) and the loop's tolerance, as a :class:`_Job` carries them."""
+        if not self.levels:
+            return (math.nan, math.nan, float(self.tol))
+        lv = self.levels[-1]
+        return (float(lv["noise"]), float(lv["estimation"]["noise"]), float(self.tol))
+
     def _sharpen_chosen(self, rnd: int, step: Step) -> None:
         """The chosen effect's shape (``fit_shapes="chosen"``): its switching width, and its
         sign's profile, fitted in the current model where that fits clearly better
@@ -2143,13 +2143,10 @@ class _Loop:
         width = _width_param(eff) if eff is not None else None
         if width is None or getattr(eff, "fit_width", True):
             return
-        noise = ((float(self.levels[-1]["noise"]),
-                  float(self.levels[-1]["estimation"]["noise"]), float(self.tol))
-                 if self.levels else (math.nan, math.nan, float(self.tol)))
         job = _Job(self.cfg, rnd, step.effect, dict((o.effect_kw or {}).get(step.effect, {})),
                    prob.model.without(step.effect), tuple(self.cur_free), _values(cur),
                    dict(cur.x0), {}, o.cand_pop, o.cand_iter, math.nan, math.nan,
-                   self.est_range, noise=noise, fit_shapes=True, margin=o.margin)
+                   self.est_range, noise=self._noise_now(), fit_shapes=True, margin=o.margin)
         notes: list[str] = []
         ts = time.perf_counter()
         try:
@@ -2167,7 +2164,7 @@ class _Loop:
         self.cfg = replace(self.cfg, bounds={**self.cfg.bounds, width: box})
         free = [*self.cur_free, width]
         self.cur_prob = _as_refitted(
-            self.cfg, _problem(self.cfg, model_s, free, {}, _values(r_s), dict(r_s.x0)),
+            _problem(self.cfg, model_s, free, {}, _values(r_s), dict(r_s.x0)),
             r_s.settings.get("integration"))
         self.cur = _run(self.cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER,
                         stall=False)

@@ -760,28 +760,33 @@ class Simulator:
         while math.isfinite(err) and err > tolerance and 8 * n <= MAX_AUTO_SUBSTEPS:
             n *= 2
             err = step_doubling_error(out(n), out(2 * n), out(4 * n))
-        sim = self
-        if n != self.substeps:
-            key = (self.method, n)
-            if key not in self._derived:
-                self._derived[key] = Simulator(
-                    self.model, self.fs, substeps=n, method=self.method,
-                    threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
-                    chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
-                    diverge_limit=self.diverge_limit, simd=self._simd_arg,
-                    intersample=self.intersample)
-                # Same model, rate and hold: the estimate's VM maps and outputs are the
-                # same functions (a fit estimates again with the derived simulator at its
-                # fitted values; building a ROS4 x 16 sample graph costs a tenth of a second).
-                self._derived[key]._vm_maps = self._vm_maps
-                self._derived[key]._vm_memo = self._vm_memo
-            sim = self._derived[key]
+        sim = self.with_substeps(n)
         sim.accuracy = {"method": self.method, "substeps": int(n),
                         "error_estimate": float(err), "tolerance": float(tolerance),
                         "rule_substeps": int(n_rule), "start_substeps": int(n_start),
                         "within": bool(err <= tolerance),
                         "reason": self.method_reason}
         return sim
+
+    def with_substeps(self, n: int) -> Simulator:
+        """This simulator with ``n`` fixed substeps of its method (``self`` when it has
+        them): the same settings otherwise, built once per count and kept."""
+        if n == self.substeps:
+            return self
+        key = (self.method, int(n))
+        if key not in self._derived:
+            self._derived[key] = Simulator(
+                self.model, self.fs, substeps=int(n), method=self.method,
+                threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
+                chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
+                diverge_limit=self.diverge_limit, simd=self._simd_arg,
+                intersample=self.intersample)
+            # Same model, rate and hold: the estimate's VM maps and outputs are the same
+            # functions (a fit estimates again with the derived simulator at its fitted
+            # values; building a ROS4 x 16 sample graph costs a tenth of a second).
+            self._derived[key]._vm_maps = self._vm_maps
+            self._derived[key]._vm_memo = self._vm_memo
+        return self._derived[key]
 
     def for_parameters(self, p: np.ndarray, umax: float = 1.0) -> Simulator:
         """The simulator a single parameter vector ``p`` is simulated with.
