@@ -446,8 +446,15 @@ class Simulator:
             self.substeps = n_auto
         elif method == "auto" and chosen != "rk4":
             # A given count is meant for RK4 on a model that is not stiff; for a
-            # stiff one it is a floor under the rule's (ROS4_MIN_STIFF).
-            self.substeps = max(int(substeps), n_auto)
+            # stiff one it is a floor under the rule's (ROS4_MIN_STIFF), itself at most
+            # MAX_AUTO_SUBSTEPS: a loop candidate's start asked for 459,462 ROS4 substeps
+            # (a mode far off the model's range) and its sensitivity's code grew to
+            # gigabytes; ROS4 damps what it does not resolve, and the population's check
+            # and the accuracy rule see the fitted values.
+            self.substeps = max(int(substeps), min(n_auto, MAX_AUTO_SUBSTEPS))
+            if n_auto > self.substeps:
+                self.method_reason += (f"; the rule's {n_auto} substeps capped at "
+                                       f"{self.substeps}")
         else:
             self.substeps = int(substeps)
         if self.substeps_auto and n_auto > MAX_AUTO_SUBSTEPS:
@@ -795,7 +802,9 @@ class Simulator:
         same settings and the method and substeps of :meth:`plan` for ``p`` (built
         once and kept). With ``substeps="auto"`` the rule is re-applied to ``p``
         (never coarser than ``self``); otherwise ``self`` is kept unless the
-        stability check fails for ``p``, which gives a ``RuntimeWarning``.
+        stability check fails for ``p``, which gives a ``RuntimeWarning``. A rule
+        asking for more than :data:`MAX_AUTO_SUBSTEPS` also keeps ``self`` (its
+        population check flags such ``p`` as unstable under RK4).
 
         Parameters
         ----------
@@ -817,6 +826,19 @@ class Simulator:
             n = max(n, self.substeps)
             if n == self.substeps:
                 return self
+        if n > MAX_AUTO_SUBSTEPS:
+            # Parameters far off the model's range (a discovered term's coefficient in the
+            # millions gave a mode asking for 587,127 ROS4 substeps: one sample's graph
+            # grew to gigabytes before any code was generated). Simulated as a population
+            # member instead: RK4 flags them (NaN, an infinite cost), ROS4 damps the mode
+            # it cannot resolve, as it does a stiff one.
+            if unstable:
+                warnings.warn(
+                    f"these parameters are unstable for {self.method.upper()} with "
+                    f"{self.substeps} substeps per sample and would need {n} "
+                    f"{method.upper()} substeps, more than {MAX_AUTO_SUBSTEPS} ({why}): "
+                    "flagged, not simulated", RuntimeWarning, stacklevel=3)
+            return self
         key = (method, n)
         if key not in self._derived:
             self._derived[key] = Simulator(

@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
-from hhra_phys import HHRAModel, Simulator
+from hhra_phys import HHRAModel, Model, Parameter, Part, Simulator, State, register_part
 from hhra_phys.errors import ParameterError
 from hhra_phys.models.hhra.rig import default_input
-from hhra_phys.simulate import STATUS_DIVERGED, STATUS_OK, STATUS_UNSTABLE, CodeOptions
+from hhra_phys.simulate import (
+    MAX_AUTO_SUBSTEPS,
+    STATUS_DIVERGED,
+    STATUS_OK,
+    STATUS_UNSTABLE,
+    CodeOptions,
+)
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +66,62 @@ def test_unstable_and_nan_rows_are_flagged_not_raised(setup):
     assert sim.last_status[0] == STATUS_OK
     assert sim.last_status[1] == STATUS_UNSTABLE
     assert sim.last_status[2] in (STATUS_UNSTABLE, STATUS_DIVERGED)
+
+
+def test_parameters_asking_for_hundreds_of_substeps_are_flagged_not_built(setup):
+    """One member far off the model's range: no simulator beyond MAX_AUTO_SUBSTEPS is
+    generated for it (a loop candidate's asked for 587,127 and grew to gigabytes)."""
+    model, sim, u = setup
+    p = model.nominal().copy()
+    p[model.params.index("g_torque")] *= 1e5
+    assert sim.plan(p, float(np.max(np.abs(u))))[1] > MAX_AUTO_SUBSTEPS
+    with pytest.warns(RuntimeWarning, match=f"more than {MAX_AUTO_SUBSTEPS}"):
+        y = sim.simulate(u, p)
+    assert np.isnan(y).all() and sim.last_status[0] == STATUS_UNSTABLE
+    assert sim.last_substeps <= MAX_AUTO_SUBSTEPS
+    ros = Simulator(model, fs=250.0, method="ros4")
+    assert ros.plan(p, float(np.max(np.abs(u))), method="ros4")[1] > MAX_AUTO_SUBSTEPS
+    ros.simulate(u, p)
+    assert ros.last_substeps <= MAX_AUTO_SUBSTEPS
+
+
+@register_part
+@dataclass(frozen=True)
+class _FastModes(Part):
+    """A relaxation ``a`` and a resonance ``b`` far faster than a 250 Hz sample rate."""
+
+    name = "fast_modes"
+    stage = "fast_modes"
+
+    @property
+    def parameters(self):
+        return (Parameter("k_relax", "1/s", 1e9, 1.0, 1e12, "log", "relaxation rate"),
+                Parameter("w_res", "rad/s", 1e5, 1.0, 1e9, "log", "resonance"))
+
+    @property
+    def states(self):
+        return (State("a", "", 0.0, "relaxing state"), State("b", "", 0.0, "position"),
+                State("c", "", 0.0, "velocity"))
+
+    def apply(self, ctx):
+        ctx.add_rate("a", -ctx.p["k_relax"] * ctx.x["a"] + ctx.u)
+        ctx.add_rate("b", ctx.x["c"])
+        ctx.add_rate("c", -ctx.p["w_res"] ** 2 * ctx.x["b"] + ctx.x["a"])
+        ctx.signals["y"] = ctx.x["b"]
+
+
+def test_a_given_count_is_a_floor_under_the_stiff_rule_up_to_its_cap():
+    """Stiff at its nominal values: ROS4 and the rule's substeps over a given count, but
+    never more than MAX_AUTO_SUBSTEPS (a loop candidate's start asked for 459,462)."""
+    model = Model([_FastModes()], name="fast")
+    sim = Simulator(model, fs=250.0, substeps=2, backend="casadi")
+    method, n_rule, _ = sim.plan(model.nominal())
+    assert method == "ros4" and n_rule > MAX_AUTO_SUBSTEPS
+    assert sim.method == "ros4" and sim.substeps == MAX_AUTO_SUBSTEPS
+    assert f"{n_rule} substeps capped at {MAX_AUTO_SUBSTEPS}" in sim.method_reason
+    slower = model.with_nominal(w_res=1e3)  # the rule's 16, over the given 2
+    assert Simulator(slower, fs=250.0, substeps=2, backend="casadi").substeps == \
+        Simulator(slower, fs=250.0).plan(slower.nominal())[1] == 16
 
 
 def test_marginal_candidate_is_not_silently_wrong(setup):
