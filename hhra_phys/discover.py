@@ -127,6 +127,7 @@ __all__ = [
     "EntryScreen",
     "entry_points",
     "input_followers",
+    "input_twin",
     "term_library",
     "screen",
     "variable_forms",
@@ -177,6 +178,34 @@ def entry_points(model: Model) -> list[str]:
     """
     kinematic = set(velocity_pairs(model).values()) | set(model.sensor_states())
     return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
+
+
+def input_twin(model: Model) -> str | None:
+    """The rate entry that is the same entry as ``input`` on ``model``, or None.
+
+    Where the input acts on one state's rate alone, linearly, with a gain that depends on
+    neither the states nor the input (``d v/dt = f0(x, p) + b(p)*u``, a drive's motor or a
+    resonator's force), and not on the output, a term ``u += g`` is the term
+    ``d v/dt += b*g``: the two entries hold the same models, and discovery screening and
+    refitting both (a long drive record's round spent 14 s refitting each, to the same
+    criterion and selection error) doubles the cost for nothing. The rate is kept: it is the
+    balance a missing force or flow enters. A valve (the HHRA's flow law), an input part
+    that is not linear (a dead zone), input lags or an input read by the output: None.
+    """
+    if model.n_lags:
+        return None
+    x, u, p = model.symbols()
+    xdot, y = model.assemble(x, u, p, 1.0)
+    if ca.depends_on(y, u):
+        return None
+    gain = ca.jacobian(xdot, u)
+    if ca.depends_on(gain, ca.vertcat(x, u)):
+        return None
+    rows = [i for i in range(model.nx) if not gain[i, 0].is_zero()]
+    if len(rows) != 1:
+        return None
+    entry = f"rate:{model.state_names[rows[0]]}"
+    return entry if entry in entry_points(model) else None
 
 
 def input_followers(model: Model) -> list[str]:
@@ -1299,6 +1328,12 @@ class Discovery:
             if e not in all_entries:
                 raise ParameterError(f"unknown entry point {e!r}; entry points of this model: "
                                      f"{', '.join(all_entries)}")
+        twin = input_twin(cur_prob.model)
+        if twin is not None and "input" in chosen and twin in chosen:
+            chosen.remove("input")
+            self.say(f"round {round_no}: discovery screens the input entry once, as {twin}: "
+                     f"on this model the input acts on d {twin[5:]}/dt alone, linearly, so a "
+                     f"term at the input is a term at {twin}")
         terms = [e for e in chosen if e not in modes]
         screens: list[EntryScreen | ModeScreen] = list(
             screen(cur_prob, values, entries=terms, max_terms=max_terms))

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from hhra_phys import Model, Parameter, Part, State
-from hhra_phys.discover import entry_points
+from hhra_phys.discover import entry_points, input_twin
 from hhra_phys.effects import EFFECTS, library_twins, make_effect, motion_scales
 from hhra_phys.errors import ModelError
 from hhra_phys.models.cylinder import LinearCylinderModel
@@ -193,3 +193,19 @@ def test_a_discovered_term_is_named_by_the_library_shape_it_holds(model, entry, 
     """A discovered term holding a library effect's own shape at its entry is that physics
     in discovered form (issue 32, item 3), bound by role on any model."""
     assert sorted(library_twins(entry, terms, model)) == sorted(twins)
+
+
+def test_the_input_entry_is_a_rate_where_the_input_acts_on_one_rate_linearly():
+    """Discovery screens such an input entry once, at the rate (the same models)."""
+    users = drive.make_model()
+    assert input_twin(users) == "rate:v"  # dv/dt = k_motor*u - c_visc*v
+    assert input_twin(two_tank.make_model()) == "rate:h1"  # the pump fills tank 1
+    assert input_twin(make_resonator()) == "rate:v"
+    # Still linear in u with an input offset or a friction beside it.
+    for name in ("input_offset", "coulomb_friction", "sensor_offset"):
+        assert input_twin(users.with_parts(make_effect(name, model=users))) == "rate:v", name
+    # A valve law, a dead zone or a saturation at the input, or input lags: not the same.
+    assert input_twin(HHRAModel()) is None
+    assert input_twin(LinearCylinderModel()) is None
+    for name in ("valve_deadzone", "valve_saturation", "input_delay"):
+        assert input_twin(users.with_parts(make_effect(name, model=users))) is None, name
