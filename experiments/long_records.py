@@ -40,6 +40,7 @@ Writes ``DIR/rows.json`` (one row per record and seed) and prints a summary.
 
     python experiments/long_records.py --out /tmp/long [--records drive,duffing]
         [--seeds 1] [--quick] [--budget SECONDS] [--workers N] [--pop P --iters I]
+        [--drive-seconds 25]
 """
 
 from __future__ import annotations
@@ -434,12 +435,20 @@ def step_seconds(log: Path) -> list[str]:
             if pat.search(ln.strip()) and "\r" not in ln][:300]
 
 
+def _tag(kind: str, seed: int, args: argparse.Namespace) -> str:
+    """File stem of a record (a drive of another length than 25 s says its length)."""
+    if kind == "drive" and args.drive_seconds != 25.0 and not args.quick:
+        return f"drive{args.drive_seconds:g}s_seed{seed}"
+    return f"{kind}_seed{seed}"
+
+
 def run_record(kind: str, seed: int, out: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Write the record and the models, run fit, diagnose and the truth's refit; one row."""
-    tag = f"{kind}_seed{seed}"
+    tag = _tag(kind, seed, args)
     t0 = time.perf_counter()
     if kind == "drive":
-        dur, dur_test = (1.5, 1.0) if args.quick else (25.0, 25.0)
+        dur, dur_test = ((1.5, 1.0) if args.quick
+                         else (args.drive_seconds, args.drive_seconds))
         data = drive_record(seed, dur, f"drive seed {seed}")
         test = drive_record(seed + 1000, dur_test, f"drive test seed {seed + 1000}")
         src, truth_src = DRIVE_MODEL, DRIVE_MODEL + DRIVE_TRUTH_PARTS
@@ -556,7 +565,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", default="", help="diagnose --workers N (default: the CLI's)")
     ap.add_argument("--extra", default="", help="extra diagnose options")
     ap.add_argument("--no-truth", action="store_true", help="skip the true structure's refit")
+    ap.add_argument("--drive-seconds", type=float, default=25.0,
+                    help="length of the drive record and of its test experiment [s] at 1 kHz "
+                         "(default 25; 5, 20 and 50 measure how the cost grows with the "
+                         "record)")
     args = ap.parse_args(argv)
+    if not args.drive_seconds > 1.0:
+        ap.error(f"--drive-seconds must be more than 1 s, got {args.drive_seconds:g}")
     kinds = [k.strip() for k in args.records.split(",") if k.strip()]
     bad = [k for k in kinds if k not in ("drive", "duffing")]
     if bad or not kinds:
