@@ -191,6 +191,17 @@ def input_twin(model: Model) -> str | None:
     criterion and selection error) doubles the cost for nothing. The rate is kept: it is the
     balance a missing force or flow enters. A valve (the HHRA's flow law), an input part
     that is not linear (a dead zone), input lags or an input read by the output: None.
+
+    Parameters
+    ----------
+    model : Model
+        The current model (with the effects accepted so far: one that makes the input act
+        nonlinearly ends the twin).
+
+    Returns
+    -------
+    str or None
+        ``"rate:<state>"`` (an entry of :func:`entry_points`), or None.
     """
     if model.n_lags:
         return None
