@@ -128,6 +128,7 @@ __all__ = [
     "entry_points",
     "input_followers",
     "input_twin",
+    "score_floor",
     "term_library",
     "screen",
     "variable_forms",
@@ -178,6 +179,43 @@ def entry_points(model: Model) -> list[str]:
     """
     kinematic = set(velocity_pairs(model).values()) | set(model.sensor_states())
     return ["input", "output", *[f"rate:{s}" for s in model.state_names if s not in kinematic]]
+
+
+def score_floor(n: int, criterion: str = "bic") -> float:
+    """Least first-order score with which a discovered candidate can lower the criterion.
+
+    A candidate whose picks explain the share ``s`` of the estimation residual's variance
+    lowers ``N ln(RSS/N)`` by ``-N ln(1 - s)`` to first order and adds at least one
+    parameter's penalty (``ln N`` for BIC, 2 for AIC): below ``1 - exp(-penalty/N)`` its
+    criterion cannot fall, and :func:`~hhra_phys.selection.acceptance` asks it to. An
+    entry below that floor is screened and not refitted (issue 31: the long drive
+    record's fourth round refitted three resonant modes of scores 4e-4 to 6e-4, 30 s, where
+    the floor of 12,500 samples is 7.5e-4).
+
+    Parameters
+    ----------
+    n : int
+        Samples of the estimation part(s).
+    criterion : {"bic", "aic"}
+        The loop's information criterion.
+
+    Returns
+    -------
+    float
+        The floor, a fraction of the residual's variance (0 for ``n < 1``).
+    """
+    if n < 1:
+        return 0.0
+    penalty = math.log(n) if criterion == "bic" else 2.0
+    return -math.expm1(-penalty / n)
+
+
+def _estimation_samples(res: FitResult) -> int:
+    """Samples of a fit's estimation part(s) (as :func:`information_criterion` counts)."""
+    data = res.settings.get("data") or {}
+    if isinstance(data, list):
+        return int(sum(d.get("n", 0) for d in data))
+    return int(data.get("n_est", 0))
 
 
 def input_twin(model: Model) -> str | None:
@@ -1353,6 +1391,11 @@ class Discovery:
         self._proposals = [Proposal(s.entry, float(s.score), s) for s in screens
                            if not isinstance(s, EntryScreen) or s.picked]
         self._proposals.sort(key=lambda p: -p.score)
+        # What cannot lower the criterion even to first order is not refitted.
+        floor = score_floor(_estimation_samples(cur), criterion)
+        #: Entries screened but not refitted: ``(entry, first-order score)``.
+        self.below_floor = [(p.entry, p.score) for p in self._proposals if p.score < floor]
+        self._proposals = [p for p in self._proposals if p.score >= floor]
         self.index = 1 + sum(isinstance(p, DiscoveredTerm) for p in cur_prob.model.parts)
         self.m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
         self.crit_cur = information_criterion(cur, criterion)
@@ -1364,6 +1407,11 @@ class Discovery:
                  + (f" (modes screened on record {self.record_index + 1})"
                     if len(cur_prob.records) > 1 else "") + ": "
                  + ", ".join(f"{p.entry} {p.score:.2f}" for p in self._proposals))
+        if self.below_floor:
+            self.say(f"round {round_no}: discovery does not refit "
+                     + ", ".join(f"{e} ({sc:.2g})" for e, sc in self.below_floor)
+                     + f": a first-order score below {floor:.2g} cannot lower the "
+                     f"{criterion.upper()} by even one parameter's penalty")
 
     def proposals(self) -> list[Proposal]:
         """The entries worth a refit, best first-order score first."""

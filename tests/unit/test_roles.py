@@ -209,3 +209,15 @@ def test_the_input_entry_is_a_rate_where_the_input_acts_on_one_rate_linearly():
     assert input_twin(LinearCylinderModel()) is None
     for name in ("valve_deadzone", "valve_saturation", "input_delay"):
         assert input_twin(users.with_parts(make_effect(name, model=users))) is None, name
+
+
+def test_the_score_floor_is_one_parameters_penalty_in_residual_share():
+    """Below it a discovered entry cannot lower the criterion to first order: not refitted."""
+    from hhra_phys.discover import score_floor
+
+    n = 12_500
+    floor = score_floor(n, "bic")
+    assert floor == pytest.approx(np.log(n) / n, rel=1e-3)  # 7.5e-4 on the long drive
+    assert -n * np.log1p(-floor) == pytest.approx(np.log(n))  # one BIC penalty exactly
+    assert score_floor(1000, "aic") == pytest.approx(2 / 1000, rel=1e-3)
+    assert score_floor(0) == 0.0
