@@ -102,7 +102,13 @@ from hhra_phys.errors import ParameterError
 from hhra_phys.model import Model
 from hhra_phys.problem import Problem
 from hhra_phys.result import FitResult, redundant
-from hhra_phys.selection import NOISE_TOL, Step, information_criterion, tie_break
+from hhra_phys.selection import (
+    NOISE_TOL,
+    Step,
+    estimation_samples,
+    information_criterion,
+    tie_break,
+)
 from hhra_phys.terms import (
     _NP,
     FAMILIES,
@@ -208,14 +214,6 @@ def score_floor(n: int, criterion: str = "bic") -> float:
         return 0.0
     penalty = math.log(n) if criterion == "bic" else 2.0
     return -math.expm1(-penalty / n)
-
-
-def _estimation_samples(res: FitResult) -> int:
-    """Samples of a fit's estimation part(s) (as :func:`information_criterion` counts)."""
-    data = res.settings.get("data") or {}
-    if isinstance(data, list):
-        return int(sum(d.get("n", 0) for d in data))
-    return int(data.get("n_est", 0))
 
 
 def input_twin(model: Model) -> str | None:
@@ -1392,7 +1390,7 @@ class Discovery:
                            if not isinstance(s, EntryScreen) or s.picked]
         self._proposals.sort(key=lambda p: -p.score)
         # What cannot lower the criterion even to first order is not refitted.
-        floor = score_floor(_estimation_samples(cur), criterion)
+        floor = score_floor(estimation_samples(cur), criterion)
         #: Entries screened but not refitted: ``(entry, first-order score)``.
         self.below_floor = [(p.entry, p.score) for p in self._proposals if p.score < floor]
         self._proposals = [p for p in self._proposals if p.score >= floor]

@@ -42,6 +42,7 @@ __all__ = [
     "METRIC_KEYS",
     "Step",
     "information_criterion",
+    "estimation_samples",
     "noise_allowance",
     "acceptance",
     "judge",
@@ -71,14 +72,22 @@ METRIC_KEYS = ("rmse", "vaf", "mse", "itae")
 T = TypeVar("T")
 
 
+def estimation_samples(result: FitResult) -> int:
+    """Samples of a fit's estimation part(s), as :func:`information_criterion` counts them
+    (0 when the fit does not say)."""
+    data = result.settings.get("data") or {}
+    # A fit of several records lists them (samples of each estimation part in "n").
+    if isinstance(data, list):
+        return int(sum(d.get("n", 0) for d in data))
+    return int(data.get("n_est", 0))
+
+
 def information_criterion(result: FitResult, kind: str = "bic") -> float:
     """BIC ``N ln(RSS/N) + k ln N`` or AIC ``N ln(RSS/N) + 2k`` on the estimation part.
 
     ``k`` counts the free parameters including the fitted initial state.
     """
-    data = result.settings["data"]
-    # A fit of several records lists them (samples of each estimation part in "n").
-    n = int(sum(d["n"] for d in data) if isinstance(data, list) else data["n_est"])
+    n = estimation_samples(result)
     mse = float(result.metrics["est"]["mse"])
     k = len(result.free)
     if not (mse > 0 and math.isfinite(mse)):
