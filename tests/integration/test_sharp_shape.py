@@ -156,14 +156,17 @@ def test_a_discovered_friction_is_named_as_the_library_physics():
     """Without the library, discovery finds the friction at ``d v/dt`` with a sign of
     ``v``; the step names it as Coulomb friction in its discovered form (``same_as``),
     in the JSON too. The input entry, the same entry on this model (the motor force is
-    linear in the command), is screened once, as ``rate:v``."""
+    linear in the command), is screened once, as ``rate:v``; a load mode whose first-order
+    score cannot lower the criterion (below ``discover.score_floor``) is not refitted."""
     data = drive.simulate_record(seed=3, coulomb=0.3, width=5e-5, noise=0.0005)
     said: list[str] = []
     res = augment(data, drive.make_model(), seed=3, candidates=[], max_effects=1,
-                  discover=True, discover_kw={"entries": ["input", "rate:v"]}, pop_size=20,
-                  max_iter=20, progress=said.append)
-    assert not [s.effect for s in res.steps if getattr(s, "entry", "") == "input"]
+                  discover=True, discover_kw={"entries": ["input", "rate:v", "mode:rate:v"]},
+                  pop_size=20, max_iter=20, progress=said.append)
+    assert not [s.effect for s in res.steps
+                if getattr(s, "entry", "") in ("input", "mode:rate:v")]
     assert any("screens the input entry once, as rate:v" in line for line in said), said
+    assert any("does not refit mode:rate:v" in line for line in said), said
     found = [s for s in res.steps if getattr(s, "discovered", False)
              and s.entry == "rate:v" and "sgn(v)" in s.expression]
     assert found, [(s.effect, getattr(s, "expression", "")) for s in res.steps]
