@@ -1359,9 +1359,11 @@ class LoopOptions:
         Fit the switching width of a library effect with a smooth edge (Coulomb
         friction's ``v_switch``, a backlash's ``w_contact``) where a sharper one fits
         better, and a friction's sign profile (algebraic or tanh) with it
-        (:func:`_sharpen`; CLI ``--fit-shapes [MODE]``). ``"chosen"`` (default): the
-        round's chosen effect, once accepted and after the backward step, so the shape
-        never decides which effect wins a round; ``"contenders"`` (``True``): every
+        (:func:`_sharpen`; CLI ``--shapes MODE``, ``--fit-shapes`` for ``"contenders"``).
+        ``"chosen"`` (default): the round's chosen effect, once accepted and after the
+        backward step, so the shape never decides which effect wins a round (and effects
+        accepted earlier whose width is still the default, again after each later
+        acceptance); ``"contenders"`` (``True``): every
         contender in its refit, before the round is decided (a library friction whose
         default width loses to its sharper discovered twin can then win); ``"off"``
         (``False``): the library's default widths. Why not contenders by default: on
@@ -2190,10 +2192,10 @@ class _Loop:
             shaped = None
         when = "after acceptance" if step.round == rnd else f"in round {rnd}"
         step.notes += [f"{when}: {n}" for n in notes]
+        label = f"  shape of {step.effect}{'' if step.round == rnd else ' again'}"
         if shaped is None:
             if notes:
-                self.say(f"  shape of {step.effect}{'' if step.round == rnd else ' again'}: "
-                         f"{notes[-1]} [{time.perf_counter() - ts:.1f} s]")
+                self.say(f"{label}: {notes[-1]} [{time.perf_counter() - ts:.1f} s]")
             return
         _, r_s, model_s, _, width, box = shaped
         self.cfg = replace(self.cfg, bounds={**self.cfg.bounds, width: box})
@@ -2205,8 +2207,7 @@ class _Loop:
                         stall=False)
         self.cur_free = free
         step.params[width] = float(self.cur.values[width])
-        self.say(f"  shape of {step.effect}{'' if step.round == rnd else ' again'}: "
-                 f"{notes[-1]} [{time.perf_counter() - ts:.1f} s]")
+        self.say(f"{label}: {notes[-1]} [{time.perf_counter() - ts:.1f} s]")
 
     # -- result -----------------------------------------------------------------------------
     def _result(self) -> LoopResult:

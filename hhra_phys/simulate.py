@@ -775,15 +775,17 @@ class Simulator:
                         "reason": self.method_reason}
         return sim
 
-    def with_substeps(self, n: int) -> Simulator:
-        """This simulator with ``n`` fixed substeps of its method (``self`` when it has
-        them): the same settings otherwise, built once per count and kept."""
-        if n == self.substeps:
+    def with_substeps(self, n: int, method: str | None = None) -> Simulator:
+        """This simulator with ``n`` fixed substeps of ``method`` (default: its own;
+        ``self`` when it has them): the same settings otherwise, built once per method
+        and count and kept."""
+        method = method or self.method
+        if n == self.substeps and method == self.method:
             return self
-        key = (self.method, int(n))
+        key = (method, int(n))
         if key not in self._derived:
             self._derived[key] = Simulator(
-                self.model, self.fs, substeps=int(n), method=self.method,
+                self.model, self.fs, substeps=int(n), method=method,
                 threads=self._threads_arg, block=self._block_arg, lanes=self._lanes_arg,
                 chunk=self._chunk_arg, backend=self.backend, rho_max=self.rho_max,
                 diverge_limit=self.diverge_limit, simd=self._simd_arg,
@@ -839,13 +841,7 @@ class Simulator:
                     f"{method.upper()} substeps, more than {MAX_AUTO_SUBSTEPS} ({why}): "
                     "flagged, not simulated", RuntimeWarning, stacklevel=3)
             return self
-        key = (method, n)
-        if key not in self._derived:
-            self._derived[key] = Simulator(
-                self.model, self.fs, substeps=n, method=method, threads=self._threads_arg,
-                block=self._block_arg, lanes=self._lanes_arg, chunk=self._chunk_arg,
-                backend=self.backend, rho_max=self.rho_max, diverge_limit=self.diverge_limit,
-                simd=self._simd_arg, intersample=self.intersample)
+        sim = self.with_substeps(n, method)
         if unstable:
             warnings.warn(
                 f"these parameters are unstable for {self.method.upper()} with {self.substeps} "
@@ -853,7 +849,7 @@ class Simulator:
                 f"{self.rho_max:g}): simulated with {method.upper()} and {n} substeps ({why})",
                 RuntimeWarning, stacklevel=3,
             )
-        return self._derived[key]
+        return sim
 
     def _build_step(self, states: bool, lanes: int = 1) -> ca.Function:
         """SX function advancing ``block`` samples of ``lanes`` members.
