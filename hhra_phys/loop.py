@@ -84,7 +84,7 @@ from hhra_phys.outputs import jsonable
 from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
 from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
-from hhra_phys.regime import regime_coverage
+from hhra_phys.regime import change_coverage, regime_coverage
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
     METRIC_KEYS,
@@ -95,11 +95,16 @@ from hhra_phys.selection import (
     choose,
     information_criterion,
     judge,
+    needs_rotation,
     noise_tolerance,
+    pooled_rmse,
+    rotated_verdict,
     round_settled,
     split_record,
     stops_at_noise,
+    thin_part,
     tie_break,
+    votes,
 )
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 
@@ -1372,6 +1377,17 @@ class LoopOptions:
         the default width leaves both to be named; on a 1 kHz drive whose friction
         switches within 1e-4 m/s the sharpened width is what names the friction
         (docs/diagnosis.md).
+    rotate : bool
+        Rotate the parts where one cannot decide alone (default True; CLI
+        ``--no-rotate``): when the selection part and the information criterion on
+        estimation disagree on a candidate and the part that says no holds the candidate's
+        regime thinly (:func:`~hhra_phys.selection.needs_rotation`; the regime of
+        :func:`~hhra_phys.regime.regime_coverage`, or for a candidate without a
+        first-order column of :func:`~hhra_phys.regime.change_coverage`), the candidate
+        and the current model are refitted on the selection part and scored on the
+        estimation part, and the held-out error pooled over both folds decides
+        (:func:`~hhra_phys.selection.rotated_verdict`; ``steps[].folds``). The model
+        itself stays fitted on estimation.
     """
 
     split: float = 0.5
@@ -1404,6 +1420,7 @@ class LoopOptions:
     budget: float | None = None
     progress_bar: bool = False
     fit_shapes: bool | str = "chosen"
+    rotate: bool = True
 
     @property
     def shape_mode(self) -> str:
@@ -1437,6 +1454,7 @@ class LoopOptions:
         need(isinstance(self.fit_shapes, bool) or self.fit_shapes in SHAPE_MODES,
              f"fit_shapes must be one of {', '.join(map(repr, SHAPE_MODES))} (or True for "
              f"'contenders', False for 'off'), got {self.fit_shapes!r}")
+        need(isinstance(self.rotate, bool), f"rotate must be True or False, got {self.rotate!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),
@@ -1601,6 +1619,8 @@ class _Loop:
         self.branch: dict[str, Any] | None = None  # the path not taken (LoopOptions.revisit)
         self.revisited: dict[str, Any] | None = None
         self.at_noise = False
+        # The current fit and its refit on the selection part (_rotated_current).
+        self._rot_cache: tuple[FitResult, FitResult] | None = None
         # Not path state (a revisit keeps them): whether the budget ended anything, and
         # the candidates of the round it ended.
         self.budget_spent = False
@@ -1984,6 +2004,8 @@ class _Loop:
                 continue
             step, payload, veto = got
             ok = self._judge(step, veto, rmse_cur, crit_cur, noise_sel)
+            if not veto and self.o.rotate:
+                ok = self._rotate(step, payload, ok, rmse_cur, crit_cur, noise_sel, noise_est)
             if ok:
                 tried.append((step, payload))
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
@@ -2042,6 +2064,97 @@ class _Loop:
                  + f"; {step.reason} [{step.seconds:.1f} s]")
         self.steps.append(step)
         return ok
+
+    def _rotate(self, step: Step, payload: Any, ok: bool, rmse_cur: float, crit_cur: float,
+                noise_sel: float, noise_est: float) -> bool:
+        """The verdict on a judged candidate after the parts rotate, where they must.
+
+        When the selection part and the criterion on estimation disagree and the part
+        that says no holds the candidate's regime thinly
+        (:func:`~hhra_phys.selection.needs_rotation`), the current model (IPOPT from its
+        estimation fit) and then the candidate (from the current model's values there, its
+        own parameters at their defaults) are refitted on the selection part and scored
+        on the estimation part, and the held-out RMSE pooled over both folds decides
+        (:func:`~hhra_phys.selection.rotated_verdict`); the step says so (``folds``, its
+        reason). Otherwise ``ok`` stands. Inter-sample candidates do not rotate (they
+        change no equation).
+        """
+        o = self.o
+        fitted = _fitted_candidate(payload)
+        if fitted is None:
+            return ok
+        sel_vote, crit_vote = votes(rmse_cur, float(step.val.get("rmse", math.inf)), crit_cur,
+                                    step.criterion, o.margin, noise_sel, self.tol)
+        if sel_vote == crit_vote:
+            return ok
+        if step.regime is None:
+            step.regime = self._change_regime(fitted)
+        thin = thin_part(step.regime)
+        if not needs_rotation(sel_vote, crit_vote, thin):
+            return ok
+        t0 = time.perf_counter()
+        model, free, _, _, boxes = fitted
+        try:
+            rest_cur = self._rotated_current()
+            # From the current model's fit on the selection part, the candidate's own
+            # parameters at their defaults: started at its estimation fit, a parameter the
+            # selection part cannot move (a saturation level where no input reaches it)
+            # would carry the estimation part's answer into the fold that scores it there.
+            rest = _rotated_fit(self.cfg, model, free, _values(rest_cur), boxes)
+        except Exception as exc:  # noqa: BLE001 - the rotation is evidence, not the refit
+            step.notes.append(f"parts not rotated: its refit on the selection part failed "
+                              f"({type(exc).__name__}: {exc})")
+            return ok
+        n_est, n_sel = (sum(ds.n for ds in as_records(p)) for p in (self.est, self.sel))
+        before = pooled_rmse([(n_sel, rmse_cur), (n_est, _val_rmse(rest_cur))])
+        after = pooled_rmse([(n_sel, float(step.val.get("rmse", math.inf))),
+                             (n_est, _val_rmse(rest))])
+        noise = pooled_rmse([(n_sel, noise_sel), (n_est, noise_est)])
+        verdict, why = rotated_verdict(before, after, o.margin, noise, self.tol)
+        part = {"sel": "selection", "est": "estimation"}[thin or "sel"]
+        said = ("the criterion on estimation says yes, the selection part no"
+                if crit_vote else "the selection part says yes, the criterion on estimation no")
+        step.folds = {
+            "k": 2, "why": f"{said}; the {part} part holds its regime thinly",
+            "rmse_before": before, "rmse_after": after, "noise": noise, "accepted": verdict,
+            "sel": {"rmse_before": rmse_cur, "rmse_after": float(step.val.get("rmse", math.nan))},
+            "est": {"rmse_before": _val_rmse(rest_cur), "rmse_after": _val_rmse(rest)},
+            "seconds": time.perf_counter() - t0}
+        step.reason += (f"; {said}, and the {part} part holds its regime thinly: parts "
+                        f"rotated (refitted on selection, scored on estimation): {why}")
+        self.say(f"    parts rotated for {step.effect}: {why} -> "
+                 f"{'acceptable' if verdict else 'refused'} "
+                 f"[{step.folds['seconds']:.1f} s]")
+        return verdict
+
+    def _rotated_current(self) -> FitResult:
+        """The current model refitted on the selection part and scored on estimation (once
+        per current fit)."""
+        cached = self._rot_cache
+        if cached is not None and cached[0] is self.cur:
+            return cached[1]
+        res = _rotated_fit(self.cfg, self.cur_prob.model, self.cur_free, _values(self.cur), {})
+        self._rot_cache = (self.cur, res)
+        return res
+
+    def _change_regime(self, fitted: tuple[Model, list[str], dict[str, float],
+                                           dict[str, float], Any]) -> dict[str, Any] | None:
+        """:func:`~hhra_phys.regime.change_coverage` of a fitted candidate against the
+        current model on the estimation and selection parts (None if not simulated)."""
+        model, free, values, x0, _ = fitted
+        try:
+            prob = _problem(self.cfg, model, free, {}, values, x0)
+            v = prob.start_values()
+            vc = _free_values(self.cur_prob, self.cur)
+            sel = as_records(self.sel)
+            change = {
+                "est": np.concatenate(prob.simulate_parts(v))
+                - np.concatenate(self.cur_prob.simulate_parts(vc)),
+                "sel": np.concatenate(prob.simulate_parts(v, sel))
+                - np.concatenate(self.cur_prob.simulate_parts(vc, sel))}
+        except Exception:  # noqa: BLE001 - a measure only: never let it end a candidate
+            return None
+        return change_coverage(change)
 
     def _report_settled(self, rnd: int, settlers: Mapping[str, Step],
                         not_refitted: Mapping[str, list[str]]) -> None:
@@ -2247,6 +2360,7 @@ class _Loop:
             "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
+            "rotate": o.rotate,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
             "stopped_by_budget": self.budget_spent,
@@ -2280,6 +2394,39 @@ def _outscores(kind: str, item: Any, settler: Step, say: Callable[[str], None]) 
     say(f"  {item.effect}: refitted though {settler.effect} settled the round: its "
         f"first-order score {mine:.3f} is above {settler.effect}'s {theirs:.3f}")
     return True
+
+
+def _val_rmse(res: FitResult) -> float:
+    """A fit's held-out RMSE (``inf`` where not finite)."""
+    v = float(res.metrics["val"].get("rmse", math.inf))
+    return v if math.isfinite(v) else math.inf
+
+
+def _fitted_candidate(payload: Any) -> tuple[Model, list[str], dict[str, float],
+                                             dict[str, float], dict[str, Any]] | None:
+    """A judged candidate's model, free parameters, fitted values, fitted initial state
+    and widened boxes (None for an inter-sample candidate, which changes no equation)."""
+    if isinstance(payload, tuple):  # a library refit: (job, outcome)
+        job, out = payload
+        model, _, _ = _candidate_model(replace(job, effect_kw={**job.effect_kw,
+                                                               **out.effect_kw}))
+        return model, list(out.free), dict(out.values), dict(out.x0), dict(out.boxes)
+    if isinstance(payload, HoldCandidate) or not hasattr(payload, "problem"):
+        return None
+    res = payload.result
+    return payload.problem.model, list(payload.free), _values(res), dict(res.x0), {}
+
+
+def _rotated_fit(cfg: _Settings, model: Model, free: Sequence[str],
+                 start: Mapping[str, float], boxes: Mapping[str, tuple[float, float]]
+                 ) -> FitResult:
+    """``model`` refitted on the selection part(s) from ``start`` (the parameters it
+    lacks at their defaults; IPOPT, capped as a candidate's refit) and scored on the
+    estimation part(s): the other fold of the two. The initial state starts by the
+    ``"data"`` rule on the selection part (the fitted one is the estimation part's)."""
+    rot = replace(cfg, est=cfg.sel, sel=cfg.est,
+                  default_bounds={**cfg.default_bounds, **boxes})
+    return _run(rot, _problem(rot, model, free, {}, start, None), "none", 0, 0)
 
 
 def _label(kind: str, item: Any) -> str:

@@ -11,8 +11,13 @@ exceeds :data:`REGIME_LEVEL` times its 99th percentile over the parts together (
 percentile, not the largest value: one spike must not set the scale; the 99th, not a
 lower one: a delay's regime, the samples where the input changes, may be 4 % of them).
 
-The loop writes the result into each library step (``steps[].regime`` of the JSON); it
-reports, it decides nothing.
+The loop writes the result into each library step (``steps[].regime`` of the JSON).
+A candidate without a first-order column (a discovered term or mode, a user's effect
+without one) is measured where the parts decide differently on it, by what its fit
+changes: :func:`change_coverage` of the fitted candidate's output against the current
+model's. Where the selection part and the criterion on estimation disagree, a part that
+holds the regime thinly cannot refuse the candidate alone and the parts rotate
+(:func:`hhra_phys.selection.needs_rotation`).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import numpy as np
 from hhra_phys.data import Dataset
 from hhra_phys.parts import Signals
 
-__all__ = ["REGIME_LEVEL", "regime_coverage"]
+__all__ = ["REGIME_LEVEL", "regime_coverage", "change_coverage"]
 
 #: A sample is in a candidate's regime where its first-order column exceeds this fraction
 #: of the column's 99th percentile (of its size over the parts).
@@ -104,6 +109,43 @@ def regime_coverage(effect: Any, records: Sequence[tuple[Any, np.ndarray]],
     out: dict[str, Any] = {"level": level,
                            "basis": f"first-order column above {REGIME_LEVEL:g} x its 99th "
                                     "percentile over the parts"}
+    for name, a in act.items():
+        n_in = int(np.sum(a > level))
+        out[name] = {"samples": int(a.size),
+                     "in_regime": n_in / a.size if a.size else 0.0,
+                     "share": n_in / total if total else 0.0}
+    return out
+
+
+def change_coverage(changes: Mapping[str, np.ndarray]) -> dict[str, Any] | None:
+    """How much of a fitted candidate's regime each part holds, by what it changes.
+
+    Parameters
+    ----------
+    changes : mapping of str to ndarray
+        Part name -> the candidate's simulated output less the current model's on that
+        part (output units), e.g. ``{"est": ..., "sel": ...}``.
+
+    Returns
+    -------
+    dict or None
+        As :func:`regime_coverage` (``level``, ``basis``, and per part ``samples``,
+        ``in_regime``, ``share``), a sample in the regime where the size of the change
+        exceeds :data:`REGIME_LEVEL` times its 99th percentile over the parts; ``None``
+        where the change is not finite or nowhere above zero.
+    """
+    act = {name: np.abs(np.asarray(c, dtype=float).ravel()) for name, c in changes.items()}
+    pooled = np.concatenate(list(act.values())) if act else np.zeros(0)
+    if pooled.size == 0 or not np.isfinite(pooled).all():
+        return None
+    ref = float(np.percentile(pooled, 99))
+    if ref <= 0:
+        return None
+    level = REGIME_LEVEL * ref
+    total = int(np.sum(pooled > level))
+    out: dict[str, Any] = {"level": level,
+                           "basis": f"the fitted candidate's output change above "
+                                    f"{REGIME_LEVEL:g} x its 99th percentile over the parts"}
     for name, a in act.items():
         n_in = int(np.sum(a > level))
         out[name] = {"samples": int(a.size),

@@ -16,6 +16,12 @@ candidates here, so that they are compared by the same numbers:
   refits of its kind are skipped (the other kind goes on until one of its own settles, so
   that the tie rule, not the ranking, decides between a library effect and a discovered
   term);
+- :func:`needs_rotation` / :func:`rotated_verdict`: the one verdict where the evidence
+  disagrees. Both votes (:func:`votes`: the selection part's, the criterion's) must say yes,
+  except where the part that says no holds the candidate's regime thinly
+  (:func:`thin_part`): such a part cannot refuse alone, so the parts rotate (the candidate
+  and the current model refitted on selection, scored on estimation) and the held-out error
+  over both folds decides, the same for every kind of candidate;
 - :func:`backward_decision`: an accepted part stays only if it would be accepted now;
 - :func:`stops_at_noise` / :func:`at_noise_level`: the loop stops when both the estimation
   and the selection residual are at the noise level.
@@ -53,6 +59,12 @@ __all__ = [
     "at_noise_level",
     "stops_at_noise",
     "split_record",
+    "REGIME_THIN",
+    "votes",
+    "thin_part",
+    "needs_rotation",
+    "pooled_rmse",
+    "rotated_verdict",
 ]
 
 #: Structural-mismatch allowance of the stopping and acceptance rule (fraction of
@@ -194,6 +206,97 @@ def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_a
     return gain_ok and crit_ok and beyond_ok, reason
 
 
+#: A deciding part holds a candidate's regime *thinly* when its share of the regime's
+#: samples is below this fraction of its share of all samples (a part with a quarter of the
+#: samples and under an eighth of the regime): such a part cannot refuse the candidate alone
+#: (:func:`thin_part`).
+REGIME_THIN = 0.5
+
+
+def votes(rmse_before: float, rmse_after: float, crit_before: float, crit_after: float,
+          margin: float, noise: float = math.nan, noise_tol: float = 0.0
+          ) -> tuple[bool, bool]:
+    """The two votes inside :func:`acceptance`: (the selection part's, the criterion's).
+
+    The selection part votes for the candidate when its RMSE falls by ``margin`` (or to
+    the noise level) and beyond the noise allowance; the criterion when it falls.
+    """
+    vr = rmse_after if math.isfinite(rmse_after) else math.inf
+    gain = vr <= (1 - margin) * rmse_before or (math.isfinite(noise) and vr <= noise)
+    beyond = rmse_before ** 2 - vr ** 2 > noise_allowance(noise, noise_tol)
+    return bool(gain and beyond), bool(crit_after < crit_before)
+
+
+def thin_part(regime: Mapping[str, Any] | None) -> str | None:
+    """The deciding part (``"est"`` or ``"sel"``) that holds the regime thinly, if one does.
+
+    ``regime`` is a step's coverage (:func:`hhra_phys.regime.regime_coverage`): a part is
+    thin when its ``share`` of the regime's samples is below :data:`REGIME_THIN` times its
+    share of the samples. None when neither is (or the coverage is not known).
+    """
+    if not regime or "est" not in regime or "sel" not in regime:
+        return None
+    n = {p: float(regime[p].get("samples", 0)) for p in ("est", "sel")}
+    total = n["est"] + n["sel"]
+    if total <= 0 or not any(regime[p].get("share", 0.0) > 0 for p in n):
+        return None
+    thin = [p for p in n if regime[p].get("share", 0.0) < REGIME_THIN * n[p] / total]
+    return thin[0] if thin else None
+
+
+def needs_rotation(sel_vote: bool, crit_vote: bool, thin: str | None) -> bool:
+    """Whether the parts rotate for a candidate: the selection part and the criterion on
+    estimation disagree, and the part whose evidence says no holds the candidate's regime
+    thinly (:func:`thin_part`): a part that barely reaches the regime cannot refuse alone.
+    """
+    if sel_vote == crit_vote or thin is None:
+        return False
+    return thin == ("sel" if crit_vote else "est")
+
+
+def pooled_rmse(parts: Sequence[tuple[int, float]]) -> float:
+    """The RMSE over parts of ``(samples, rmse)``, each weighted by its samples."""
+    n = sum(k for k, _ in parts)
+    if n <= 0:
+        return math.nan
+    return math.sqrt(sum(k * r * r for k, r in parts) / n)
+
+
+def rotated_verdict(rmse_before: float, rmse_after: float, margin: float, noise: float,
+                    noise_tol: float) -> tuple[bool, str]:
+    """The one verdict where the parts rotated: the held-out RMSE pooled over both folds.
+
+    The two folds (fitted on estimation, scored on selection; fitted on selection, scored
+    on estimation) see the whole regime between them, so their pooled error decides,
+    by the same gain and allowance as :func:`acceptance`; the information criterion,
+    computed on one part only, does not (it broke no tie: one of the parts held the
+    regime thinly, and that is where the two disagreed).
+
+    Parameters
+    ----------
+    rmse_before, rmse_after : float
+        Pooled held-out RMSE of the current model and of the candidate (output units).
+    margin, noise, noise_tol : float
+        As in :func:`acceptance`; ``noise`` the pooled noise level of both parts.
+
+    Returns
+    -------
+    accepted : bool
+    reason : str
+    """
+    vr = rmse_after if math.isfinite(rmse_after) else math.inf
+    clear = vr <= (1 - margin) * rmse_before
+    at_noise = math.isfinite(noise) and vr <= noise
+    allowance = noise_allowance(noise, noise_tol)
+    beyond = rmse_before ** 2 - vr ** 2 > allowance
+    gain = ("clear gain" if clear else "to the noise level" if at_noise
+            else f"gain below {100 * margin:.0f} %")
+    ok = (clear or at_noise) and beyond
+    return ok, (f"held-out RMSE over both folds {rmse_before:.4g} -> {vr:.4g} ({gain}; "
+                f"{'beyond' if beyond else 'within'} the noise allowance "
+                f"{math.sqrt(allowance):.3g}) decides")
+
+
 @dataclass
 class Step:
     """One candidate effect tried in the loop."""
@@ -231,6 +334,11 @@ class Step:
     #: (:func:`hhra_phys.regime.regime_coverage`; ``None``: not measured, e.g. no
     #: first-order column). A report: it decides nothing.
     regime: dict[str, Any] | None = None
+    #: The rotated verdict (:func:`rotated_verdict`), where the parts rotated because one
+    #: of them could not decide alone: ``k`` (folds), ``why``, the pooled two-fold RMSE
+    #: ``rmse_before``/``rmse_after``, each part's ``est``/``sel`` as the held-out fold,
+    #: ``noise`` and ``accepted``; ``None``: the parts did not rotate.
+    folds: dict[str, Any] | None = None
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.
     discovered: ClassVar[bool] = False
@@ -247,6 +355,7 @@ class Step:
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
             "seconds": self.seconds, "action": self.action, "removed": self.removed,
             "entry": self.entry, "sensor": self.sensor, "regime": self.regime,
+            "folds": self.folds,
         }
 
 

@@ -116,6 +116,12 @@ def register(subparsers: Any) -> None:
                         "widths (docs/diagnosis.md)")
     p.add_argument("--fit-shapes", action="store_true",
                    help="the same as --shapes contenders")
+    p.add_argument("--no-rotate", action="store_true",
+                   help="never rotate the parts: where the selection part and the criterion on "
+                        "estimation disagree on a candidate whose regime one of them holds "
+                        "thinly, the selection part decides alone (default: the candidate is "
+                        "refitted on the selection part, scored on estimation, and the error "
+                        "over both folds decides)")
     p.add_argument("--no-revisit", action="store_true",
                    help="do not revisit a round a discovered term won over an acceptable library "
                         "effect (by default, when the loop then ends above the noise level, the "
@@ -205,6 +211,7 @@ def _augment(args: argparse.Namespace) -> Any:
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
+            rotate=not args.no_rotate,
             intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
             fit_shapes="contenders" if args.fit_shapes else args.shapes,
         )
