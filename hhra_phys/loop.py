@@ -2004,7 +2004,7 @@ class _Loop:
                 continue
             step, payload, veto = got
             ok = self._judge(step, veto, rmse_cur, crit_cur, noise_sel)
-            if not veto and self.o.rotate:
+            if not veto:
                 ok = self._rotate(step, payload, ok, rmse_cur, crit_cur, noise_sel, noise_est)
             if ok:
                 tried.append((step, payload))
@@ -2076,19 +2076,23 @@ class _Loop:
         own parameters at their defaults) are refitted on the selection part and scored
         on the estimation part, and the held-out RMSE pooled over both folds decides
         (:func:`~hhra_phys.selection.rotated_verdict`); the step says so (``folds``, its
-        reason). Otherwise ``ok`` stands. Inter-sample candidates do not rotate (they
-        change no equation).
+        reason). Otherwise (or with ``LoopOptions.rotate`` off) ``ok`` stands. A candidate
+        without a first-order regime gets one here from what its fit changes
+        (:meth:`_change_regime`: every candidate's step reports its regime). Inter-sample
+        candidates do neither (they change no equation).
         """
         o = self.o
         fitted = _fitted_candidate(payload)
         if fitted is None:
             return ok
+        if step.regime is None:
+            step.regime = self._change_regime(fitted, payload)
+        if not o.rotate:
+            return ok
         sel_vote, crit_vote = votes(rmse_cur, float(step.val.get("rmse", math.inf)), crit_cur,
                                     step.criterion, o.margin, noise_sel, self.tol)
         if sel_vote == crit_vote:
             return ok
-        if step.regime is None:
-            step.regime = self._change_regime(fitted)
         thin = thin_part(step.regime)
         if not needs_rotation(sel_vote, crit_vote, thin):
             return ok
@@ -2138,13 +2142,19 @@ class _Loop:
         return res
 
     def _change_regime(self, fitted: tuple[Model, list[str], dict[str, float],
-                                           dict[str, float], Any]) -> dict[str, Any] | None:
+                                           dict[str, float], Any],
+                       payload: Any = None) -> dict[str, Any] | None:
         """:func:`~hhra_phys.regime.change_coverage` of a fitted candidate against the
-        current model on the estimation and selection parts (None if not simulated)."""
+        current model on the estimation and selection parts (None if not simulated).
+        A discovered candidate's own problem is used as it is (``payload.problem``); a
+        library refit's (it ran elsewhere) is rebuilt from its values."""
         model, free, values, x0, _ = fitted
         try:
-            prob = _problem(self.cfg, model, free, {}, values, x0)
-            v = prob.start_values()
+            if hasattr(payload, "problem") and hasattr(payload, "result"):
+                prob, v = payload.problem, _free_values(payload.problem, payload.result)
+            else:
+                prob = _problem(self.cfg, model, free, {}, values, x0)
+                v = prob.start_values()
             vc = _free_values(self.cur_prob, self.cur)
             sel = as_records(self.sel)
             change = {

@@ -13,11 +13,10 @@ lower one: a delay's regime, the samples where the input changes, may be 4 % of 
 
 The loop writes the result into each library step (``steps[].regime`` of the JSON).
 A candidate without a first-order column (a discovered term or mode, a user's effect
-without one) is measured where the parts decide differently on it, by what its fit
-changes: :func:`change_coverage` of the fitted candidate's output against the current
-model's. Where the selection part and the criterion on estimation disagree, a part that
-holds the regime thinly cannot refuse the candidate alone and the parts rotate
-(:func:`hhra_phys.selection.needs_rotation`).
+without one) is measured by what its fit changes: :func:`change_coverage` of the fitted
+candidate's output against the current model's. Where the selection part and the
+criterion on estimation disagree, a part that holds the regime thinly cannot refuse the
+candidate alone and the parts rotate (:func:`hhra_phys.selection.needs_rotation`).
 """
 
 from __future__ import annotations

@@ -331,8 +331,9 @@ class Step:
     #: :mod:`hhra_phys.intersample`), not the dynamics.
     sensor: bool = False
     #: How much of the candidate's regime each deciding part holds
-    #: (:func:`hhra_phys.regime.regime_coverage`; ``None``: not measured, e.g. no
-    #: first-order column). A report: it decides nothing.
+    #: (:func:`hhra_phys.regime.regime_coverage`, or without a first-order column
+    #: :func:`hhra_phys.regime.change_coverage`; ``None``: not measured). It decides only
+    #: whether the parts rotate (:func:`needs_rotation`).
     regime: dict[str, Any] | None = None
     #: The rotated verdict (:func:`rotated_verdict`), where the parts rotated because one
     #: of them could not decide alone: ``k`` (folds), ``why``, the pooled two-fold RMSE

@@ -173,3 +173,7 @@ def test_a_discovered_friction_is_named_as_the_library_physics():
     assert all(s.same_as == ["coulomb_friction"] for s in found)
     rows = [d for d in res.to_json()["steps"] if d["effect"] == found[0].effect]
     assert rows and rows[0]["same_as"] == ["coulomb_friction"]
+    # A discovered term has no first-order column: its regime is what its fit changes.
+    regime = rows[0]["regime"]
+    assert regime and "output change" in regime["basis"], regime
+    assert regime["est"]["share"] + regime["sel"]["share"] == pytest.approx(1.0)

@@ -126,7 +126,7 @@ def _loop(monkeypatch, rotated: dict[str, float], regime: dict | None):
     monkeypatch.setattr(loop_mod, "_fitted_candidate",
                         lambda payload: ("cand-model", ["a"], {}, {}, {}))
     monkeypatch.setattr(loop_mod, "as_records", lambda d: [d])
-    monkeypatch.setattr(_Loop, "_change_regime", lambda self, fitted: regime)
+    monkeypatch.setattr(_Loop, "_change_regime", lambda self, fitted, payload=None: regime)
     return loop, calls
 
 
@@ -184,3 +184,24 @@ def test_folds_survive_the_json_round_trip():
 def test_rotate_option_is_validated():
     with pytest.raises(Exception, match="rotate"):
         LoopOptions(rotate="yes").validate()
+
+
+def test_every_candidate_without_a_first_order_regime_reports_one(monkeypatch):
+    # votes agree: no rotation, but the regime is measured from what the fit changes
+    loop, calls = _loop(monkeypatch, {"cur": 1.5, "cand": 0.3}, _regime(0.7))
+    step = _step(0.3, -100.0)
+    assert loop._rotate(step, object(), True, 0.5, 0.0, 0.05, 0.05) is True
+    assert step.regime == _regime(0.7) and step.folds is None and calls == []
+    # a first-order regime is kept as it is
+    step = _step(0.3, -100.0)
+    step.regime = _regime(0.4)
+    loop._rotate(step, object(), True, 0.5, 0.0, 0.05, 0.05)
+    assert step.regime == _regime(0.4)
+
+
+def test_rotate_off_measures_but_never_rotates(monkeypatch):
+    loop, calls = _loop(monkeypatch, {"cur": 1.5, "cand": 0.3}, _regime(0.95))
+    loop.o = LoopOptions(rotate=False)
+    step = _step(0.49, -100.0)  # would rotate (test above) and be accepted
+    assert loop._rotate(step, object(), False, 0.5, 0.0, 0.05, 0.05) is False
+    assert step.folds is None and calls == [] and step.regime == _regime(0.95)
