@@ -698,6 +698,8 @@ def simulate_cylinder(
     hold: float = DEFAULT_HOLD_S,
     u: np.ndarray | None = None,
     rtol: float = 1e-10,
+    coulomb: float = 0.0,
+    coulomb_width: float = 1e-3,
 ) -> Dataset:
     """A simulated record of the cylinder, from the independent reference implementation.
 
@@ -726,6 +728,12 @@ def simulate_cylinder(
         Use this valve current [mA] instead.
     rtol : float
         Relative tolerance of the reference integration.
+    coulomb : float
+        Coulomb friction force of the seals [N], ``coulomb*tanh(v/coulomb_width)``
+        against the motion (0: none). The model has no such part: a record with it is
+        one the diagnosis should complete (``metadata["coulomb"]``).
+    coulomb_width : float
+        Its switching velocity [m/s].
 
     Returns
     -------
@@ -740,6 +748,10 @@ def simulate_cylinder(
 
     if not (math.isfinite(noise) and noise >= 0):
         raise ParameterError(f"noise must be a non-negative standard deviation in mm, got {noise}")
+    if not (math.isfinite(coulomb) and coulomb >= 0):
+        raise ParameterError(f"coulomb must be a friction force >= 0 N, got {coulomb}")
+    if not (math.isfinite(coulomb_width) and coulomb_width > 0):
+        raise ParameterError(f"coulomb_width must be a velocity > 0 m/s, got {coulomb_width}")
     if truth is None:
         phys = CylinderPhysical()
     elif isinstance(truth, CylinderPhysical):
@@ -751,7 +763,8 @@ def simulate_cylinder(
         u = cylinder_input(duration, fs, rng, amplitude, levels, hold, phys)
     else:
         u = np.asarray(u, dtype=float)
-    states = simulate_cylinder_reference(u, fs, phys.plant(), rtol=rtol)
+    plant = dict(phys.plant(), **({"F_c": coulomb, "v_c": coulomb_width} if coulomb else {}))
+    states = simulate_cylinder_reference(u, fs, plant, rtol=rtol)
     y_true = MM_PER_M * states[:, 0]
     if not np.isfinite(y_true).all():
         raise ParameterError("the cylinder could not be simulated; check the parameters")
@@ -768,6 +781,9 @@ def simulate_cylinder(
         "max_abs_pressure": float(np.max(np.abs(states[:, 2])) / phys.p_s),
         "x0": {"x": 0.0, "v": 0.0, "p": 0.0},
     }
+    if coulomb:
+        meta["coulomb"] = {"force_N": coulomb, "width_m_per_s": coulomb_width,
+                           "accel_m_per_s2": coulomb / phys.m}
     return Dataset.from_arrays(
         u, y, fs=fs, metadata=meta, name=f"cylinder-seed{seed}",
         input_name="current", input_unit="mA", output_name="position", output_unit="mm",

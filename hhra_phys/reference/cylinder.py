@@ -11,7 +11,7 @@ Plant (symmetric double-rod cylinder, 4-way critical-centre valve)::
 
     Q_L     = K_v * I * sign(p_s - sign(I) P_L) * sqrt(|p_s - sign(I) P_L|)
     dx/dt   = v
-    m dv/dt = A_p P_L - B_p v - K x - F_L
+    m dv/dt = A_p P_L - B_p v - K x - F_L - F_c tanh(v / v_c)
     V_t/(4 beta_e) dP_L/dt = Q_L - A_p v - C_tp P_L
 
 State ``(x, v, P_L)``: piston position [m], velocity [m/s], load pressure
@@ -19,7 +19,10 @@ State ``(x, v, P_L)``: piston position [m], velocity [m/s], load pressure
 (exact zero-order hold: the ODE is integrated separately over every interval in
 which the input is constant, so no step ever falls across an input jump).
 
-``params`` is a mapping with the SI values (see :data:`PARAMETERS`).
+``params`` is a mapping with the SI values (see :data:`PARAMETERS`), optionally with a
+Coulomb friction of the seals (:data:`OPTIONAL`: ``F_c`` [N], switching over ``v_c``
+[m/s]; none by default), which the package's cylinder model lacks: records with it test
+whether the diagnosis names the friction on this model (``experiments/cylinder_friction.py``).
 """
 
 from __future__ import annotations
@@ -49,6 +52,14 @@ PARAMETERS: dict[str, str] = {
 }
 
 
+#: Optional entries of ``params``, their units and defaults: a Coulomb friction force
+#: ``F_c*tanh(v/v_c)`` opposing the motion (0: none).
+OPTIONAL: dict[str, tuple[str, float]] = {
+    "F_c": ("N", 0.0),
+    "v_c": ("m/s", 1e-3),
+}
+
+
 def _unpack(params: Mapping[str, float]) -> tuple[float, ...]:
     missing = [k for k in PARAMETERS if k not in params]
     if missing:
@@ -70,7 +81,7 @@ def cylinder_rhs(
     current : float
         Valve current [mA].
     params : mapping
-        SI parameters (:data:`PARAMETERS`).
+        SI parameters (:data:`PARAMETERS`, and any of :data:`OPTIONAL`).
 
     Returns
     -------
@@ -78,13 +89,16 @@ def cylinder_rhs(
         ``(dx/dt [m/s], dv/dt [m/s^2], dP_L/dt [Pa/s])``.
     """
     A_p, m, B_p, K, F_L, V_t, beta_e, C_tp, p_s, K_v = _unpack(params)
+    F_c = float(params.get("F_c", OPTIONAL["F_c"][1]))
+    v_c = float(params.get("v_c", OPTIONAL["v_c"][1]))
     x, v, P_L = (float(s) for s in state)
     # Pressure drop across the metering edges that are open for this current sign;
     # beyond the supply pressure the drop reverses and so does the flow.
     drop = p_s - np.sign(current) * P_L
     Q_L = K_v * current * np.sign(drop) * np.sqrt(abs(drop))
     dx = v
-    dv = (A_p * P_L - B_p * v - K * x - F_L) / m
+    friction = F_c * np.tanh(v / v_c) if F_c else 0.0
+    dv = (A_p * P_L - B_p * v - K * x - F_L - friction) / m
     dP = 4.0 * beta_e / V_t * (Q_L - A_p * v - C_tp * P_L)
     return np.array([dx, dv, dP])
 
@@ -107,7 +121,7 @@ def simulate_cylinder_reference(
     fs : float
         Sample rate [Hz].
     params : mapping
-        SI parameters (:data:`PARAMETERS`).
+        SI parameters (:data:`PARAMETERS`, and any of :data:`OPTIONAL`).
     x0 : array_like, shape (3,)
         Initial ``(x [m], v [m/s], P_L [Pa])``.
     rtol : float

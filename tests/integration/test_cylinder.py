@@ -14,6 +14,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from hhra_phys.effects import make_effect
+from hhra_phys.errors import ParameterError
 from hhra_phys.fit import fit
 from hhra_phys.model import Model
 from hhra_phys.models.cylinder import (
@@ -85,6 +87,50 @@ def test_rate_function_matches_reference_rhs(sharp):
         # terms is why the tolerance is relative to each rate's largest magnitude.
         tol = 1e-6 if sharp else 2e-3
         np.testing.assert_allclose(got / scale, ref / scale, rtol=0, atol=tol)
+
+
+def test_reference_seal_friction_is_the_librarys_coulomb_friction_on_the_piston():
+    """The reference's optional friction ``F_c*tanh(v/v_c)`` (records that the cylinder
+    model lacks, experiments/cylinder_friction.py) is what the library's
+    ``coulomb_friction`` adds when it binds to the piston velocity by role: tanh profile,
+    width ``v_c``, level ``F_c/m`` [m/s^2]."""
+    states, currents = _grid()
+    base = LinearCylinderModel()
+    for f_c, v_c in ((800.0, 1e-3), (2500.0, 0.02)):
+        eff = make_effect("coulomb_friction", model=base, profile="tanh", width=v_c)
+        model = base.with_parts(eff)
+        for phys in _plants()[:2]:
+            fun = model.functions(1.0 / FS)["f"]
+            values = {k: v for k, v in phys.groups().items() if k in model.params}
+            values["g_coulomb"] = f_c / phys.m
+            p = model.params.vector(values)
+            order = [model.state_names.index(n) for n in ("x", "v", "p")]
+            got, ref = [], []
+            for st, i in zip(states, currents, strict=True):
+                xm = np.empty(model.nx)
+                xm[order] = st
+                got.append(np.array(fun(xm, [i], p)).ravel()[order] * [1.0, 1.0, phys.p_s])
+                ref.append(cylinder_rhs(0.0, (st[0], st[1], st[2] * phys.p_s), i,
+                                        {**phys.plant(), "F_c": f_c, "v_c": v_c}))
+            got, ref = np.array(got), np.array(ref)
+            plain = np.array([cylinder_rhs(0.0, (x, v, pp * phys.p_s), i, phys.plant())
+                              for (x, v, pp), i in zip(states, currents, strict=True)])
+            scale = np.abs(ref).max(axis=0)
+            np.testing.assert_allclose(got / scale, ref / scale, rtol=0, atol=2e-3)
+            # the friction is there: the rate of v differs from the plain plant's
+            assert np.abs(ref[:, 1] - plain[:, 1]).max() > 0.5 * f_c / phys.m
+
+
+def test_record_with_seal_friction_is_validated_and_said():
+    with pytest.raises(ParameterError, match="coulomb must be"):
+        simulate_cylinder(seed=1, duration=4.0, coulomb=-1.0)
+    with pytest.raises(ParameterError, match="coulomb_width"):
+        simulate_cylinder(seed=1, duration=4.0, coulomb=100.0, coulomb_width=0.0)
+    a = simulate_cylinder(seed=1, duration=4.0, coulomb=800.0)
+    b = simulate_cylinder(seed=1, duration=4.0)
+    assert a.metadata["coulomb"]["force_N"] == 800.0 and "coulomb" not in b.metadata
+    np.testing.assert_array_equal(a.u, b.u)
+    assert np.abs(a.y - b.y).max() > 0.1  # mm: the friction moves the piston's path
 
 
 def test_linearisation_is_the_hand_derived_transfer_function():
