@@ -87,10 +87,12 @@ from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
 from hhra_phys.regime import change_coverage, regime_coverage
 from hhra_phys.result import FitResult
 from hhra_phys.selection import (
+    COLOURED_P,
     METRIC_KEYS,
     NOISE_TOL,
     Step,
     acceptance,
+    at_noise_level,
     backward_decision,
     choose,
     information_criterion,
@@ -635,6 +637,16 @@ def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
         return f"white: Ljung-Box p {p:.2g} > 0.05"
     return (f"within the allowance 1 + noise_tol = {1 + noise_tol:.3g} x noise, though not "
             f"white: Ljung-Box p {p:.2g}")
+
+
+def _why_not_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
+    """Why the estimation part is not at the noise level, in words: above the allowance,
+    or within it but clearly coloured (:data:`~hhra_phys.selection.COLOURED_P`)."""
+    p = level["ljung_box_p"]
+    if level["ratio"] <= 1 + noise_tol:
+        return (f"RMSE {level['rmse']:.4g} = {level['ratio']:.3f} x noise, within the "
+                f"allowance but clearly coloured: Ljung-Box p {p:.2g} < {COLOURED_P:g}")
+    return f"RMSE {level['rmse']:.4g} = {level['ratio']:.3f} x noise, above the allowance"
 
 
 def noise_stop(problem: Problem, res: FitResult, sel: Dataset, noise_tol: float,
@@ -1866,6 +1878,11 @@ class _Loop:
             stop = _noise_stop_text(level, self.tol)
             say(f"round {rnd}: {stop}; stop")
             return stop
+        if at_noise_level(level, self.tol) and at_noise_level(level["estimation"], self.tol):
+            # The ratios alone would have stopped here (as before COLOURED_P): say why not.
+            say(f"round {rnd}: the selection residual is at the noise level, the estimation "
+                f"residual not ({_why_not_at_noise(level['estimation'], self.tol)}): "
+                "the round runs")
         # The record's inter-sample behaviour is a candidate of every round, judged by
         # the same rule: a straight line's error under a smooth input shows only once
         # the model's own error is below it (docs/measuring.md).

@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from hhra_phys.errors import ParameterError
-from hhra_phys.selection import Step, at_noise_level, stops_at_noise
+from hhra_phys.selection import COLOURED_P, Step, at_noise_level, stops_at_noise
 from hhra_phys.selection import judge as _decide
 
 NOISE = 0.05
@@ -63,9 +63,19 @@ def _level(ratio: float, p: float) -> dict:
         ((1.40, 0.0), (1.00, 0.3), False, False, "selection shows structure"),
         ((1.10, 0.0), (1.30, 0.3), True, True, "a white estimation residual counts as noise"),
         ((1.30, 0.3), (1.30, 0.0), False, True, "a white selection residual alone is not enough"),
+        # a cylinder lacking its seal friction (experiments/cylinder_friction.py seed 1):
+        # both ratios within the allowance, the estimation residual clearly coloured
+        ((0.991, 3.1e-5), (1.014, 1.4e-15), False, True,
+         "a clearly coloured estimation residual is not noise, whatever its ratio"),
+        ((1.01, 0.2), (1.04, 1e-4), True, True, "coloured, not clearly: the ratio decides"),
+        # the one-loop gravity record (seed 5) with its true structure: the selection part,
+        # scored from a re-estimated state, coloured; estimation white
+        ((1.003, 1.3e-7), (0.996, 0.24), True, True,
+         "the selection part keeps the ratio rule"),
     ],
 )
 def test_noise_stop_needs_both_non_test_parts(sel, est, both, selection_only, why):
+    assert COLOURED_P == 1e-6
     level = {**_level(*sel), "estimation": _level(*est)}
     assert stops_at_noise(level, 0.15) is both, why
     # The selection part alone would have decided otherwise in some of these cases.
