@@ -135,6 +135,7 @@ __all__ = [
     "input_followers",
     "input_twin",
     "score_floor",
+    "next_index",
     "term_library",
     "screen",
     "variable_forms",
@@ -853,6 +854,18 @@ class DiscoveredStep(Step):
         return out
 
 
+def next_index(model: Model, kind: type) -> int:
+    """The index of the next discovered part of ``kind`` (:class:`DiscoveredTerm` or
+    :class:`DiscoveredMode`) on ``model``: one past the largest in it (1 for none).
+
+    Past the largest, not the count: after the backward step removed term 1 beside term
+    2, a count gave the next term index 2 again, and its parameters the names of the one
+    in the model (a 25 s drive's round 5 ended with "duplicate parameter name
+    'disc2_a1'").
+    """
+    return 1 + max((p.index for p in model.parts if isinstance(p, kind)), default=0)
+
+
 @dataclass
 class _Fitted:
     term: DiscoveredTerm | DiscoveredMode
@@ -1394,8 +1407,8 @@ class Discovery:
         #: Entries screened but not refitted: ``(entry, first-order score)``.
         self.below_floor = [(p.entry, p.score) for p in self._proposals if p.score < floor]
         self._proposals = [p for p in self._proposals if p.score >= floor]
-        self.index = 1 + sum(isinstance(p, DiscoveredTerm) for p in cur_prob.model.parts)
-        self.m_index = 1 + sum(isinstance(p, DiscoveredMode) for p in cur_prob.model.parts)
+        self.index = next_index(cur_prob.model, DiscoveredTerm)
+        self.m_index = next_index(cur_prob.model, DiscoveredMode)
         self.crit_cur = information_criterion(cur, criterion)
         self.rmse_cur = float(cur.metrics["val"]["rmse"])
         y_sub = self.sub.simulate_values(self.sub_values)
