@@ -2099,10 +2099,13 @@ class _Loop:
         candidates do neither (they change no equation).
         """
         o = self.o
-        fitted = _fitted_candidate(payload)
-        if fitted is None:
+        if isinstance(payload, HoldCandidate):
             return ok
+        fitted = None  # built only where needed: a library refit's model is assembled anew
         if step.regime is None:
+            fitted = _fitted_candidate(payload)
+            if fitted is None:
+                return ok
             step.regime = self._change_regime(fitted, payload)
         if not o.rotate:
             return ok
@@ -2112,6 +2115,9 @@ class _Loop:
             return ok
         thin = thin_part(step.regime)
         if not needs_rotation(sel_vote, crit_vote, thin):
+            return ok
+        fitted = fitted or _fitted_candidate(payload)
+        if fitted is None:
             return ok
         t0 = time.perf_counter()
         model, free, _, _, boxes = fitted
@@ -2125,6 +2131,12 @@ class _Loop:
         except Exception as exc:  # noqa: BLE001 - the rotation is evidence, not the refit
             step.notes.append(f"parts not rotated: its refit on the selection part failed "
                               f"({type(exc).__name__}: {exc})")
+            return ok
+        if not math.isfinite(_val_rmse(rest_cur)):
+            # Without the current model's other fold there is nothing to compare with:
+            # every candidate would pass against an infinite error.
+            step.notes.append("parts not rotated: the current model's refit on the selection "
+                              "part could not be scored on estimation")
             return ok
         n_est, n_sel = (sum(ds.n for ds in as_records(p)) for p in (self.est, self.sel))
         before = pooled_rmse([(n_sel, rmse_cur), (n_est, _val_rmse(rest_cur))])

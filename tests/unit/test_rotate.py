@@ -205,3 +205,21 @@ def test_rotate_off_measures_but_never_rotates(monkeypatch):
     step = _step(0.49, -100.0)  # would rotate (test above) and be accepted
     assert loop._rotate(step, object(), False, 0.5, 0.0, 0.05, 0.05) is False
     assert step.folds is None and calls == [] and step.regime == _regime(0.95)
+
+
+def test_no_rotation_against_a_current_fold_that_failed(monkeypatch):
+    # an infinite error of the current model's other fold would let any candidate pass
+    loop, _ = _loop(monkeypatch, {"cur": math.inf, "cand": 0.3}, _regime(0.95))
+    step = _step(0.49, -100.0)
+    assert loop._rotate(step, object(), False, 0.5, 0.0, 0.05, 0.05) is False
+    assert step.folds is None and any("not rotated" in n for n in step.notes)
+
+
+def test_a_hold_candidate_is_neither_measured_nor_rotated(monkeypatch):
+    from hhra_phys.intersample import HoldCandidate
+
+    loop, calls = _loop(monkeypatch, {"cur": 1.5, "cand": 0.3}, _regime(0.95))
+    hold = object.__new__(HoldCandidate)
+    step = _step(0.49, -100.0)
+    assert loop._rotate(step, hold, False, 0.5, 0.0, 0.05, 0.05) is False
+    assert step.regime is None and calls == []
