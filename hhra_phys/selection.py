@@ -231,9 +231,10 @@ def votes(rmse_before: float, rmse_after: float, crit_before: float, crit_after:
 def thin_part(regime: Mapping[str, Any] | None) -> str | None:
     """The deciding part (``"est"`` or ``"sel"``) that holds the regime thinly, if one does.
 
-    ``regime`` is a step's coverage (:func:`hhra_phys.regime.regime_coverage`): a part is
-    thin when its ``share`` of the regime's samples is below :data:`REGIME_THIN` times its
-    share of the samples. None when neither is (or the coverage is not known).
+    ``regime`` is a step's coverage (:func:`hhra_phys.regime.regime_coverage` or
+    :func:`hhra_phys.regime.change_coverage`): a part is thin when its ``share`` of the
+    regime's samples is below :data:`REGIME_THIN` times its share of the samples. None when
+    neither is (or the coverage is not known).
     """
     if not regime or "est" not in regime or "sel" not in regime:
         return None
@@ -269,9 +270,9 @@ def rotated_verdict(rmse_before: float, rmse_after: float, margin: float, noise:
 
     The two folds (fitted on estimation, scored on selection; fitted on selection, scored
     on estimation) see the whole regime between them, so their pooled error decides,
-    by the same gain and allowance as :func:`acceptance`; the information criterion,
-    computed on one part only, does not (it broke no tie: one of the parts held the
-    regime thinly, and that is where the two disagreed).
+    by the same gain and allowance as :func:`acceptance`. The information criterion is
+    not asked again: computed on the estimation part only, it is one of the two votes
+    that disagreed, and one of the parts holds the regime thinly.
 
     Parameters
     ----------
