@@ -1633,6 +1633,8 @@ class _Loop:
         self.at_noise = False
         # The current fit and its refit on the selection part (_rotated_current).
         self._rot_cache: tuple[FitResult, FitResult] | None = None
+        # The current fit and its simulated outputs on the parts (_current_outputs).
+        self._out_cache: tuple[FitResult, dict[str, np.ndarray]] | None = None
         # Not path state (a revisit keeps them): whether the budget ended anything, and
         # the candidates of the round it ended.
         self.budget_spent = False
@@ -2184,16 +2186,25 @@ class _Loop:
             else:
                 prob = _problem(self.cfg, model, free, {}, values, x0)
                 v = prob.start_values()
-            vc = _free_values(self.cur_prob, self.cur)
             sel = as_records(self.sel)
-            change = {
-                "est": np.concatenate(prob.simulate_parts(v))
-                - np.concatenate(self.cur_prob.simulate_parts(vc)),
-                "sel": np.concatenate(prob.simulate_parts(v, sel))
-                - np.concatenate(self.cur_prob.simulate_parts(vc, sel))}
+            cur = self._current_outputs()
+            change = {"est": np.concatenate(prob.simulate_parts(v)) - cur["est"],
+                      "sel": np.concatenate(prob.simulate_parts(v, sel)) - cur["sel"]}
         except Exception:  # noqa: BLE001 - a measure only: never let it end a candidate
             return None
         return change_coverage(change)
+
+    def _current_outputs(self) -> dict[str, np.ndarray]:
+        """The current model's simulated outputs on the estimation and selection parts,
+        once per current fit (every candidate of a round is compared with them)."""
+        cached = self._out_cache
+        if cached is not None and cached[0] is self.cur:
+            return cached[1]
+        vc = _free_values(self.cur_prob, self.cur)
+        out = {"est": np.concatenate(self.cur_prob.simulate_parts(vc)),
+               "sel": np.concatenate(self.cur_prob.simulate_parts(vc, as_records(self.sel)))}
+        self._out_cache = (self.cur, out)
+        return out
 
     def _report_settled(self, rnd: int, settlers: Mapping[str, Step],
                         not_refitted: Mapping[str, list[str]]) -> None:

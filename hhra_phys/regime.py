@@ -97,23 +97,7 @@ def regime_coverage(effect: Any, records: Sequence[tuple[Any, np.ndarray]],
         return None
     act = {name: np.concatenate([a for (nm, _), a in zip(keys, sizes, strict=True)
                                  if nm == name]) for name in parts}
-    pooled = np.concatenate(list(act.values()))
-    if pooled.size == 0 or not np.isfinite(pooled).all():
-        return None
-    ref = float(np.percentile(pooled, 99))
-    if ref <= 0:
-        return None
-    level = REGIME_LEVEL * ref
-    total = int(np.sum(pooled > level))
-    out: dict[str, Any] = {"level": level,
-                           "basis": f"first-order column above {REGIME_LEVEL:g} x its 99th "
-                                    "percentile over the parts"}
-    for name, a in act.items():
-        n_in = int(np.sum(a > level))
-        out[name] = {"samples": int(a.size),
-                     "in_regime": n_in / a.size if a.size else 0.0,
-                     "share": n_in / total if total else 0.0}
-    return out
+    return _coverage(act, "first-order column")
 
 
 def change_coverage(changes: Mapping[str, np.ndarray]) -> dict[str, Any] | None:
@@ -134,6 +118,13 @@ def change_coverage(changes: Mapping[str, np.ndarray]) -> dict[str, Any] | None:
         where the change is not finite or nowhere above zero.
     """
     act = {name: np.abs(np.asarray(c, dtype=float).ravel()) for name, c in changes.items()}
+    return _coverage(act, "the fitted candidate's output change")
+
+
+def _coverage(act: Mapping[str, np.ndarray], what: str) -> dict[str, Any] | None:
+    """Each part's share of the samples where its activity ``act[part]`` (a size >= 0 per
+    sample) exceeds :data:`REGIME_LEVEL` times its 99th percentile over the parts together
+    (one scale for every part); ``None`` where it is not finite or nowhere above zero."""
     pooled = np.concatenate(list(act.values())) if act else np.zeros(0)
     if pooled.size == 0 or not np.isfinite(pooled).all():
         return None
@@ -143,8 +134,8 @@ def change_coverage(changes: Mapping[str, np.ndarray]) -> dict[str, Any] | None:
     level = REGIME_LEVEL * ref
     total = int(np.sum(pooled > level))
     out: dict[str, Any] = {"level": level,
-                           "basis": f"the fitted candidate's output change above "
-                                    f"{REGIME_LEVEL:g} x its 99th percentile over the parts"}
+                           "basis": f"{what} above {REGIME_LEVEL:g} x its 99th percentile "
+                                    "over the parts"}
     for name, a in act.items():
         n_in = int(np.sum(a > level))
         out[name] = {"samples": int(a.size),

@@ -182,6 +182,18 @@ def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_a
     reason : str
         The three comparisons in words.
     """
+    gain_ok, gain_text = _gain(rmse_before, rmse_after, margin, noise, noise_tol)
+    crit_ok = crit_after < crit_before
+    reason = (f"selection RMSE {gain_text}; {criterion.upper()} {crit_before:.1f} -> "
+              f"{crit_after:.1f} ({'agrees' if crit_ok else 'disagrees'})")
+    return gain_ok and crit_ok, reason
+
+
+def _gain(rmse_before: float, rmse_after: float, margin: float, noise: float,
+          noise_tol: float) -> tuple[bool, str]:
+    """Whether an RMSE's fall is a gain, for :func:`acceptance` (the selection part's vote)
+    and :func:`rotated_verdict` (the two folds'): by ``margin`` or to the noise level, and
+    beyond the noise allowance; with ``"a -> b (...)"`` in words."""
     vr = rmse_after if math.isfinite(rmse_after) else math.inf
     # The margin asks for no more than the noise level: a candidate that takes the
     # selection residual to its noise has gained what can be gained (a true drag term from
@@ -189,22 +201,15 @@ def acceptance(rmse_before: float, rmse_after: float, crit_before: float, crit_a
     # refused, docs/diagnosis.md); the allowance still asks it to remove more than chance.
     reaches_noise = math.isfinite(noise) and vr <= noise
     clear = vr <= (1 - margin) * rmse_before
-    gain_ok = clear or reaches_noise
-    gain_text = ("clear gain" if clear else "to the noise level" if reaches_noise
-                 else f"gain below {100 * margin:.0f} %")
-    crit_ok = crit_after < crit_before
+    text = ("clear gain" if clear else "to the noise level" if reaches_noise
+            else f"gain below {100 * margin:.0f} %")
     # A model within (1 + noise_tol) of the noise explains everything an effect can
     # claim; a candidate must remove more selection variance than that allowance.
     allowance = noise_allowance(noise, noise_tol)
-    beyond_ok = rmse_before ** 2 - vr ** 2 > allowance
-    reason = (
-        f"selection RMSE {rmse_before:.4g} -> {vr:.4g} "
-        f"({gain_text}; "
-        f"{'beyond' if beyond_ok else 'within'} the noise allowance "
-        f"{math.sqrt(allowance):.3g}); "
-        f"{criterion.upper()} {crit_before:.1f} -> {crit_after:.1f} "
-        f"({'agrees' if crit_ok else 'disagrees'})")
-    return gain_ok and crit_ok and beyond_ok, reason
+    beyond = rmse_before ** 2 - vr ** 2 > allowance
+    return bool((clear or reaches_noise) and beyond), (
+        f"{rmse_before:.4g} -> {vr:.4g} ({text}; {'beyond' if beyond else 'within'} the "
+        f"noise allowance {math.sqrt(allowance):.3g})")
 
 
 #: A deciding part holds a candidate's regime *thinly* when its share of the regime's
@@ -222,10 +227,8 @@ def votes(rmse_before: float, rmse_after: float, crit_before: float, crit_after:
     The selection part votes for the candidate when its RMSE falls by ``margin`` (or to
     the noise level) and beyond the noise allowance; the criterion when it falls.
     """
-    vr = rmse_after if math.isfinite(rmse_after) else math.inf
-    gain = vr <= (1 - margin) * rmse_before or (math.isfinite(noise) and vr <= noise)
-    beyond = rmse_before ** 2 - vr ** 2 > noise_allowance(noise, noise_tol)
-    return bool(gain and beyond), bool(crit_after < crit_before)
+    return (_gain(rmse_before, rmse_after, margin, noise, noise_tol)[0],
+            bool(crit_after < crit_before))
 
 
 def thin_part(regime: Mapping[str, Any] | None) -> str | None:
@@ -286,17 +289,8 @@ def rotated_verdict(rmse_before: float, rmse_after: float, margin: float, noise:
     accepted : bool
     reason : str
     """
-    vr = rmse_after if math.isfinite(rmse_after) else math.inf
-    clear = vr <= (1 - margin) * rmse_before
-    at_noise = math.isfinite(noise) and vr <= noise
-    allowance = noise_allowance(noise, noise_tol)
-    beyond = rmse_before ** 2 - vr ** 2 > allowance
-    gain = ("clear gain" if clear else "to the noise level" if at_noise
-            else f"gain below {100 * margin:.0f} %")
-    ok = (clear or at_noise) and beyond
-    return ok, (f"held-out RMSE over both folds {rmse_before:.4g} -> {vr:.4g} ({gain}; "
-                f"{'beyond' if beyond else 'within'} the noise allowance "
-                f"{math.sqrt(allowance):.3g}) decides")
+    ok, text = _gain(rmse_before, rmse_after, margin, noise, noise_tol)
+    return ok, f"held-out RMSE over both folds {text} decides"
 
 
 @dataclass
