@@ -68,6 +68,7 @@ from hhra_phys.result import (
     uncertainty,
     weak_directions,
 )
+from hhra_phys.simulate import MAX_ACCURACY_SUBSTEPS
 
 __all__ = [
     "FitOptions",
@@ -895,8 +896,9 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
 
     The substeps were chosen at the start values (:meth:`Problem.__init__`); when the
     error estimate at the fitted values exceeds the tolerance, the problem gets the
-    simulator :meth:`~hhra_phys.simulate.Simulator.accurate` gives there and IPOPT
-    (when it is among the refiners) refines once more from ``z``.
+    simulator :meth:`~hhra_phys.simulate.Simulator.accurate` gives there (up to
+    :data:`~hhra_phys.simulate.MAX_ACCURACY_SUBSTEPS` in its finest run, four times the
+    search's) and IPOPT (when it is among the refiners) refines once more from ``z``.
     """
     acc = problem.sim.accuracy
     tol = float(acc.get("tolerance", np.inf)) if acc else np.inf
@@ -905,7 +907,8 @@ def _accurate_at_fit(problem: Problem, z: np.ndarray, stages: list[Stage], refin
         return problem, z
     v = problem.from_z(z)
     x0 = problem.initial_states(v)[0]
-    sim = problem.sim.accurate(problem.u, problem.full(v), tol, x0=x0)
+    sim = problem.sim.accurate(problem.u, problem.full(v), tol, x0=x0,
+                               finest=MAX_ACCURACY_SUBSTEPS)
     if sim is problem.sim or sim.substeps <= problem.sim.substeps:
         return problem, z
     new = problem.with_simulator(sim)

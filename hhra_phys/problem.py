@@ -912,9 +912,13 @@ class Problem(_Coordinates):
         """The same problem with the default boxes of some model parameters replaced (widened).
 
         Everything else is kept: records, free set, fixed values (also the start values
-        of parameters that are neither free nor fixed), explicit bounds, initial-state
+        of parameters that are neither free nor fixed), the free parameters' start values
+        (initial states and per-record values included), explicit bounds, initial-state
         rule, simulators; :attr:`default_boxes` (the boxes before any widening),
-        :attr:`widened` and :attr:`notes` carry over.
+        :attr:`widened` and :attr:`notes` carry over. Why the start values: a problem
+        given finer substeps (:meth:`with_simulator`) is refined from where it starts;
+        rebuilt at the model's nominal values, an accepted drive model's polish started
+        where its simulation diverged and ended there.
 
         Parameters
         ----------
@@ -932,7 +936,9 @@ class Problem(_Coordinates):
                       fixed={**self.fixed, **self._fixed_given}, bounds=explicit,
                       default_bounds=defaults, initial_state=self.initial_state,
                       simulator=self.simulators, allow_outside_box=True,
-                      per_record=self.per_record)
+                      per_record=self.per_record,
+                      start=dict(zip(self.free_names, self.start_values().tolist(),
+                                     strict=True)))
         new.default_boxes = {**new.default_boxes, **self.default_boxes}
         new.widened = list(self.widened)
         new.notes = list(self.notes)

@@ -137,6 +137,15 @@ MAX_AUTO_SUBSTEPS = 64
 #: output at most this share of the record's noise level.
 ACCURACY_SHARE = 0.1
 
+#: Finest run of the step-doubling estimate at a fit's values (``accurate(finest=...)``):
+#: the rule may then choose up to a quarter of it, 64 substeps. At start values the
+#: estimate stops at :data:`MAX_AUTO_SUBSTEPS` (a search's substeps, up to 16, set its
+#: cost before its values are known); at fitted values the result's bias is at stake.
+#: Why: a drive's Coulomb friction sharpened to 1e-4 m/s, fitted at ROS4 x 16 with an
+#: error estimate of 1.5x the tolerance, tested at 2.3x the noise; refitted at x 64 at
+#: 1.02x (the true structure's refit 1.00x).
+MAX_ACCURACY_SUBSTEPS = 4 * MAX_AUTO_SUBSTEPS
+
 #: Samples per call of the error estimate's CasADi-VM map.
 ACCURACY_CHUNK = 500
 #: Step-doubling outputs kept per simulator (:meth:`Simulator.integration_error`).
@@ -692,15 +701,16 @@ class Simulator:
         return step_doubling_error(*ys)
 
     def accurate(self, u: np.ndarray, p: np.ndarray, tolerance: float,
-                 x0: np.ndarray | None = None, coarsest: bool = False) -> Simulator:
+                 x0: np.ndarray | None = None, coarsest: bool = False,
+                 finest: int = MAX_AUTO_SUBSTEPS) -> Simulator:
         """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
 
         Starts from this simulator's substeps when they are stable for ``p`` (the
         population's check, :meth:`stability_index` at most ``rho_max``), else from the
         stability rule's (:meth:`plan` at ``p`` with the record's largest input), and
         doubles them while the step-doubling estimate (:meth:`integration_error`)
-        exceeds ``tolerance``, up to a quarter of :data:`MAX_AUTO_SUBSTEPS` (the
-        estimate's finest run then has that many); parameters whose stability rule
+        exceeds ``tolerance``, up to a quarter of ``finest`` (the estimate's finest run
+        then has that many); parameters whose stability rule
         alone needs more than :data:`MAX_AUTO_SUBSTEPS` are not estimated
         (``error_estimate`` ``None``). The method stays this simulator's (chosen by
         stiffness). The returned simulator (``self`` when its substeps suffice, else one
@@ -727,6 +737,9 @@ class Simulator:
             at any size, and the estimate alone says how coarse it may be; a sharp
             backlash whose record ROS4 x 4 integrates within the tolerance, where the
             stiff rule asks for at least :data:`ROS4_MIN_STIFF`).
+        finest : int
+            Substeps per sample of the estimate's finest run (default
+            :data:`MAX_AUTO_SUBSTEPS`; :data:`MAX_ACCURACY_SUBSTEPS` at a fit's values).
         """
         u, P, X0, _ = self._prepare(u, p, x0)
         pv, xv = P[0], X0[:, 0]
@@ -763,8 +776,8 @@ class Simulator:
         err = step_doubling_error(out(n), out(2 * n), out(4 * n))
         # A simulation that does not stay finite is the stability check's business
         # (its rows are flagged), not a reason for more substeps.
-        # At most MAX_AUTO_SUBSTEPS steps per sample in the estimate's finest run.
-        while math.isfinite(err) and err > tolerance and 8 * n <= MAX_AUTO_SUBSTEPS:
+        # At most `finest` steps per sample in the estimate's finest run.
+        while math.isfinite(err) and err > tolerance and 8 * n <= finest:
             n *= 2
             err = step_doubling_error(out(n), out(2 * n), out(4 * n))
         sim = self.with_substeps(n)

@@ -59,3 +59,24 @@ def test_records_are_checked_by_kind(records) -> None:
         as_records([records[0], np.zeros(3)])  # type: ignore[list-item]
     with pytest.raises(ParameterError, match="only 2 records"):
         Problem(LinearCylinderModel(), records, start={"x0_x_rec3": 0.0})
+
+
+@pytest.mark.parametrize("n_records", [1, 2])
+def test_a_problem_with_finer_substeps_starts_where_it_started(records, n_records) -> None:
+    # with_simulator rebuilds the problem (with_boxes): the free parameters' start values,
+    # fitted initial states and per-record ones included, must survive, or a polish at
+    # finer substeps restarts from the model's nominal values.
+    model = LinearCylinderModel()
+    recs = records[:n_records]
+    base = Problem(model, recs, cost="ssr", initial_state="fit")
+    start = {n: v * 1.3 + 0.01 for n, v in zip(base.free_names, base.start_values(),
+                                               strict=True)}
+    pr = Problem(model, recs, cost="ssr", initial_state="fit", start=start)
+    want = pr.start_values()
+    assert not np.allclose(want, base.start_values())
+    finer = pr.with_simulator(pr.sim.with_substeps(pr.sim.substeps * 2))
+    assert finer.sim.substeps == pr.sim.substeps * 2
+    assert finer.free_names == pr.free_names
+    np.testing.assert_allclose(finer.start_values(), want, rtol=1e-12)
+    widened = pr.with_boxes({})
+    np.testing.assert_allclose(widened.start_values(), want, rtol=1e-12)
