@@ -164,6 +164,14 @@ class LoopResult:
         """The final model's scores on the untouched test part (``rmse``, ``vaf``, ...)."""
         return dict(self.test_scores.get("final", {}))
 
+    def summary(self) -> str:
+        """What ``hhra-phys diagnose`` prints after the loop: the chosen effects, the RMSE
+        and VAF of each part before -> after (``est``, ``val`` the selection part, ``test``),
+        each record's with several, and the final fit's derived quantities with their 95 %
+        intervals. Units are the records'; warnings are :attr:`warnings` and the final
+        fit's (not repeated here)."""
+        return "\n".join(summary_lines(self, self.to_json()))
+
     def report(self, path: str | Any, data: Any = None, overwrite: bool = False) -> Any:
         """Write the Markdown report and its residual figures (``hhra-phys diagnose
         --report``'s; :func:`hhra_phys.report.loop_report`).
@@ -431,6 +439,35 @@ def _as_refitted(problem: Problem, integration: Mapping[str, Any] | None) -> Pro
     sim.accuracy = {k: integration[k] for k in ("method", "substeps", "error_estimate",
                                                  "tolerance", "within") if k in integration}
     return problem.with_simulator(sim)
+
+
+def summary_lines(res: LoopResult, out: Mapping[str, Any]) -> list[str]:
+    """:meth:`LoopResult.summary`'s lines from the result and its JSON ``out``
+    (:meth:`LoopResult.to_json`, passed in where it is already built)."""
+    lines = [f"chosen: {', '.join(res.chosen) or 'none'}"]
+    for part in ("est", "val", "test"):
+        b, f = out["base"].get(part, {}), out["final"].get(part, {})
+        if f:
+            lines.append(f"{part}: RMSE {_fmt4(b.get('rmse'))} -> {_fmt4(f.get('rmse'))}, "
+                         f"VAF {_fmt4(b.get('vaf'))} -> {_fmt4(f.get('vaf'))} %")
+    for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
+                      strict=True):
+        lines.append(f"record {rf['name']}: " + ", ".join(
+            f"{part} RMSE {_fmt4(rb[part]['rmse'])} -> {_fmt4(rf[part]['rmse'])}"
+            for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
+    for name, est in res.final.derived.items():
+        if est.free:
+            ci = est.ci95 or (math.nan, math.nan)
+            lines.append(f"derived {name} = {_fmt4(est.value)} {est.unit}, 95 % CI "
+                         f"[{_fmt4(ci[0])}, {_fmt4(ci[1])}]")
+    return lines
+
+
+def _fmt4(v: Any) -> str:
+    """Four significant digits, or ``-`` for a missing or non-finite number."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return f"{v:.4g}"
 
 
 def _accuracy_checked(problem: Problem) -> Problem:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -223,26 +222,14 @@ def _augment(args: argparse.Namespace) -> Any:
 
 
 def _print_summary(res: Any, out: dict[str, Any], say: Any) -> None:
-    """Warnings (stderr), the chosen effects, errors before -> after, per record, and the
-    final fit's derived quantities with their intervals."""
+    """Warnings (stderr), then the result's summary (:meth:`LoopResult.summary
+    <hhra_phys.loop.LoopResult.summary>`, from the JSON already built)."""
+    from hhra_phys.loop import summary_lines
+
     for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
         print(f"warning: {w}", file=sys.stderr)
-    say(f"chosen: {', '.join(res.chosen) or 'none'}")
-    for part in ("est", "val", "test"):
-        b, f = out["base"].get(part, {}), out["final"].get(part, {})
-        if f:
-            say(f"{part}: RMSE {_fmt(b.get('rmse'))} -> {_fmt(f.get('rmse'))}, "
-                f"VAF {_fmt(b.get('vaf'))} -> {_fmt(f.get('vaf'))} %")
-    for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
-                      strict=True):
-        say(f"record {rf['name']}: " + ", ".join(
-            f"{part} RMSE {_fmt(rb[part]['rmse'])} -> {_fmt(rf[part]['rmse'])}"
-            for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
-    for name, est in res.final.derived.items():
-        if est.free:
-            ci = est.ci95 or (math.nan, math.nan)
-            say(f"derived {name} = {_fmt(est.value)} {est.unit}, 95 % CI "
-                f"[{_fmt(ci[0])}, {_fmt(ci[1])}]")
+    for line in summary_lines(res, out):
+        say(line)
 
 
 def user_effects(sources: list[str] | None) -> list[str]:
@@ -343,9 +330,3 @@ def _records(args: argparse.Namespace) -> tuple[list[Any], list[Any] | None, lis
     records, validation, warnings = model_records(args)
     check_records(records + (validation or []))
     return records, validation, warnings
-
-
-def _fmt(v: Any, digits: int = 4) -> str:
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "-"
-    return f"{v:.{digits}g}"

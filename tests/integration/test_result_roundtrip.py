@@ -123,7 +123,7 @@ def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tm
     from hhra_phys.loop import LoopResult, augment
 
     run = background["test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips"]
-    code, _, err = run.result()
+    code, out, err = run.result()
     assert code == 0, err[-2000:]
     path = run.out / "rec.csv"
     (tmp_path / "cli").symlink_to(run.out / "cli")
@@ -140,9 +140,15 @@ def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tm
         assert (tmp_path / "py" / fig).exists() and (tmp_path / "cli" / fig).exists()
     with pytest.raises(FileExistsError):
         res.report(tmp_path / "py" / "d.md")  # nothing the user has is overwritten
+    # the summary the CLI prints is the result's own (summary()), also read back
+    printed = [line for line in out.splitlines() if not line.startswith("wrote ")]
+    assert printed == res.summary().splitlines()
+    assert printed[0] == "chosen: valve_deadzone" and any(
+        line.startswith("derived kv = ") for line in printed)
     d = res.to_json()
     back = LoopResult.from_json(json.loads(json.dumps(d, allow_nan=False)))
     assert back.to_json() == d
+    assert back.summary() == res.summary()
     assert back.final.derived == res.final.derived and back.chosen == ["valve_deadzone"]
     from hhra_phys.errors import ParameterError
 
