@@ -176,6 +176,19 @@ def test_long_records_quick(background):
     assert "cubic" in json.dumps(side)
 
 
+def test_long_records_generator_error(tmp_path):
+    # The drive generator's own integration error against a finer replay: written per test
+    # record, positive, finite, and far below the record's scale (4 cm moves). A generator
+    # replayed at its own count against itself would give exactly zero.
+    out = tmp_path / "ge"
+    _run("long_records.py", "--generator-error", "--seeds", "2", "--drive-seconds", "1.2",
+         "--out", str(out), cwd=tmp_path)
+    (row,) = json.loads((out / "generator_error.json").read_text())["rows"]
+    assert row["record"] == "drive test seed 1002" and row["fine"] > row["substeps"]
+    assert 0.0 < row["rms_m"] <= row["max_m"] < 1e-4
+    assert not (out / "rows.json").exists()  # nothing diagnosed
+
+
 def test_cluster_equality_quick(background):
     # One short clean record, in one process and on a two-worker LocalCluster (loopback):
     # the script runs end to end, and the two runs wrote the same JSON.
