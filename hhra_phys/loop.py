@@ -85,7 +85,7 @@ from hhra_phys.parameters import record_name, split_record_name
 from hhra_phys.problem import Problem, as_records, default_free, per_record_params
 from hhra_phys.refine import STALL_ITER, CompiledLeastSquares
 from hhra_phys.regime import change_coverage, regime_coverage
-from hhra_phys.result import FitResult
+from hhra_phys.result import FitResult, format_metric
 from hhra_phys.selection import (
     COLOURED_P,
     METRIC_KEYS,
@@ -444,30 +444,24 @@ def _as_refitted(problem: Problem, integration: Mapping[str, Any] | None) -> Pro
 def summary_lines(res: LoopResult, out: Mapping[str, Any]) -> list[str]:
     """:meth:`LoopResult.summary`'s lines from the result and its JSON ``out``
     (:meth:`LoopResult.to_json`, passed in where it is already built)."""
+    fm = format_metric
     lines = [f"chosen: {', '.join(res.chosen) or 'none'}"]
     for part in ("est", "val", "test"):
         b, f = out["base"].get(part, {}), out["final"].get(part, {})
         if f:
-            lines.append(f"{part}: RMSE {_fmt4(b.get('rmse'))} -> {_fmt4(f.get('rmse'))}, "
-                         f"VAF {_fmt4(b.get('vaf'))} -> {_fmt4(f.get('vaf'))} %")
+            lines.append(f"{part}: RMSE {fm(b.get('rmse'))} -> {fm(f.get('rmse'))}, "
+                         f"VAF {fm(b.get('vaf'))} -> {fm(f.get('vaf'))} %")
     for rb, rf in zip(out["base"].get("records", []), out["final"].get("records", []),
                       strict=True):
         lines.append(f"record {rf['name']}: " + ", ".join(
-            f"{part} RMSE {_fmt4(rb[part]['rmse'])} -> {_fmt4(rf[part]['rmse'])}"
+            f"{part} RMSE {fm(rb[part]['rmse'])} -> {fm(rf[part]['rmse'])}"
             for part in ("est", "sel", "test") if rf[part].get("rmse") is not None))
     for name, est in res.final.derived.items():
         if est.free:
             ci = est.ci95 or (math.nan, math.nan)
-            lines.append(f"derived {name} = {_fmt4(est.value)} {est.unit}, 95 % CI "
-                         f"[{_fmt4(ci[0])}, {_fmt4(ci[1])}]")
+            lines.append(f"derived {name} = {fm(est.value)} {est.unit}, 95 % CI "
+                         f"[{fm(ci[0])}, {fm(ci[1])}]")
     return lines
-
-
-def _fmt4(v: Any) -> str:
-    """Four significant digits, or ``-`` for a missing or non-finite number."""
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "-"
-    return f"{v:.4g}"
 
 
 def _accuracy_checked(problem: Problem) -> Problem:
@@ -911,8 +905,8 @@ def refit_candidate(job: _Job) -> _Outcome:
 
         def search(boxes_now: Mapping[str, tuple[float, float]]) -> tuple[Problem, FitResult]:
             cfg_b = replace(cfg, default_bounds={**cfg.default_bounds, **boxes_now})
-            return _search_candidate(cfg_b, model_c, searched, fixed, all_free, job, pop,
-                                     iters, first)
+            return _search_candidate(cfg_b, model_c, searched, fixed, all_free, job.values,
+                                     job.x0, pop, iters, first)
 
         p2, r2 = _widen_candidate(search, boxes, all_free, widened_notes, job.widen_below)
         shaped = _sharpen(replace(cfg, default_bounds={**cfg.default_bounds, **boxes}),
@@ -1078,8 +1072,8 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
         # ends at, and a width widened past the default is a damping (the drive's first
         # round took 0.0104 m/s, 40 times the default, through that door).
         cfg_s = replace(cfg, bounds={**cfg.bounds, width: box})
-        p_s, r_s = _search_candidate(cfg_s, model_s, [width], held, free_s, job_s, pop,
-                                     iters, {width: float(eff.width)})
+        p_s, r_s = _search_candidate(cfg_s, model_s, [width], held, free_s, job_s.values,
+                                     job_s.x0, pop, iters, {width: float(eff.width)})
         crit_s = information_criterion(r_s, cfg.criterion)
         sel_s = float(r_s.metrics["val"].get("rmse", math.inf))
         tried.append(f"{r_s.values[width]:.3g}" + (f" ({profile})" if len(profiles) > 1 else "")
@@ -1103,13 +1097,14 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
 
 
 def _search_candidate(cfg: _Settings, model: Model, searched: list[str],
-                      fixed: dict[str, float], all_free: list[str], job: _Job, pop: int,
+                      fixed: dict[str, float], all_free: list[str],
+                      values: Mapping[str, float], x0: Mapping[str, float], pop: int,
                       iters: int, first: Mapping[str, float] | None = None
                       ) -> tuple[Problem, FitResult]:
     """A candidate's two stages: global search over ``searched`` (the rest held at the
-    previous fit, the new parameters seeded at ``first``), then IPOPT over ``all_free``;
-    the second stage's problem and fit."""
-    p1 = _problem(cfg, model, searched, fixed, {**job.values, **(first or {})}, job.x0)
+    previous fit's ``values`` and initial state ``x0``, the new parameters seeded at
+    ``first``), then IPOPT over ``all_free``; the second stage's problem and fit."""
+    p1 = _problem(cfg, model, searched, fixed, {**values, **(first or {})}, x0)
     p1 = _stiff_substeps(p1)
     r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
     p2 = _problem(cfg, model, all_free, {}, _values(r1), r1.x0,
@@ -2353,10 +2348,7 @@ class _Loop:
         # rule at its values as its refit had (the base fit's substeps, given, skip the
         # rule: a sharp friction refitted at ROS4 x 16 and polished at x 8 left the drive's
         # selection at 1.26e-6 m where its refit had reached the 1.0e-6 m noise).
-        self.cur_prob = _accuracy_checked(
-            _as_refitted(_problem(cfg, model_c, free_c, {}, vals_c, x0_c), integ))
-        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
-        self.cur_free = list(free_c)
+        self._polish(model_c, free_c, vals_c, x0_c, integ)
         self.say(f"round {rnd}: accepted {best_step.effect}")
         if o.backward and len(self.chosen) >= 2 and not self._over_budget():
             self.cur, self.cur_prob, self.cur_free, back, gone = _backward_step(
@@ -2380,6 +2372,24 @@ class _Loop:
                     break
                 self._sharpen_chosen(rnd, step)
 
+    def _polish(self, model: Model, free: Sequence[str], values: Mapping[str, float],
+                x0: Mapping[str, float], integration: Mapping[str, Any] | None) -> None:
+        """Make ``model`` (its refit's ``values``, ``x0`` and ``integration`` record) the
+        current model, polished to convergence: at least as finely as its refit ended
+        (:func:`_as_refitted`), its substeps checked at its values
+        (:func:`_accuracy_checked`), IPOPT up to :data:`POLISH_ITER` without the stall
+        stop."""
+        self.cur_prob = _accuracy_checked(_as_refitted(
+            _problem(self.cfg, model, free, {}, values, x0), integration))
+        self.cur = _run(self.cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER,
+                        stall=False)
+        self.cur_free = list(free)
+
+    def _accepted_step(self, name: str) -> Step | None:
+        """The step that last added ``name`` to the model (None: not added by a step)."""
+        return next((s for s in reversed(self.steps) if s.effect == name and s.accepted
+                     and s.action == "add"), None)
+
     def _library_forms(self, rnd: int) -> None:
         """Each chosen discovered term that holds the shape of a library effect the model
         lacks (``Step.same_as``: a constant at the input, ``-0.3*sgn(v)`` at a velocity's
@@ -2400,8 +2410,7 @@ class _Loop:
         # its discovered form is in the model (the drive's constant force, seed 3).
         offered = (set(self.o.candidates) if self.o.candidates is not None else set(EFFECTS))
         for name in list(self.chosen):
-            step = next((s for s in reversed(self.steps) if s.effect == name and s.accepted
-                         and s.action == "add"), None)
+            step = self._accepted_step(name)
             twins = [t for t in getattr(step, "same_as", ()) or ()
                      if t not in self.chosen and t in offered and t not in self.dropped]
             if twins and not self._over_budget():
@@ -2433,12 +2442,9 @@ class _Loop:
             new = [p.name for e in effs for p in e.parameters]
             free_t = [n for n in self.cur_free if n not in mine] + new
             pop, iters = _search_size(len(new), o.cand_pop, o.cand_iter)
-            p1 = _stiff_substeps(_problem(cfg, model_t, new, {n: vals[n] for n in free_t
-                                                             if n not in new}, vals, cur.x0))
-            r1 = _run(cfg, p1, "hgwo", pop, iters, refine="none")
-            p2 = _problem(cfg, model_t, free_t, {}, _values(r1), r1.x0,
-                          simulator=getattr(p1, "simulators", p1.sim))
-            r2 = _run(cfg, p2, "none", 0, 0)
+            p2, r2 = _search_candidate(cfg, model_t, new, {n: vals[n] for n in free_t
+                                                           if n not in new},
+                                       free_t, vals, cur.x0, pop, iters)
         except Exception as exc:  # noqa: BLE001 - a failing refit keeps the term as it is
             self.say(f"  library form of {name} ({', '.join(twins)}) failed "
                      f"({type(exc).__name__}: {exc}); kept")
@@ -2467,11 +2473,7 @@ class _Loop:
         term.action, term.removed = "remove", True
         term.reason = (f"replaced by its library form {forms} (the discovered form would not "
                        f"be accepted over it now): {why}")
-        self.cur_prob = _accuracy_checked(_as_refitted(
-            _problem(cfg, model_t, free_t, {}, _values(r2), dict(r2.x0)),
-            r2.settings.get("integration")))
-        self.cur = _run(cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER, stall=False)
-        self.cur_free = free_t
+        self._polish(model_t, free_t, _values(r2), dict(r2.x0), r2.settings.get("integration"))
         at = self.chosen.index(name)
         self.chosen[at:at + 1] = twins
         self.dropped.append(name)
@@ -2496,8 +2498,7 @@ class _Loop:
             if (name == newest.effect or part is None or _width_param(part) is None
                     or getattr(part, "fit_width", True)):
                 continue
-            step = next((s for s in reversed(self.steps) if s.effect == name and s.accepted
-                         and s.action == "add"), None)
+            step = self._accepted_step(name)
             if step is not None:
                 out.append(step)
         return out
@@ -2545,12 +2546,7 @@ class _Loop:
         _, r_s, model_s, _, width, box = shaped
         self.cfg = replace(self.cfg, bounds={**self.cfg.bounds, width: box})
         free = [*self.cur_free, width]
-        self.cur_prob = _accuracy_checked(_as_refitted(
-            _problem(self.cfg, model_s, free, {}, _values(r_s), dict(r_s.x0)),
-            r_s.settings.get("integration")))
-        self.cur = _run(self.cfg, self.cur_prob, "none", 0, 0, ipopt_iter=POLISH_ITER,
-                        stall=False)
-        self.cur_free = free
+        self._polish(model_s, free, _values(r_s), dict(r_s.x0), r_s.settings.get("integration"))
         step.params[width] = float(self.cur.values[width])
         self.say(f"{label}: {notes[-1]} [{time.perf_counter() - ts:.1f} s]")
 

@@ -50,6 +50,7 @@ __all__ = [
     "Estimate",
     "FitResult",
     "derived_estimates",
+    "format_metric",
     "redundant",
     "uncertainty",
     "weak_directions",
@@ -708,13 +709,14 @@ class FitResult:
                 f"[{ci[0]:.6g}, {ci[1]:.6g}]" if _finite(ci) else "undetermined")
             lines.append(f"{name:<12} {info['value']:>13.6g} {info['unit']:<10} {ci_text:>29}")
         lines += self._derived_lines()
+        fm = format_metric
         for part in ("est", "val"):
             m = self.metrics.get(part) or {}
             if m:
                 lines.append(
                     f"{'estimation' if part == 'est' else 'validation':<10}: "
-                    f"RMSE {_fmt(m.get('rmse'))}, VAF {_fmt(m.get('vaf'), '.4f')} %, "
-                    f"MSE {_fmt(m.get('mse'))}, ITAE {_fmt(m.get('itae'))}"
+                    f"RMSE {fm(m.get('rmse'))}, VAF {fm(m.get('vaf'), '.4f')} %, "
+                    f"MSE {fm(m.get('mse'))}, ITAE {fm(m.get('itae'))}"
                 )
         if self.status != "ok":
             lines.append(f"status: {self.status.upper()} (see the warnings; do not use these "
@@ -966,8 +968,9 @@ def _finite(values: Any) -> bool:
     return all(v is not None and np.isfinite(v) for v in values)
 
 
-def _fmt(value: Any, spec: str = ".4g") -> str:
-    """A metric for the summary; a diverged fit's missing or non-finite one as "-"."""
+def format_metric(value: Any, spec: str = ".4g") -> str:
+    """A metric for a summary (``spec``, default four significant digits); a diverged
+    fit's missing or non-finite one as ``"-"``."""
     return format(value, spec) if value is not None and np.isfinite(value) else "-"
 
 
