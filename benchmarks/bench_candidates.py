@@ -26,10 +26,10 @@ STIFF = ("backlash", "coulomb_friction")
 
 
 def main() -> None:
-    import hhra_phys.loop as loop
+    import hhra_phys.diagnosis.engine as loop
+    from hhra_phys.diagnosis.selection import judge
     from hhra_phys.effects import EFFECTS
     from hhra_phys.reference import reference_record
-    from hhra_phys.selection import judge
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--effect", default="valve_deadzone",

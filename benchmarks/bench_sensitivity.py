@@ -68,8 +68,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     os.environ["HHRA_PHYS_CACHE"] = tempfile.mkdtemp(prefix="hhra-sens-bench-")
+    from hhra_phys.diagnosis.fits import CANDIDATE_BLOCK
     from hhra_phys.effects import make_effect
-    from hhra_phys.loop import CANDIDATE_BLOCK
     from hhra_phys.models.hhra import HHRAModel
     from hhra_phys.reference import reference_record
     from hhra_phys.sensitivity import TrajectorySensitivity

@@ -11,9 +11,10 @@ Every public module of ``hhra_phys`` (not the ``cli`` package, whose reference i
 then its public classes (with their public methods and properties) and functions, each
 with its signature and the summary paragraph of its docstring: a map of the API to find
 things in (:data:`MAX_LINES` at most); the whole docstrings, with parameters, shapes and
-units, are one ``help(...)`` away. Public means: listed in the module's curated
-``__all__``; a module without one is an error, so that nothing becomes public API by
-accident. The output depends only on the code, so ``--check`` (run by
+units, are one ``help(...)`` away. A module that is the first home of names now defined
+elsewhere (``__moved_to__``, kept so that old imports work) lists them only. Public means:
+listed in the module's curated ``__all__``; a module without one is an error, so that
+nothing becomes public API by accident. The output depends only on the code, so ``--check`` (run by
 ``tests/integration/test_guide.py``) tells whether it was regenerated after the docstrings
 changed, and fails when the reference grows past :data:`MAX_LINES`.
 """
@@ -100,6 +101,11 @@ def render() -> str:
     for mname in modules:
         module = importlib.import_module(mname)
         lines += [f"## {mname}", "", _doc(module)]
+        moved = getattr(module, "__moved_to__", None)
+        if moved:  # a first home kept for old imports: its names are documented once, there
+            lines += [f"Its names: {', '.join(f'`{n}`' for n in module.__all__)}; documented "
+                      f"at [`{moved}`](#{moved.replace('.', '')}).", ""]
+            continue
         for name, obj in _public(module):
             if inspect.isclass(obj):
                 if lines[-1]:

@@ -39,8 +39,8 @@ import warnings
 
 import numpy as np
 
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.effects import EFFECTS, make_effect
-from hhra_phys.loop import augment
 from hhra_phys.models.hhra.rig import simulate_rig
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference import reference_record

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from hhra_phys.data.formats import save_csv
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.effects import make_effect
 from hhra_phys.fit import FitOptions, fit
 from hhra_phys.models.cylinder import (
@@ -47,7 +48,6 @@ from hhra_phys.models.cylinder import (
 )
 from hhra_phys.outputs import atomic_write_text, jsonable
 from hhra_phys.problem import Problem
-from hhra_phys.selection import split_record
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = "hhra_phys.models.cylinder:LinearCylinderModel"

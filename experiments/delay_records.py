@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from hhra_phys.data.formats import save_csv
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.effects import make_effect
 from hhra_phys.fit import FitOptions, fit
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.outputs import atomic_write_text, jsonable
 from hhra_phys.problem import Problem
 from hhra_phys.reference import reference_record
-from hhra_phys.selection import split_record
 
 NOISE = 0.05
 ROOT = Path(__file__).resolve().parent.parent

@@ -35,7 +35,7 @@ import warnings
 
 from closed_loop import SIZES, make_record
 
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference.outside import OUTSIDE, outside_record
 from hhra_phys.reference.resonant import loaded_record, resonant_record

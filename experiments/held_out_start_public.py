@@ -27,10 +27,10 @@ import numpy as np
 
 import hhra_phys.problem as problem_module
 from hhra_phys.data import Dataset, load_public_actuator
-from hhra_phys.loop import LoopResult
+from hhra_phys.diagnosis.result import LoopResult
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.outputs import atomic_write_text, jsonable
 from hhra_phys.problem import Problem
-from hhra_phys.selection import split_record
 
 
 def main() -> None:

@@ -19,10 +19,10 @@ import json
 import warnings
 from concurrent.futures import Executor
 
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment
 from hhra_phys.reference import reference_record
-from hhra_phys.selection import split_record
 
 TRUTH = 30.0
 EFFECT = {"coulomb_friction": {"g_coulomb": TRUTH}}

@@ -44,7 +44,7 @@ import time
 import warnings
 from typing import Any
 
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference import reference_record
 from hhra_phys.reference.outside import outside_record

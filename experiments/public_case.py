@@ -37,10 +37,10 @@ import warnings
 import numpy as np
 
 from hhra_phys.data import Dataset, load_public_actuator
-from hhra_phys.diagnose import plot_loop_residuals
-from hhra_phys.discover import _resonances
+from hhra_phys.diagnosis.discovery import _resonances
+from hhra_phys.diagnosis.engine import augment, base_model_for
+from hhra_phys.diagnosis.plots import plot_loop_residuals
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment, base_model_for
 from hhra_phys.outputs import atomic_write_text, jsonable
 from hhra_phys.result import FitResult
 
@@ -146,7 +146,7 @@ def main() -> None:
                         overwrite=True, label="public record")
     found = [s for s in res.steps if getattr(s, "residuals", None)]
     if found:  # residuals just before and after each term of the discovery step
-        from hhra_phys.discover import plot_discovery
+        from hhra_phys.diagnosis.plots import plot_discovery
 
         plot_discovery(found, f"{args.prefix}_discovery.png", overwrite=True)
     print("chosen:", res.chosen)

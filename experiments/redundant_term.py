@@ -20,9 +20,9 @@ import numpy as np
 
 from hhra_phys import Model, Parameter, Part, Simulator, State, register_part
 from hhra_phys.data import Dataset
-from hhra_phys.discover import DiscoveredTerm
 from hhra_phys.fit import fit
 from hhra_phys.result import redundant
+from hhra_phys.terms import DiscoveredTerm
 
 
 @register_part

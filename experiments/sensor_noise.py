@@ -44,8 +44,8 @@ import warnings
 
 import numpy as np
 
-from hhra_phys import diagnose, discover, loop
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis import discovery, residual, stopping
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.noise import difference_level, noise_level
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
 from hhra_phys.reference import reference_record
@@ -78,9 +78,9 @@ def _use_difference() -> None:
     """Swap the earlier estimator in at the loop's call sites (for comparison only)."""
     def old(residual, inputs=None, **_):
         return difference_level(residual)
-    loop.noise_level = old
-    discover.noise_level = old
-    diagnose.noise_level = old
+    stopping.noise_level = old
+    discovery.noise_level = old
+    residual.noise_level = old
 
 
 def run_case(case: str, seed: int, duration: float, loop_kw: dict) -> dict:

@@ -58,7 +58,7 @@ def fit_path(path: str, seed: int, widen: bool, duration: float, pop: int, iters
     if path == "loop":
         if not widen:
             raise ValueError("the loop's base fit always widens (there is no switch)")
-        from hhra_phys.loop import augment
+        from hhra_phys.diagnosis.engine import augment
 
         res = augment(data, HHRAModel(), candidates=[], pop_size=pop, max_iter=iters,
                       seed=seed, test=0.0, discover=False)

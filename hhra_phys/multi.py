@@ -144,7 +144,7 @@ def split_records(
     with ``validation`` the records split into estimation and selection only
     (``test`` ignored) and the whole validation records are the test part.
     """
-    from hhra_phys.selection import split_record
+    from hhra_phys.diagnosis.selection import split_record
 
     records = list(records)
     check_records(records + list(validation or []))

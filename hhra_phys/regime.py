@@ -39,7 +39,7 @@ REGIME_LEVEL = 0.1
 def _signals(record: Any, values: np.ndarray, data: Dataset | None) -> Signals:
     """The model's simulated signals on a part (the record's own samples when ``data`` is
     None), started as the part's score starts it."""
-    from hhra_phys.discover import variable_series  # here: discover imports much
+    from hhra_phys.diagnosis.screening import variable_series  # here: discover imports much
 
     series, yhat = variable_series(record, values, data)
     d = record.data if data is None else data

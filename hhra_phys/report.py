@@ -79,11 +79,11 @@ def loop_report(res: Any, path: str | Path, data: Any = None, overwrite: bool = 
     for f in figs:
         check_output_path(f, overwrite=overwrite, what="report's figure",
                           suffixes=FIGURE_SUFFIXES)
-    from hhra_phys.diagnose import plot_loop_residuals
+    from hhra_phys.diagnosis.plots import plot_loop_residuals
 
     paths = list(plot_loop_residuals(res, data, figs[0], figs[1], overwrite))
     if found:
-        from hhra_phys.discover import plot_discovery
+        from hhra_phys.diagnosis.plots import plot_discovery
 
         paths.append(plot_discovery(found, figs[2], overwrite))
     atomic_write_text(p, markdown_report(res, paths, str(p)))

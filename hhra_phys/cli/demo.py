@@ -187,8 +187,8 @@ def _write_loop(args: argparse.Namespace, files: dict[str, Path], res: Any, data
 def _close_loop(args: argparse.Namespace, duration: float, pop: int, iters: int,
                 hidden: str, truth: dict[str, float]) -> tuple[Any, Any]:
     """Simulate the record with the hidden effect and run the loop; (result, record)."""
+    from hhra_phys.diagnosis.engine import diagnose
     from hhra_phys.fit import default_model
-    from hhra_phys.loop import augment
     from hhra_phys.reference import reference_record
 
     # The independent implementation: the data are not the model checked against itself.
@@ -199,11 +199,11 @@ def _close_loop(args: argparse.Namespace, duration: float, pop: int, iters: int,
     # Candidate refits in one process per core, as `hhra-phys diagnose` does by default
     # (results identical to a serial run).
     with executor("auto") as ex:
-        res = augment(data, model, bounds=bounds, pop_size=pop, max_iter=iters,
-                      max_effects=2, seed=args.seed, executor=ex,
-                      progress=lambda s: print("    " + s.splitlines()[0], file=sys.stderr,
-                                               flush=True) if s.startswith(("  tried", "round"))
-                      and "ranking" not in s else None)
+        res = diagnose(data, model, bounds=bounds, pop_size=pop, max_iter=iters,
+                       max_effects=2, seed=args.seed, executor=ex,
+                       progress=lambda s: print("    " + s.splitlines()[0], file=sys.stderr,
+                                                flush=True) if s.startswith(("  tried", "round"))
+                       and "ranking" not in s else None)
     return res, data
 
 
@@ -233,8 +233,8 @@ def plot_loop(res: Any, data: Any, path: Path, hidden: str, overwrite: bool) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from hhra_phys.diagnosis.selection import split_record
     from hhra_phys.outputs import atomic_path
-    from hhra_phys.selection import split_record
 
     check_output_path(path, overwrite=overwrite, suffixes=FIGURE_SUFFIXES)
     _, _, test = split_record(data, res.settings["split"], res.settings["test"])

@@ -40,7 +40,8 @@ from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.outputs import atomic_write_text
 
-#: :data:`hhra_phys.loop.SHAPE_MODES`, named here: the loop is imported only when it runs.
+#: :data:`hhra_phys.diagnosis.options.SHAPE_MODES`, named here: the loop is imported only when
+#: it runs.
 _SHAPE_MODES = ("chosen", "contenders", "off")
 
 
@@ -156,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError("--split: the diagnosis needs selection data; give a "
                                  f"fraction below 1, got {args.split}")
         with stdout_kept_for_json(args.json):  # user code's prints: not in the JSON
-            res = _augment(args)
+            res = _diagnose(args)
         out = res.to_json()
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
@@ -174,10 +175,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _augment(args: argparse.Namespace) -> Any:
-    """Read the records, build the model and run :func:`~hhra_phys.loop.augment`."""
+def _diagnose(args: argparse.Namespace) -> Any:
+    """Read the records, build the model and run :func:`hhra_phys.diagnose`
+    (:func:`hhra_phys.diagnosis.engine.diagnose`)."""
     from hhra_phys.cli._common import parse_names
-    from hhra_phys.loop import augment
+    from hhra_phys.diagnosis.engine import diagnose
 
     candidates = [] if args.effects == "none" else parse_names(args.effects, "--effects")
     added = user_effects(args.effects_from)
@@ -200,7 +202,7 @@ def _augment(args: argparse.Namespace) -> Any:
             else f"{data.name or data.source or 'record'} ({len(data)} samples")
     print(f"diagnosing {what}, split {split})", file=sys.stderr)
     with executor(args.workers, args.dask) as ex:
-        res = augment(
+        res = diagnose(
             records if several else data, model, validation=validation, split=split,
             test=args.test,
             candidates=candidates,
@@ -223,8 +225,8 @@ def _augment(args: argparse.Namespace) -> Any:
 
 def _print_summary(res: Any, out: dict[str, Any], say: Any) -> None:
     """Warnings (stderr), then the result's summary (:meth:`LoopResult.summary
-    <hhra_phys.loop.LoopResult.summary>`, from the JSON already built)."""
-    from hhra_phys.loop import summary_lines
+    <hhra_phys.diagnosis.result.DiagnosisResult.summary>`, from the JSON already built)."""
+    from hhra_phys.diagnosis.result import summary_lines
 
     for w in out["warnings"]:  # the loop's and the final fit's, as in the JSON
         print(f"warning: {w}", file=sys.stderr)

@@ -970,7 +970,7 @@ def test_max_effects_help_says_what_zero_still_adds() -> None:
 
 
 def test_the_noise_level_stop_does_not_contradict_itself() -> None:
-    from hhra_phys.loop import _why_at_noise
+    from hhra_phys.diagnosis.stopping import _why_at_noise
 
     coloured = {"ljung_box_p": 5.6e-6, "white": False, "ratio": 1.1}
     white = {"ljung_box_p": 0.4, "white": True, "ratio": 1.6}

@@ -18,10 +18,11 @@ import warnings
 import numpy as np
 import pytest
 
-from hhra_phys.diagnose import noise_level, output_delay, whiteness
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.residual import output_delay, whiteness
 from hhra_phys.effects import make_effect
-from hhra_phys.loop import augment
 from hhra_phys.models.hhra.rig import simulate_rig
+from hhra_phys.noise import noise_level
 from hhra_phys.reference import reference_record
 
 NOISE = 0.05
@@ -188,7 +189,7 @@ def test_cli_diagnose_writes_json_and_report_and_refuses_overwrite(tmp_path, cap
 @pytest.mark.parametrize(("flag", "backward"), [([], True), (["--no-backward"], False)])
 def test_cli_diagnose_passes_the_backward_choice_to_the_loop(flag, backward, tmp_path,
                                                              monkeypatch):
-    import hhra_phys.loop
+    import hhra_phys.diagnosis.engine
     from hhra_phys.cli import main
     from hhra_phys.errors import HHRAError
 
@@ -198,7 +199,7 @@ def test_cli_diagnose_passes_the_backward_choice_to_the_loop(flag, backward, tmp
         seen.update(kw)
         raise HHRAError("stopped by the test")
 
-    monkeypatch.setattr(hhra_phys.loop, "augment", fake)
+    monkeypatch.setattr(hhra_phys.diagnosis.engine, "diagnose", fake)
     assert main(["diagnose", "rig", "--json", str(tmp_path / "d.json"), *flag]) == 1
     assert seen["backward"] is backward
     assert not (tmp_path / "d.json").exists()

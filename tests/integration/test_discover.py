@@ -24,13 +24,13 @@ import pytest
 
 from hhra_phys import Parameter, Part, Simulator, register_part
 from hhra_phys.data import Dataset
-from hhra_phys.discover import lasso_path
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.screening import lasso_path
+from hhra_phys.diagnosis.selection import acceptance
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.reference.outside import outside_record
 from hhra_phys.result import FitResult
-from hhra_phys.selection import acceptance
 from hhra_phys.terms import _CA, _NP, FAMILIES, DiscoveredTerm, _basis
 
 sys.path.insert(0, str(Path(__file__).parent / "user_models"))

@@ -16,10 +16,10 @@ import pytest
 from scipy import signal as sps
 
 from hhra_phys import Simulator
-from hhra_phys.discover import load_column, mode_column
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.screening import load_column, mode_column
 from hhra_phys.errors import ModelError
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.reference.hhra import reference_record
 from hhra_phys.reference.outside import outside_record
@@ -241,7 +241,7 @@ def test_a_mode_at_a_box_bound_is_not_a_resolved_resonance():
     an output mode with its mix at -3 stood in for a dead zone)."""
     from types import SimpleNamespace
 
-    from hhra_phys.discover import _mode_at_edge
+    from hhra_phys.diagnosis.discovery import _mode_at_edge
 
     def edges(mode, **vals):
         values = {p.name: p.nominal for p in mode.parameters}

@@ -10,10 +10,10 @@ import pytest
 
 from hhra_phys import Simulator
 from hhra_phys.data import Dataset
-from hhra_phys.discover import DiscoveredTerm
+from hhra_phys.diagnosis.result import LoopResult
 from hhra_phys.fit import fit
-from hhra_phys.loop import LoopResult
 from hhra_phys.result import redundant, uncertainty, weak_directions
+from hhra_phys.terms import DiscoveredTerm
 
 sys.path.insert(0, str(Path(__file__).parent / "user_models"))
 import two_tank  # noqa: E402

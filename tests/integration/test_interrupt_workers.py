@@ -56,17 +56,18 @@ def _alive(pid: int) -> bool:
 SLOW_CANDIDATES = textwrap.dedent(
     """
     import functools, sys, time
-    from hhra_phys import loop
+    from hhra_phys.diagnosis import candidates, engine
     from hhra_phys.cli import main
 
-    original = loop.refit_candidate
+    original = candidates.refit_candidate
 
     @functools.wraps(original)
     def slow(job):
         time.sleep(60)
         return original(job)
 
-    loop.refit_candidate = slow
+    # the loop's call and the workers' unpickling (by module and name) both see it
+    engine.refit_candidate = candidates.refit_candidate = slow
     sys.exit(main(sys.argv[1:]))
     """
 )

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from hhra_phys.data import Dataset
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.reference import reference_record
-from hhra_phys.selection import split_record
 
 #: A short record with a dead zone (8 s at 250 Hz: 1000 estimation, 500 selection
 #: and 500 test samples) and a small loop: two candidates, one round.

@@ -16,7 +16,7 @@ import warnings
 
 import pytest
 
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.reference import reference_record
 
 # The rates over seeds are slow (loops of about 10 s each, a pair about 40 s); one seed of

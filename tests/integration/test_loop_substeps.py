@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hhra_phys import Parameter, Part, Simulator, loop, register_part
+from hhra_phys import Parameter, Part, Simulator, register_part
 from hhra_phys.data import Dataset
+from hhra_phys.diagnosis import engine
 
 sys.path.insert(0, str(Path(__file__).parent / "user_models"))
 import two_tank  # noqa: E402
@@ -55,14 +56,14 @@ def _record(seed: int, n: int = 1024, fs: float = 0.25) -> Dataset:
 
 def test_candidates_keep_the_substeps_the_base_fit_ended_with(monkeypatch):
     seen = []
-    refit = loop.refit_candidate
+    refit = engine.refit_candidate
 
     def spy(job):
         seen.append(job.cfg.substeps)
         return refit(job)
 
-    monkeypatch.setattr(loop, "refit_candidate", spy)
-    res = loop.augment(_record(2), model=two_tank.make_model(), candidates=["sensor_offset"],
+    monkeypatch.setattr(engine, "refit_candidate", spy)
+    res = engine.diagnose(_record(2), model=two_tank.make_model(), candidates=["sensor_offset"],
                        discover=False, max_effects=1, seed=2, intersample=False,
                        background=False, pop_size=40, max_iter=60)
     integ = res.base.settings["integration"]

@@ -16,8 +16,8 @@ import pytest
 
 from hhra_phys.cli import main
 from hhra_phys.data import save_csv
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.errors import DataError
-from hhra_phys.loop import augment
 from hhra_phys.reference import reference_record
 
 #: The smallest loop that still runs every stage (base fit, one candidate, refit).
@@ -122,8 +122,8 @@ def test_records_of_different_lengths_and_rates_layout_and_pooling(friction_pair
     assert {"x0_theta_rec1", "x0_theta_rec2", "g_valve"} <= set(res.final.free)
     assert sorted(res.final.problem.simulators) == [200.0, 250.0]
     # the first round's evidence is the records' own, summed (diagnose.combine_diagnoses)
-    from hhra_phys.diagnose import analyse
-    from hhra_phys.loop import _free_values
+    from hhra_phys.diagnosis.fits import _free_values
+    from hhra_phys.diagnosis.residual import analyse
 
     pr = res.base.problem
     v = _free_values(pr, res.base)
@@ -192,7 +192,7 @@ def test_python_figures_of_several_records(tmp_path, friction_pair):
     """The loop's figures draw a several-record result (here of two sample rates); a
     comparison's output plot refuses it."""
     from hhra_phys.compare import plot_outputs, run_comparison
-    from hhra_phys.diagnose import plot_loop_residuals
+    from hhra_phys.diagnosis.plots import plot_loop_residuals
     from hhra_phys.errors import ParameterError
 
     a, b, res = friction_pair

@@ -91,7 +91,7 @@ def _drift_loop(seed: int) -> tuple[list[str], list[tuple[str, str, bool]]]:
     """
     import warnings
 
-    from hhra_phys.loop import augment
+    from hhra_phys.diagnosis.engine import augment
 
     ds = reference_record(seed=seed, duration=8.0, levels=4, noise_deg=0.05, drift_deg=0.2)
     with warnings.catch_warnings():

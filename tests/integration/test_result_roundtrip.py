@@ -119,8 +119,9 @@ BACKGROUND = {"test_loop_report_from_python_equals_the_cli_and_the_loop_json_rou
 def test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips(tmp_path,
                                                                               background):
     from hhra_phys.data import load
+    from hhra_phys.diagnosis.engine import augment
+    from hhra_phys.diagnosis.result import LoopResult
     from hhra_phys.fit import default_model
-    from hhra_phys.loop import LoopResult, augment
 
     run = background["test_loop_report_from_python_equals_the_cli_and_the_loop_json_round_trips"]
     code, out, err = run.result()

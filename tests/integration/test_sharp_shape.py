@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from hhra_phys.loop import augment
+from hhra_phys.diagnosis.engine import augment
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "user_models"))
 import drive  # noqa: E402
@@ -120,8 +120,8 @@ def test_the_cli_fits_shapes_on_request(tmp_path):
 
 def test_shape_modes_are_checked_by_name():
     from hhra_phys.cli.diagnose import _SHAPE_MODES
+    from hhra_phys.diagnosis.options import SHAPE_MODES, LoopOptions
     from hhra_phys.errors import ParameterError
-    from hhra_phys.loop import SHAPE_MODES, LoopOptions
 
     assert _SHAPE_MODES == SHAPE_MODES
     from hhra_phys.cli import build_parser

@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 from hhra_phys import Model
-from hhra_phys.diagnose import analyse
-from hhra_phys.discover import screen
+from hhra_phys.diagnosis.residual import analyse
+from hhra_phys.diagnosis.screening import screen
 from hhra_phys.effects import make_effect
 from hhra_phys.fit import fit
 from hhra_phys.problem import Problem

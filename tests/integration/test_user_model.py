@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from hhra_phys import Model
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.effects import EFFECTS, make_effect
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment
 from hhra_phys.models.cylinder import LinearCylinderModel
 from hhra_phys.models.hhra import HHRAModel
 

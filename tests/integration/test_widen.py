@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from hhra_phys.diagnosis.engine import augment
 from hhra_phys.fit import fit
-from hhra_phys.loop import augment
 from hhra_phys.models.hhra.model import HHRAModel
 from hhra_phys.models.hhra.rig import simulate_rig
 

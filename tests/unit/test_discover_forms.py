@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hhra_phys.discover import Candidate, EntryScreen, _pursuit, variable_forms
+from hhra_phys.diagnosis.screening import Candidate, EntryScreen, _pursuit, variable_forms
 
 
 def _screen(specs: list[str], S: np.ndarray, r: np.ndarray, k: int = 3) -> EntryScreen:

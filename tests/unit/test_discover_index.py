@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hhra_phys.discover import next_index
+from hhra_phys.diagnosis.discovery import next_index
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.terms import DiscoveredMode, DiscoveredTerm
 

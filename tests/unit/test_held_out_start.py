@@ -21,12 +21,12 @@ import pytest
 
 import hhra_phys.problem as problem_module
 from hhra_phys.data import Dataset
+from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.effects import make_effect
 from hhra_phys.fit import FitOptions, fit_problem
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.problem import LEAD_FRACTION, Problem, estimate_initial_state
 from hhra_phys.reference.hhra import REFERENCE_GROUPS
-from hhra_phys.selection import split_record
 from hhra_phys.simulate import Simulator
 
 FS, N, NOISE = 250.0, 2000, 0.05

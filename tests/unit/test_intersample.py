@@ -341,7 +341,7 @@ def test_reference_rig_foh_matches_the_package(effects) -> None:
 def test_the_loop_tries_the_other_hold_by_its_rule(truth) -> None:
     """augment: a foh record read as zoh switches to foh (a step that adds no physics);
     a zoh record stays zoh (no signature, no step)."""
-    from hhra_phys.loop import augment
+    from hhra_phys.diagnosis.engine import augment
     from hhra_phys.models.resonator import make_model
 
     rng = np.random.default_rng(21)
@@ -412,7 +412,7 @@ def test_a_round_takes_the_other_hold_once_the_model_is_right(seed) -> None:
     offset's, so nothing points at the hold; once round 1 took the offset, the straight
     line's error is what is left, and round 2 takes the cubic behaviour by the rule (a step
     marked ``sensor``, no effect added), ending at the noise."""
-    from hhra_phys.loop import augment
+    from hhra_phys.diagnosis.engine import augment
     from hhra_phys.models.resonator import make_model
 
     rng = np.random.default_rng(seed)
@@ -443,7 +443,8 @@ def test_the_hold_candidates_are_not_refitted_on_the_same_fit() -> None:
     """Round 1 starts from the base fit: the refits refused after it are not repeated
     (the same fit gives the same numbers); a new fit opens them again, a changed hold,
     several records or ``intersample=False`` close them."""
-    from hhra_phys.loop import LoopOptions, _Loop
+    from hhra_phys.diagnosis.engine import _Loop
+    from hhra_phys.diagnosis.options import LoopOptions
     from hhra_phys.multi import RecordSet
 
     rng = np.random.default_rng(0)

@@ -8,8 +8,9 @@ what is tried, with the refit stubbed.
 
 from __future__ import annotations
 
-from hhra_phys.loop import LoopOptions, _Loop
-from hhra_phys.selection import Step
+from hhra_phys.diagnosis.engine import _Loop
+from hhra_phys.diagnosis.options import LoopOptions
+from hhra_phys.diagnosis.selection import Step
 
 
 class _Disc(Step):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.signal as sps
 
-from hhra_phys.diagnose import _discrete_response
+from hhra_phys.diagnosis.first_order import _discrete_response
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -39,7 +39,7 @@ def test_ranking_survives_an_unstable_linearisation(monkeypatch) -> None:
     # The analysis of a fit whose linearisation is unstable at an entry ranks the effects
     # there last (decided by their refit) instead of failing in least squares (a long
     # friction record's second round: "SVD did not converge").
-    from hhra_phys import diagnose
+    from hhra_phys.diagnosis import residual as diagnose
     from hhra_phys.models.cylinder import LinearCylinderModel, simulate_cylinder
     from hhra_phys.problem import Problem
 

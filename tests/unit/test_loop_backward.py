@@ -13,7 +13,7 @@ import itertools
 
 import pytest
 
-from hhra_phys.selection import Step, acceptance, backward_decision
+from hhra_phys.diagnosis.selection import Step, acceptance, backward_decision
 
 NOISE = 0.05
 
@@ -96,7 +96,7 @@ def _fake_loop(monkeypatch):
     import math as _math
     import types
 
-    from hhra_phys import loop
+    from hhra_phys.diagnosis import backward as loop
 
     runs = []
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from hhra_phys.diagnosis.engine import augment
+from hhra_phys.diagnosis.options import LoopOptions
 from hhra_phys.errors import ParameterError
-from hhra_phys.loop import LoopOptions, augment
 
 
 def test_overrides_apply_on_top_of_given_options():

@@ -12,9 +12,10 @@ import json
 
 import pytest
 
-from hhra_phys.discover import DiscoveredStep
-from hhra_phys.loop import LoopOptions, _Loop
-from hhra_phys.selection import Step
+from hhra_phys.diagnosis.discovery import DiscoveredStep
+from hhra_phys.diagnosis.engine import _Loop
+from hhra_phys.diagnosis.options import LoopOptions
+from hhra_phys.diagnosis.selection import Step
 
 NOISE = 0.08
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import pytest
 
+from hhra_phys.diagnosis.selection import COLOURED_P, Step, at_noise_level, stops_at_noise
+from hhra_phys.diagnosis.selection import judge as _decide
 from hhra_phys.errors import ParameterError
-from hhra_phys.selection import COLOURED_P, Step, at_noise_level, stops_at_noise
-from hhra_phys.selection import judge as _decide
 
 NOISE = 0.05
 
@@ -84,7 +84,7 @@ def test_noise_stop_needs_both_non_test_parts(sel, est, both, selection_only, wh
 
 @pytest.mark.parametrize("value", ["selection", "both"])
 def test_the_removed_stop_on_setting_is_refused_by_name(value):
-    from hhra_phys.loop import LoopOptions
+    from hhra_phys.diagnosis.options import LoopOptions
 
     with pytest.raises(ParameterError, match="stop_on was removed"):
         LoopOptions.of(stop_on=value)

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from hhra_phys.loop import _KIND_ORDER, LoopOptions, _Loop
-from hhra_phys.selection import Step
+from hhra_phys.diagnosis.engine import _KIND_ORDER, _Loop
+from hhra_phys.diagnosis.options import LoopOptions
+from hhra_phys.diagnosis.selection import Step
 
 NOISE = 0.05
 AT_NOISE = {"rmse": 0.0501}
@@ -162,7 +163,7 @@ def test_only_a_contender_has_its_boxes_widened(monkeypatch, first, searches):
     """``loop._widen_candidate``: the current model's estimation MSE is 1.0 and the noise's
     0.0 (worth: 0.9); a candidate at 0.95 is not widened (one search), one at 0.85 is
     searched again at each widening that pays (three more)."""
-    import hhra_phys.loop as loopmod
+    import hhra_phys.diagnosis.candidates as loopmod
 
     monkeypatch.setattr(loopmod, "_edge_boxes", lambda p, r, names: {"g": (0.1, 10.0)})
     mses = iter([first, first - 0.1, first - 0.2, first - 0.3])

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hhra_phys.loop import selection_noise
-from hhra_phys.selection import (
+from hhra_phys.diagnosis.selection import (
     acceptance,
     at_noise_level,
     backward_decision,
     information_criterion,
     noise_allowance,
 )
+from hhra_phys.diagnosis.stopping import selection_noise
 
 
 def _result(r: np.ndarray, free: list[str], records: list[int] | None = None):

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hhra_phys.discover import _Fitted, _mode_rejected
+from hhra_phys.diagnosis.discovery import _Fitted, _mode_rejected
 from hhra_phys.models.cylinder import LinearCylinderModel, simulate_cylinder
 from hhra_phys.problem import Problem
 from hhra_phys.terms import MODE_SEPARATION, DiscoveredMode

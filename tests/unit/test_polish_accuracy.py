@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hhra_phys.diagnosis.fits import _accuracy_checked
 from hhra_phys.effects import make_effect
-from hhra_phys.loop import _accuracy_checked
 from hhra_phys.problem import Problem
 from hhra_phys.simulate import Simulator, accuracy_tolerance
 

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from hhra_phys.data import Dataset
+from hhra_phys.diagnosis.selection import Step, split_record
 from hhra_phys.effects import make_effect
 from hhra_phys.models.hhra import HHRAModel
 from hhra_phys.problem import Problem
 from hhra_phys.reference.hhra import REFERENCE_GROUPS
 from hhra_phys.regime import regime_coverage
-from hhra_phys.selection import Step, split_record
 
 FS, N = 250.0, 2000
 

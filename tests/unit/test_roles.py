@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from hhra_phys import Model, Parameter, Part, State
-from hhra_phys.discover import entry_points, input_twin
+from hhra_phys.diagnosis.screening import entry_points, input_twin
 from hhra_phys.effects import EFFECTS, library_twins, make_effect, motion_scales
 from hhra_phys.errors import ModelError
 from hhra_phys.models.cylinder import LinearCylinderModel
@@ -213,7 +213,7 @@ def test_the_input_entry_is_a_rate_where_the_input_acts_on_one_rate_linearly():
 
 def test_the_score_floor_is_one_parameters_penalty_in_residual_share():
     """Below it a discovered entry cannot lower the criterion to first order: not refitted."""
-    from hhra_phys.discover import score_floor
+    from hhra_phys.diagnosis.screening import score_floor
 
     n = 12_500
     floor = score_floor(n, "bic")

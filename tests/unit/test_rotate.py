@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from hhra_phys import loop as loop_mod
-from hhra_phys.loop import LoopOptions, _Loop
-from hhra_phys.regime import REGIME_LEVEL, change_coverage
-from hhra_phys.selection import (
+from hhra_phys.diagnosis import result as result_mod
+from hhra_phys.diagnosis import rotation as rotation_mod
+from hhra_phys.diagnosis.engine import _Loop
+from hhra_phys.diagnosis.options import LoopOptions
+from hhra_phys.diagnosis.selection import (
     REGIME_THIN,
     Step,
     acceptance,
@@ -21,6 +22,7 @@ from hhra_phys.selection import (
     thin_part,
     votes,
 )
+from hhra_phys.regime import REGIME_LEVEL, change_coverage
 
 
 def _regime(est_share: float, n_est: int = 512, n_sel: int = 512) -> dict:
@@ -122,10 +124,10 @@ def _loop(monkeypatch, rotated: dict[str, float], regime: dict | None):
         calls.append(model)
         return _Res(rotated["cur" if model is loop.cur_prob.model else "cand"])
 
-    monkeypatch.setattr(loop_mod, "_rotated_fit", rotated_fit)
-    monkeypatch.setattr(loop_mod, "_fitted_candidate",
+    monkeypatch.setattr(rotation_mod, "_rotated_fit", rotated_fit)
+    monkeypatch.setattr(rotation_mod, "_fitted_candidate",
                         lambda payload: ("cand-model", ["a"], {}, {}, {}))
-    monkeypatch.setattr(loop_mod, "as_records", lambda d: [d])
+    monkeypatch.setattr(rotation_mod, "as_records", lambda d: [d])
     monkeypatch.setattr(_Loop, "_change_regime", lambda self, fitted, payload=None: regime)
     return loop, calls
 
@@ -168,7 +170,7 @@ def test_loop_rotation_can_refuse(monkeypatch):
 
 def test_an_inter_sample_candidate_never_rotates(monkeypatch):
     loop, calls = _loop(monkeypatch, {"cur": 1.5, "cand": 0.3}, _regime(0.95))
-    monkeypatch.setattr(loop_mod, "_fitted_candidate", lambda payload: None)
+    monkeypatch.setattr(rotation_mod, "_fitted_candidate", lambda payload: None)
     step = _step(0.49, -100.0)
     assert loop._rotate(step, object(), False, 0.5, 0.0, 0.05, 0.05) is False
     assert calls == []
@@ -177,7 +179,7 @@ def test_an_inter_sample_candidate_never_rotates(monkeypatch):
 def test_folds_survive_the_json_round_trip():
     step = _step(0.49, -100.0)
     step.folds = {"k": 2, "accepted": True, "rmse_before": 1.0, "rmse_after": 0.5}
-    again = loop_mod._step_from_json(step.to_json())
+    again = result_mod._step_from_json(step.to_json())
     assert again.folds == step.folds
 
 

@@ -13,8 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from hhra_phys.errors import ParameterError
-from hhra_phys.selection import (
+from hhra_phys.diagnosis.selection import (
     Step,
     choose,
     noise_allowance,
@@ -22,6 +21,7 @@ from hhra_phys.selection import (
     round_settled,
     tie_break,
 )
+from hhra_phys.errors import ParameterError
 
 NOISE = 0.05
 TOL = 0.15
@@ -96,7 +96,7 @@ def test_settling_cannot_hide_a_clear_winner():
 
 
 def test_a_given_effect_keeps_a_tie_with_a_discovered_term_at_its_entry():
-    from hhra_phys.discover import DiscoveredStep
+    from hhra_phys.diagnosis.discovery import DiscoveredStep
 
     lib = _step("valve_deadzone", 0.0512, -100.0)
     lib.entry = "input"
@@ -142,7 +142,7 @@ def test_a_sensor_effect_keeps_a_tie_with_a_change_of_the_dynamics():
 
 
 def test_only_a_given_change_of_the_dynamics_is_decisive_against_a_sensor_effect():
-    from hhra_phys.discover import DiscoveredStep
+    from hhra_phys.diagnosis.discovery import DiscoveredStep
 
     # a resonator read as foh: the other inter-sample behaviour (marked sensor) tied with a
     # discovered output feedthrough whose BIC is lower by 17.7; the search over shapes is
@@ -165,7 +165,7 @@ def test_only_a_given_change_of_the_dynamics_is_decisive_against_a_sensor_effect
 
 
 def test_sensor_flag_round_trips_through_json():
-    from hhra_phys.loop import _step_from_json
+    from hhra_phys.diagnosis.result import _step_from_json
 
     s = _step("sensor_drift", 0.05, -1.0, sensor=True)
     assert _step_from_json(s.to_json()).sensor is True

@@ -1,0 +1,211 @@
+"""The loop's rotated parts: where the selection part and the criterion disagree and the
+part that refuses holds the candidate's regime thinly, the candidate and the current model
+are refitted on the selection part and scored on estimation (one verdict over both folds).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from hhra_phys.diagnosis.candidates import _candidate_model
+from hhra_phys.diagnosis.discovery import DiscoveredStep
+from hhra_phys.diagnosis.fits import _free_values, _problem, _run, _Settings, _values
+from hhra_phys.diagnosis.result import _twins_text
+from hhra_phys.diagnosis.selection import (
+    Step,
+    judge,
+    needs_rotation,
+    pooled_rmse,
+    rotated_verdict,
+    thin_part,
+    votes,
+)
+from hhra_phys.intersample import (
+    HoldCandidate,
+)
+from hhra_phys.model import Model
+from hhra_phys.problem import as_records
+from hhra_phys.regime import change_coverage
+from hhra_phys.result import FitResult
+
+__all__ = []
+
+
+def _val_rmse(res: FitResult) -> float:
+    """A fit's held-out RMSE (``inf`` where not finite)."""
+    v = float(res.metrics["val"].get("rmse", math.inf))
+    return v if math.isfinite(v) else math.inf
+
+
+def _fitted_candidate(payload: Any) -> tuple[Model, list[str], dict[str, float],
+                                             dict[str, float], dict[str, Any]] | None:
+    """A judged candidate's model, free parameters, fitted values, fitted initial state
+    and widened boxes (None for an inter-sample candidate, which changes no equation)."""
+    if isinstance(payload, tuple):  # a library refit: (job, outcome)
+        job, out = payload
+        model, _, _ = _candidate_model(replace(job, effect_kw={**job.effect_kw,
+                                                               **out.effect_kw}))
+        return model, list(out.free), dict(out.values), dict(out.x0), dict(out.boxes)
+    if isinstance(payload, HoldCandidate) or not hasattr(payload, "problem"):
+        return None
+    res = payload.result
+    return payload.problem.model, list(payload.free), _values(res), dict(res.x0), {}
+
+
+def _rotated_fit(cfg: _Settings, model: Model, free: Sequence[str],
+                 start: Mapping[str, float], boxes: Mapping[str, tuple[float, float]]
+                 ) -> FitResult:
+    """``model`` refitted on the selection part(s) from ``start`` (the parameters it
+    lacks at their defaults; IPOPT, capped as a candidate's refit) and scored on the
+    estimation part(s): the other fold of the two. The initial state starts by the
+    ``"data"`` rule on the selection part (the fitted one is the estimation part's)."""
+    rot = replace(cfg, est=cfg.sel, sel=cfg.est,
+                  default_bounds={**cfg.default_bounds, **boxes})
+    return _run(rot, _problem(rot, model, free, {}, start, None), "none", 0, 0)
+
+
+class _RotationStage:
+    """The rotated parts of :class:`~hhra_phys.diagnosis.engine._Loop` (a mixin of its state)."""
+
+    def _judge(self, step: Step, veto: str, rmse_cur: float, crit_cur: float,
+               noise_sel: float) -> bool:
+        """Judge a refitted candidate (:func:`~hhra_phys.selection.judge`, or its veto),
+        say it and keep its step; whether it is acceptable."""
+        o = self.o
+        ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
+        if veto:
+            ok, step.reason = False, f"dropped: {veto} ({step.reason})"
+        self.say(f"  tried {step.effect}"
+                 + (f": {step.expression}{_twins_text(step)}"
+                    if isinstance(step, DiscoveredStep) else "")
+                 + f"; {step.reason} [{step.seconds:.1f} s]")
+        self.steps.append(step)
+        return ok
+
+    def _rotate(self, step: Step, payload: Any, ok: bool, rmse_cur: float, crit_cur: float,
+                noise_sel: float, noise_est: float) -> bool:
+        """The verdict on a judged candidate after the parts rotate, where they must.
+
+        When the selection part and the criterion on estimation disagree and the part
+        that says no holds the candidate's regime thinly
+        (:func:`~hhra_phys.selection.needs_rotation`), the current model (IPOPT from its
+        estimation fit) and then the candidate (from the current model's values there, its
+        own parameters at their defaults) are refitted on the selection part and scored
+        on the estimation part, and the held-out RMSE pooled over both folds decides
+        (:func:`~hhra_phys.selection.rotated_verdict`); the step says so (``folds``, its
+        reason). Otherwise (or with ``LoopOptions.rotate`` off) ``ok`` stands. A candidate
+        without a first-order regime gets one here from what its fit changes
+        (:meth:`_change_regime`: every candidate's step reports its regime). Inter-sample
+        candidates do neither (they change no equation).
+        """
+        o = self.o
+        if isinstance(payload, HoldCandidate):
+            return ok
+        fitted = None  # built only where needed: a library refit's model is assembled anew
+        if step.regime is None:
+            fitted = _fitted_candidate(payload)
+            if fitted is None:
+                return ok
+            step.regime = self._change_regime(fitted, payload)
+        if not o.rotate:
+            return ok
+        sel_vote, crit_vote = votes(rmse_cur, float(step.val.get("rmse", math.inf)), crit_cur,
+                                    step.criterion, o.margin, noise_sel, self.tol)
+        if sel_vote == crit_vote:
+            return ok
+        thin = thin_part(step.regime)
+        if not needs_rotation(sel_vote, crit_vote, thin):
+            return ok
+        fitted = fitted or _fitted_candidate(payload)
+        if fitted is None:
+            return ok
+        t0 = time.perf_counter()
+        model, free, _, _, boxes = fitted
+        try:
+            rest_cur = self._rotated_current()
+            # From the current model's fit on the selection part, the candidate's own
+            # parameters at their defaults: started at its estimation fit, a parameter the
+            # selection part cannot move (a saturation level where no input reaches it)
+            # would carry the estimation part's answer into the fold that scores it there.
+            rest = _rotated_fit(self.cfg, model, free, _values(rest_cur), boxes)
+        except Exception as exc:  # noqa: BLE001 - the rotation is evidence, not the refit
+            step.notes.append(f"parts not rotated: its refit on the selection part failed "
+                              f"({type(exc).__name__}: {exc})")
+            return ok
+        if not math.isfinite(_val_rmse(rest_cur)):
+            # Without the current model's other fold there is nothing to compare with:
+            # every candidate would pass against an infinite error.
+            step.notes.append("parts not rotated: the current model's refit on the selection "
+                              "part could not be scored on estimation")
+            return ok
+        n_est, n_sel = (sum(ds.n for ds in as_records(p)) for p in (self.est, self.sel))
+        before = pooled_rmse([(n_sel, rmse_cur), (n_est, _val_rmse(rest_cur))])
+        after = pooled_rmse([(n_sel, float(step.val.get("rmse", math.inf))),
+                             (n_est, _val_rmse(rest))])
+        noise = pooled_rmse([(n_sel, noise_sel), (n_est, noise_est)])
+        verdict, why = rotated_verdict(before, after, o.margin, noise, self.tol)
+        part = {"sel": "selection", "est": "estimation"}[thin or "sel"]
+        said = ("the criterion on estimation says yes, the selection part no"
+                if crit_vote else "the selection part says yes, the criterion on estimation no")
+        step.folds = {
+            "k": 2, "why": f"{said}; the {part} part holds its regime thinly",
+            "rmse_before": before, "rmse_after": after, "noise": noise, "accepted": verdict,
+            "sel": {"rmse_before": rmse_cur, "rmse_after": float(step.val.get("rmse", math.nan))},
+            "est": {"rmse_before": _val_rmse(rest_cur), "rmse_after": _val_rmse(rest)},
+            "seconds": time.perf_counter() - t0}
+        step.reason += (f"; {said}, and the {part} part holds its regime thinly: parts "
+                        f"rotated (refitted on selection, scored on estimation): {why}")
+        self.say(f"    parts rotated for {step.effect}: {why} -> "
+                 f"{'acceptable' if verdict else 'refused'} "
+                 f"[{step.folds['seconds']:.1f} s]")
+        return verdict
+
+    def _rotated_current(self) -> FitResult:
+        """The current model refitted on the selection part and scored on estimation (once
+        per current fit)."""
+        cached = self._rot_cache
+        if cached is not None and cached[0] is self.cur:
+            return cached[1]
+        res = _rotated_fit(self.cfg, self.cur_prob.model, self.cur_free, _values(self.cur), {})
+        self._rot_cache = (self.cur, res)
+        return res
+
+    def _change_regime(self, fitted: tuple[Model, list[str], dict[str, float],
+                                           dict[str, float], Any],
+                       payload: Any = None) -> dict[str, Any] | None:
+        """:func:`~hhra_phys.regime.change_coverage` of a fitted candidate against the
+        current model on the estimation and selection parts (None if not simulated).
+        A discovered candidate's own problem is used as it is (``payload.problem``); a
+        library refit's (it ran elsewhere) is rebuilt from its values."""
+        model, free, values, x0, _ = fitted
+        try:
+            if hasattr(payload, "problem") and hasattr(payload, "result"):
+                prob, v = payload.problem, _free_values(payload.problem, payload.result)
+            else:
+                prob = _problem(self.cfg, model, free, {}, values, x0)
+                v = prob.start_values()
+            sel = as_records(self.sel)
+            cur = self._current_outputs()
+            change = {"est": np.concatenate(prob.simulate_parts(v)) - cur["est"],
+                      "sel": np.concatenate(prob.simulate_parts(v, sel)) - cur["sel"]}
+        except Exception:  # noqa: BLE001 - a measure only: never let it end a candidate
+            return None
+        return change_coverage(change)
+
+    def _current_outputs(self) -> dict[str, np.ndarray]:
+        """The current model's simulated outputs on the estimation and selection parts,
+        once per current fit (every candidate of a round is compared with them)."""
+        cached = self._out_cache
+        if cached is not None and cached[0] is self.cur:
+            return cached[1]
+        vc = _free_values(self.cur_prob, self.cur)
+        out = {"est": np.concatenate(self.cur_prob.simulate_parts(vc)),
+               "sel": np.concatenate(self.cur_prob.simulate_parts(vc, as_records(self.sel)))}
+        self._out_cache = (self.cur, out)
+        return out
