@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from hhra_phys._verb import make_callable
 from hhra_phys.data import Dataset
 from hhra_phys.errors import ParameterError
 from hhra_phys.interrupt import interruptible, map_stopping
@@ -1424,3 +1425,5 @@ def best_of(results: Sequence[FitResult]) -> FitResult:
     if not results:
         raise ParameterError("best_of needs at least one result")
     return min(results, key=lambda r: r.metrics["est"].get("rmse", np.inf))
+
+make_callable(__name__, "hhra_phys.fit:fit")  # hhra_phys.fit(...) is fit(...) (hhra_phys._verb)
