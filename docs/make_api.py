@@ -76,13 +76,21 @@ def _doc(obj: object) -> str:
 
 
 def _members(cls: type) -> list[tuple[str, object]]:
+    """Public methods and properties of ``cls``, with those of its private bases from other
+    modules of the package: a mixin ``_Name`` that a long class is split into so that its
+    modules stay short (``Simulator``'s) is the class's own API."""
     out = []
-    for name, obj in vars(cls).items():
-        if name.startswith("_"):
-            continue
-        if isinstance(obj, property) or inspect.isfunction(obj) or isinstance(
-                obj, (classmethod, staticmethod)):
-            out.append((name, obj))
+    seen: set[str] = set()
+    split = [b for b in cls.__mro__[1:] if b.__name__.startswith("_")
+             and b.__module__ != cls.__module__ and b.__module__.startswith(PACKAGE + ".")]
+    for klass in (cls, *split):
+        for name, obj in vars(klass).items():
+            if name.startswith("_") or name in seen:
+                continue
+            seen.add(name)
+            if isinstance(obj, property) or inspect.isfunction(obj) or isinstance(
+                    obj, (classmethod, staticmethod)):
+                out.append((name, obj))
     return sorted(out, key=lambda item: item[0].lower())
 
 

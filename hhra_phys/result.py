@@ -26,6 +26,11 @@ Serialising. :meth:`FitResult.to_json` / :meth:`FitResult.from_json` are the one
 that turns a result into the fit JSON and back; :meth:`FitResult.save`,
 :meth:`FitResult.load`, the CLI and the loop's result
 (:meth:`hhra_phys.loop.LoopResult.to_json`) go through them.
+
+Where the code is: :class:`FitResult` here; the uncertainty's linear algebra in
+:mod:`hhra_phys.identifiability`, typed estimates in :mod:`hhra_phys.estimates`, the fit
+JSON's checks in :mod:`hhra_phys.result_json` (issue 34: short modules). Their names are
+importable from here too.
 """
 
 from __future__ import annotations
@@ -33,17 +38,51 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-import casadi as ca
 import numpy as np
 
-from hhra_phys.errors import DataError, ModelError
-from hhra_phys.model import DerivedQuantity, Model
+from hhra_phys.errors import DataError
+
+# Typed estimates, identifiability and the fit JSON's checks live in modules of their own
+# (issue 34); their names stay importable from here.
+from hhra_phys.estimates import (  # noqa: F401  (re-exported)
+    Z95,
+    Estimate,
+    Status,
+    _delta,
+    _num,
+    derived_estimates,
+    physical_covariance,
+)
+from hhra_phys.identifiability import (  # noqa: F401  (re-exported)
+    CORRELATION_LIMIT,
+    IDENTIFIABILITY_COND,
+    WEAK_SHARE,
+    _correlation,
+    _inverse,
+    _unresolved,
+    redundant,
+    uncertainty,
+    weak_directions,
+)
+from hhra_phys.model import Model
 from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
+from hhra_phys.result_json import (  # noqa: F401  (re-exported)
+    _EDIT,
+    FAR_OUTSIDE,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    _check_covariance,
+    _check_header,
+    _check_records,
+    _free_names,
+    _model_of,
+    _values,
+)
 from hhra_phys.simulate import Simulator
 
 __all__ = [
@@ -55,395 +94,6 @@ __all__ = [
     "uncertainty",
     "weak_directions",
 ]
-
-#: Condition number of the scaled information matrix beyond which parameters are
-#: reported as not identifiable from the data.
-IDENTIFIABILITY_COND = 1e10
-#: |correlation| beyond which a pair is reported as practically not separable.
-CORRELATION_LIMIT = 0.999
-#: Share of a weak direction (its unit eigenvector's component) from which a
-#: parameter counts as involved in it.
-WEAK_SHARE = 0.3
-#: Two-sided 95 % quantile of the normal distribution (the intervals' half-width in
-#: standard deviations).
-Z95 = 1.96
-
-Status = Literal["free", "fixed", "at-edge"]
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """One estimated (or held) quantity of a fit.
-
-    Attributes
-    ----------
-    value : float
-        The value, in ``unit``.
-    unit : str
-        Its unit.
-    ci95 : (float, float) or None
-        95 % confidence interval (``None`` for a fixed quantity; ``(nan, nan)`` when the
-        data do not determine it).
-    status : {"free", "fixed", "at-edge"}
-        ``"fixed"``: held, not fitted (a derived quantity: it depends on no free
-        parameter); ``"at-edge"``: fitted, but it ended at an edge of its box (for a
-        derived quantity: one of the free parameters it depends on did), so the
-        value and interval are not meaningful; ``"free"``: fitted.
-    std : float or None
-        Standard deviation in ``unit`` (linearised; ``None`` when not computed).
-    description : str
-        What it is (derived quantities).
-    """
-
-    value: float
-    unit: str = ""
-    ci95: tuple[float, float] | None = None
-    status: Status = "free"
-    std: float | None = None
-    description: str = ""
-
-    @property
-    def free(self) -> bool:
-        """Fitted (``"free"`` or ``"at-edge"``), not held."""
-        return self.status != "fixed"
-
-    @property
-    def determined(self) -> bool:
-        """Has a finite interval."""
-        return self.ci95 is not None and all(math.isfinite(c) for c in self.ci95)
-
-    def to_json(self) -> dict[str, Any]:
-        """``value``, ``unit``, ``ci95`` (``None`` for fixed, ``[null, null]``
-        undetermined), ``free``, ``status``, and ``std``/``description`` when set."""
-        out: dict[str, Any] = {"value": self.value, "unit": self.unit,
-                               "ci95": list(self.ci95) if self.ci95 is not None else None,
-                               "free": self.free, "status": self.status}
-        if self.std is not None:
-            out["std"] = self.std
-        if self.description:
-            out["description"] = self.description
-        return out
-
-    @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> Estimate:
-        """The estimate of :meth:`to_json` (``null`` numbers read as NaN)."""
-        ci = d.get("ci95")
-        status = d.get("status") or ("free" if d.get("free", True) else "fixed")
-        std = d.get("std")
-        return cls(value=_num(d["value"]), unit=d.get("unit", ""),
-                   ci95=None if ci is None else (_num(ci[0]), _num(ci[1])),
-                   status=status, std=None if "std" not in d else _num(std),
-                   description=d.get("description", ""))
-
-
-def derived_estimates(
-    quantities: Mapping[str, DerivedQuantity],
-    values: Mapping[str, float],
-    free: Sequence[str],
-    covariance: np.ndarray | None,
-    at_edge: Sequence[str] = (),
-) -> dict[str, Estimate]:
-    """Values and 95 % intervals of derived quantities by the delta method.
-
-    Each quantity ``g(theta)`` is built once with CasADi symbols for the free
-    parameters (every other parameter at its value), its exact gradient ``dg`` taken
-    by automatic differentiation, and its variance is ``dg C dg^T`` with ``C`` the
-    covariance of the free parameters (physical units). The delta method is invariant
-    to the fitting coordinates to first order, so the log-scaled groups need no
-    special care. A quantity declared ``positive`` gets its interval on its logarithm,
-    ``g exp(+-1.96 sd/g)``; the others ``g +- 1.96 sd``.
-
-    Parameters
-    ----------
-    quantities : mapping of str to DerivedQuantity
-        What to derive (:meth:`~hhra_phys.model.Model.derived_quantities`).
-    values : mapping of str to float
-        Every parameter the quantities use, by name.
-    free : sequence of str
-        Names of the free parameters, in the order of ``covariance``; names that are
-        not keys of ``values`` (initial states, another record's parameters) are
-        skipped.
-    covariance : ndarray, shape (len(free), len(free)), or None
-        Covariance of the free parameters, physical units (``inf``/``nan`` where the
-        data do not determine them). ``None``: no intervals.
-    at_edge : sequence of str
-        Free parameters that ended at a box edge (their quantities are ``"at-edge"``).
-
-    Returns
-    -------
-    dict of str to Estimate
-        A quantity that uses an undetermined parameter has interval ``(nan, nan)``;
-        one that uses no free parameter is ``"fixed"``; one that cannot be
-        evaluated (a parameter missing) is left out.
-    """
-    idx = [i for i, n in enumerate(free) if n in values]
-    names = [free[i] for i in idx]
-    sym = ca.SX.sym("theta", len(names))
-    env: dict[str, Any] = dict(values)
-    env.update({n: sym[k] for k, n in enumerate(names)})
-    point = np.array([float(values[n]) for n in names])
-    cov = (np.asarray(covariance, dtype=float)[np.ix_(idx, idx)] if covariance is not None
-           else None)
-    out: dict[str, Estimate] = {}
-    for key, q in quantities.items():
-        try:
-            expr = ca.SX(q.function(env))
-        except (KeyError, TypeError):
-            continue
-        fn = ca.Function("g", [sym], [expr, ca.jacobian(expr, sym)])
-        val, grad = (np.asarray(a, dtype=float).ravel() for a in fn(point))
-        out[key] = _delta(q, float(val[0]), grad, cov,
-                          [names[k] for k in np.flatnonzero(grad)], at_edge)
-    return out
-
-
-def _delta(q: DerivedQuantity, value: float, grad: np.ndarray, cov: np.ndarray | None,
-           uses: list[str], at_edge: Sequence[str]) -> Estimate:
-    """The :class:`Estimate` of one derived quantity from its gradient."""
-    if not uses:
-        return Estimate(value, q.unit, None, "fixed", None, q.description)
-    status: Status = "at-edge" if any(n in at_edge for n in uses) else "free"
-    if cov is None:
-        return Estimate(value, q.unit, None, status, None, q.description)
-    used = np.flatnonzero(grad)
-    sub = cov[np.ix_(used, used)]
-    if not np.all(np.isfinite(sub)):  # a parameter the data do not determine
-        return Estimate(value, q.unit, (math.nan, math.nan), status, math.inf, q.description)
-    sd = float(math.sqrt(max(float(grad[used] @ sub @ grad[used]), 0.0)))
-    if q.positive and value > 0:
-        # exp of a huge relative spread (a quantity the fit hardly determines) overflows:
-        # its upper end is then infinite, not an error.
-        with np.errstate(over="ignore"):
-            spread = float(np.exp(Z95 * sd / value))
-        ci = (value / spread, value * spread)
-    else:
-        ci = (value - Z95 * sd, value + Z95 * sd)
-    return Estimate(value, q.unit, ci, status, sd, q.description)
-
-
-def physical_covariance(cov_z: np.ndarray, slopes: np.ndarray) -> np.ndarray:
-    """Covariance in physical units from the fitting coordinates' (``D cov_z D``).
-
-    Parameters
-    ----------
-    cov_z : ndarray, shape (n, n)
-        Covariance of the fitting coordinates (:func:`uncertainty`).
-    slopes : ndarray, shape (n,)
-        ``d theta_i / d z_i`` at the optimum (the coordinate maps are elementwise).
-    """
-    d = np.asarray(slopes, dtype=float)
-    with np.errstate(invalid="ignore"):
-        return np.asarray(cov_z, dtype=float) * np.outer(d, d)
-
-
-def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
-    """Directions of parameter space the data cannot determine.
-
-    Parameters
-    ----------
-    J : ndarray, shape (N, n)
-        Residual Jacobian at the optimum (fitting coordinates).
-    names : list of str
-        Free parameter names.
-
-    Returns
-    -------
-    list of dict
-        One per eigenvector of the scaled information matrix ``J^T J`` whose
-        eigenvalue is below ``1/IDENTIFIABILITY_COND`` of the largest, weakest first:
-        ``condition`` (largest eigenvalue over this one), ``params`` (name to the
-        eigenvector's component, for components of at least ``WEAK_SHARE``) and
-        ``reason`` (words). Parameters the output does not see at all are one
-        direction each (``condition`` ``inf``). Empty when the matrix is well
-        conditioned or not finite.
-    """
-    J = np.asarray(J, dtype=float)
-    if J.ndim != 2 or J.shape[1] == 0 or not np.all(np.isfinite(J)):
-        return []
-    info = J.T @ J
-    scale = np.sqrt(np.diag(info))
-    out: list[dict[str, Any]] = []
-    dead = ~(np.isfinite(scale) & (scale > 0))
-    for i in np.flatnonzero(dead):
-        out.append({"condition": float("inf"), "params": {names[i]: 1.0},
-                    "reason": f"{names[i]} does not change the output at the optimum"})
-    live = np.flatnonzero(~dead)
-    if live.size < 2:
-        return out
-    normed = info[np.ix_(live, live)] / np.outer(scale[live], scale[live])
-    eigval, eigvec = np.linalg.eigh(normed)
-    top = max(float(eigval[-1]), np.finfo(float).tiny)
-    for k in range(live.size):
-        lam = float(eigval[k])
-        cond = top / lam if lam > 0 else float("inf")  # rounding can make it <= 0
-        if cond <= IDENTIFIABILITY_COND:
-            break
-        v = eigvec[:, k] / np.max(np.abs(eigvec[:, k]))
-        v = v * np.sign(v[np.argmax(np.abs(v))])
-        weights = {names[live[i]]: float(v[i]) for i in np.argsort(-np.abs(v))
-                   if abs(eigvec[i, k]) >= WEAK_SHARE}
-        if len(weights) < 1:
-            continue
-        combo = " with ".join(f"{n} ({w:+.3g})" for n, w in weights.items())
-        out.append({"condition": float(cond), "params": weights,
-                    "reason": f"moving {combo} together leaves the output unchanged "
-                              f"(information-matrix condition {cond:.2g}): the data cannot "
-                              "tell them apart"})
-    return out
-
-
-def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str | None:
-    """Why a candidate only reparametrises the model, or ``None`` if it does not.
-
-    A candidate's new parameters (a discovered term's coefficients, an effect's
-    parameters) are redundant when the fit with them has a direction the data
-    cannot determine (:func:`weak_directions`, recorded in
-    ``result.intervals["weak_directions"]``) that joins a new parameter with one the
-    model already had: the candidate then changes nothing the model could not
-    already do (a term ``a*u`` beside an input gain), and whatever gain it shows is
-    the refit's, not the term's. A high correlation alone is not enough (an
-    integrating plant's initial state and an output offset are correlated near 1
-    on one record and still separate through position-dependent terms).
-
-    Parameters
-    ----------
-    result : FitResult
-        The candidate's fit.
-    new_params : sequence of str
-        The candidate's new parameter names.
-
-    Returns
-    -------
-    str or None
-        The reason (naming the parameters and the condition), or ``None``.
-    """
-    new = [n for n in new_params if n in result.free]
-    old = [n for n in result.free if n not in new]
-    for d in result.intervals.get("weak_directions", []):
-        involved = list(d.get("params", {}))
-        a = [n for n in involved if n in new]
-        b = [n for n in involved if n in old]
-        if a and b:
-            return (f"only reparametrises the model ({', '.join(a)} against "
-                    f"{', '.join(b)}): {d['reason']}")
-    return None
-
-FORMAT_NAME = "hhra-phys fit result"
-FORMAT_VERSION = 1
-
-
-def uncertainty(
-    J: np.ndarray, r: np.ndarray, names: list[str]
-) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Gauss-Newton covariance in fitting coordinates, correlation matrix, warnings.
-
-    Parameters
-    ----------
-    J : ndarray, shape (N, n)
-        Residual Jacobian at the optimum (fitting coordinates).
-    r : ndarray, shape (N,)
-        Residuals at the optimum.
-    names : list of str
-        Free parameter names (for the warnings).
-
-    Returns
-    -------
-    cov : ndarray, shape (n, n)
-        Covariance of the fitting coordinates (``inf`` on the diagonal of
-        unidentifiable directions).
-    corr : ndarray, shape (n, n)
-        Correlation matrix.
-    warnings : list of str
-    """
-    n_obs, n = J.shape
-    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
-        # A diverged simulation: no curvature to read, every interval is undetermined.
-        cov = np.full((n, n), np.nan)
-        np.fill_diagonal(cov, np.inf)
-        return cov, np.eye(n), [
-            "the residual or its Jacobian is not finite at the result (the simulation "
-            "diverges there): confidence intervals are undetermined"]
-    s2 = float(r @ r) / max(n_obs - n, 1)
-    info = J.T @ J
-    scale = np.sqrt(np.diag(info))
-    dead = ~(np.isfinite(scale) & (scale > 0))
-    warnings: list[str] = []
-    if dead.any():
-        warnings.append(
-            f"parameters {', '.join(names[i] for i in np.flatnonzero(dead))} do not affect the "
-            "output at the optimum: not identifiable from these data (intervals undetermined)"
-        )
-        scale = np.where(dead, 1.0, scale)
-    normed = info / np.outer(scale, scale)
-    eigval, eigvec = np.linalg.eigh(normed)
-    with np.errstate(over="ignore"):  # an exactly singular matrix: condition inf
-        cond = eigval[-1] / max(eigval[0], np.finfo(float).tiny)
-    weak = cond > IDENTIFIABILITY_COND and not dead.all()
-    if weak:
-        w = np.abs(eigvec[:, 0])
-        involved = [names[i] for i in np.argsort(-w) if w[i] > 0.3]
-        warnings.append(
-            f"information matrix near singular (condition {cond:.2e}): "
-            f"{', '.join(involved)} are not identifiable separately from these data"
-        )
-    cov = s2 * _inverse(normed, singular=cond > IDENTIFIABILITY_COND or dead.any()) / np.outer(
-        scale, scale)
-    # A parameter the output does not see has no variance to report: infinite, so its
-    # interval is marked undetermined rather than given the pseudo-inverse's zero.
-    cov[dead, :] = np.nan
-    cov[:, dead] = np.nan
-    cov[dead, dead] = np.inf
-    corr = _correlation(cov)
-    # Parameters along a direction the data cannot determine: the pseudo-inverse
-    # gives them a finite variance set by its cut-off, not by the data. Their
-    # correlations are kept from it (they say which parameters trade off), their
-    # variances become infinite (no interval).
-    unresolved = _unresolved(eigval, eigvec) & ~dead if weak else np.zeros(n, dtype=bool)
-    if unresolved.any():
-        cov[unresolved, unresolved] = np.inf
-        warnings.append(
-            f"{', '.join(names[i] for i in np.flatnonzero(unresolved))}: no confidence "
-            "interval, the data do not determine them (a direction of the information "
-            "matrix with condition above "
-            f"{IDENTIFIABILITY_COND:.0e}; see the warning above)")
-    warnings += [f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.4f}: "
-                 "the data hardly separate them"
-                 for i in range(n) for j in range(i + 1, n)
-                 if abs(corr[i, j]) > CORRELATION_LIMIT]
-    return cov, corr, warnings
-
-
-def _inverse(normed: np.ndarray, singular: bool) -> np.ndarray:
-    """Inverse of the scaled information matrix (pseudo-inverse when singular)."""
-    if not singular:
-        try:
-            return np.linalg.inv(normed)
-        except np.linalg.LinAlgError:  # exactly singular although well scaled
-            pass
-    return np.linalg.pinv(normed, rcond=1e-12)
-
-
-def _unresolved(eigval: np.ndarray, eigvec: np.ndarray) -> np.ndarray:
-    """Parameters with a share of at least ``WEAK_SHARE`` in a too-weak direction."""
-    out = np.zeros(eigval.size, dtype=bool)
-    for k in range(eigval.size):
-        with np.errstate(over="ignore"):  # an exactly singular direction: condition inf
-            cond = eigval[-1] / max(eigval[k], np.finfo(float).tiny)
-        if cond <= IDENTIFIABILITY_COND:
-            break
-        out |= np.abs(eigvec[:, k]) >= WEAK_SHARE
-    return out
-
-
-def _correlation(cov: np.ndarray) -> np.ndarray:
-    """Correlation matrix of ``cov`` (0 where a variance is not finite)."""
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
-    corr = np.where(np.isfinite(np.outer(sd, sd)), corr, 0.0)
-    corr = np.where(np.isfinite(corr), corr, 0.0)
-    np.fill_diagonal(corr, 1.0)
-    return corr
 
 
 @dataclass
@@ -847,123 +497,6 @@ class FitResult:
         return cls.from_json(d, source=str(p))
 
 
-#: A saved value this many times beyond its parameter's box is refused: no fit ends there
-#: (a box is widened by a few decades at most), and the model's Jacobian overflows.
-FAR_OUTSIDE = 1e12
-
-_EDIT = "; give the JSON a fit wrote (FitResult.save, 'hhra-phys fit --json'), unedited"
-
-
-def _check_header(d: Mapping[str, Any], source: str) -> None:
-    """``format`` and ``version`` of a fit result: present, ours, and one this reads."""
-    if "format" not in d:
-        raise DataError(f"{source}: not an hhra-phys fit result (missing 'format')")
-    if d["format"] != FORMAT_NAME:
-        raise DataError(f"{source}: 'format' is {d['format']!r:.60}, not {FORMAT_NAME!r}: "
-                        "not an hhra-phys fit result")
-    version = d.get("version", FORMAT_VERSION)
-    if isinstance(version, bool) or not isinstance(version, int) or not (
-            1 <= version <= FORMAT_VERSION):
-        raise DataError(f"{source}: 'version' is {version!r:.40}; this hhra-phys reads fit "
-                        f"results of version 1 to {FORMAT_VERSION}{_EDIT}")
-
-
-def _model_of(spec: Any, source: str) -> Model:
-    """The model of a fit result's ``model`` entry; an unknown class is an error (it was
-    silently rebuilt as a plain Model)."""
-    if not isinstance(spec, Mapping) or not isinstance(spec.get("parts"), list):
-        raise DataError(f"{source}: 'model' must be an object with a list of 'parts'{_EDIT}")
-    from hhra_phys.model import MODEL_TYPES
-
-    cls = spec.get("class", "Model")
-    if cls != "Model" and cls not in MODEL_TYPES:
-        raise DataError(f"{source}: 'model.class' {cls!r:.60} is not a known model (known: "
-                        f"Model, {', '.join(sorted(MODEL_TYPES))}); import the module that "
-                        "defines it first" + _EDIT)
-    try:
-        return Model.from_json(dict(spec))
-    except (TypeError, AttributeError, ValueError) as exc:
-        if isinstance(exc, ModelError):
-            raise ModelError(f"{source}: 'model': {exc}") from None
-        raise DataError(f"{source}: 'model' cannot be rebuilt ({exc}){_EDIT}") from None
-
-
-def _values(params: Any, model: Model, source: str) -> dict[str, float]:
-    """Each model parameter's ``params.NAME.value``: a finite number, positive for a
-    log-scaled (positive) quantity."""
-    if not isinstance(params, Mapping):
-        raise DataError(f"{source}: 'params' must be an object{_EDIT}")
-    values = {}
-    for par in model.params:
-        entry = params[par.name]
-        value = entry.get("value") if isinstance(entry, Mapping) else None
-        key = f"'params.{par.name}.value'"
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise DataError(f"{source}: {key} must be a number, got {value!r:.40}{_EDIT}")
-        if not math.isfinite(value) or (par.scale == "log" and value <= 0):
-            raise DataError(f"{source}: {key} is {value!r}; {par.name} is a "
-                            + ("positive quantity" if par.scale == "log" else "finite number")
-                            + _EDIT)
-        span = max(abs(par.lower), abs(par.upper))
-        far = (value > par.upper * FAR_OUTSIDE or value < par.lower / FAR_OUTSIDE
-               if par.scale == "log" else abs(value) > span * FAR_OUTSIDE)
-        if far:  # no fit ends there (boxes widen by a few decades at most)
-            raise DataError(f"{source}: {key} is {value!r}, {FAR_OUTSIDE:.0e} times beyond "
-                            f"{par.name}'s box [{par.lower:g}, {par.upper:g}]{_EDIT}")
-        values[par.name] = float(value)
-    return values
-
-
-def _free_names(free: Any, model: Model, source: str) -> list[str]:
-    """``free``: names of the model's parameters or initial states (``x0_<state>``), per
-    record or shared."""
-    from hhra_phys.parameters import split_record_name
-
-    if not isinstance(free, list) or not all(isinstance(n, str) for n in free):
-        raise DataError(f"{source}: 'free' must be a list of names, got {free!r:.60}{_EDIT}")
-    known = set(model.params.names) | {f"x0_{s}" for s in model.state_names}
-    for name in free:
-        if split_record_name(name)[0] not in known:
-            raise DataError(f"{source}: 'free' names {name!r}, not a parameter or initial "
-                            f"state of the model {model.name!r}{_EDIT}")
-    if len(set(free)) != len(free):
-        raise DataError(f"{source}: 'free' lists a name twice{_EDIT}")
-    return list(free)
-
-
-def _check_covariance(cov: Any, n: int, source: str) -> None:
-    """``covariance``: null, or an n x n list of numbers (null for NaN), n = len(free)."""
-    if cov is None:
-        return
-    ok = isinstance(cov, list) and len(cov) == n and all(
-        isinstance(row, list) and len(row) == n and all(
-            c is None or (isinstance(c, int | float) and not isinstance(c, bool))
-            for c in row) for row in cov)
-    if not ok:
-        shape = (f"{len(cov)} rows" if isinstance(cov, list) else type(cov).__name__)
-        raise DataError(f"{source}: 'covariance' must be a {n} x {n} matrix of numbers (one "
-                        f"row and column per name in 'free'), got {shape}{_EDIT}")
-
-
-def _check_records(records: Any, source: str) -> None:
-    """``records``: a list of objects whose ``fs`` (if any) is a sample rate > 0."""
-    if records is None:
-        return
-    if not isinstance(records, list) or not all(isinstance(r, Mapping) for r in records):
-        raise DataError(f"{source}: 'records' must be a list of objects{_EDIT}")
-    for k, rec in enumerate(records):
-        fs = rec.get("fs")
-        if fs is not None and (isinstance(fs, bool) or not isinstance(fs, int | float)
-                               or not math.isfinite(fs) or fs <= 0):
-            raise DataError(f"{source}: 'records[{k}].fs' must be a sample rate > 0 Hz, "
-                            f"got {fs!r:.40}{_EDIT}")
-
-
-def _num(x: Any) -> float:
-    """A JSON number; ``null`` (NaN or an infinity when written) as NaN."""
-    return math.nan if x is None else float(x)
-
-
 def _finite(values: Any) -> bool:
     return all(v is not None and np.isfinite(v) for v in values)
 
@@ -972,5 +505,4 @@ def format_metric(value: Any, spec: str = ".4g") -> str:
     """A metric for a summary (``spec``, default four significant digits); a diverged
     fit's missing or non-finite one as ``"-"``."""
     return format(value, spec) if value is not None and np.isfinite(value) else "-"
-
 

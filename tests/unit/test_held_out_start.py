@@ -19,7 +19,7 @@ import pickle
 import numpy as np
 import pytest
 
-import hhra_phys.problem as problem_module
+import hhra_phys.record_problem as record_problem_module
 from hhra_phys.data import Dataset
 from hhra_phys.diagnosis.selection import split_record
 from hhra_phys.effects import make_effect
@@ -81,7 +81,7 @@ def _alone(part: Dataset) -> Dataset:
 
 @pytest.fixture(params=["part", "window"])
 def held_out_state(request, monkeypatch):
-    monkeypatch.setattr(problem_module, "HELD_OUT_STATE", request.param)
+    monkeypatch.setattr(record_problem_module, "HELD_OUT_STATE", request.param)
     return request.param
 
 
@@ -149,7 +149,7 @@ def test_the_window_is_before_the_part_and_short(monkeypatch) -> None:
     u_w, y_w, skip = rec.lead_window(test)  # "part": the memory, the state on the part
     assert u_w.size == skip == memory
     np.testing.assert_array_equal(y_w, ds.y[a - memory:a])  # before it, none of its own
-    monkeypatch.setattr(problem_module, "HELD_OUT_STATE", "window")
+    monkeypatch.setattr(record_problem_module, "HELD_OUT_STATE", "window")
     u_w, y_w, skip = rec.lead_window(test)
     assert skip == memory and u_w.size == memory + round(LEAD_FRACTION * test.n) < sel.n
     np.testing.assert_array_equal(y_w, ds.y[a - u_w.size:a])

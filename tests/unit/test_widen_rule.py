@@ -1,4 +1,4 @@
-"""The rule that lets a group out of its default box (``hhra_phys.fit``), without fits.
+"""The rule that lets a group out of its default box (``hhra_phys.widen``), without fits.
 
 ``tests/integration/test_widen.py`` fits records whose truth lies beyond a box; whether the
 box was widened there depends on the search as much as on the rule, so a changed threshold
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hhra_phys import fit as fitmod
+from hhra_phys import widen as widenmod
 from hhra_phys.fit import (
     MAX_WIDEN_DECADES,
     WIDEN_CLEAR_GAIN,
@@ -125,7 +125,7 @@ def linear_problem(monkeypatch):
     truth = np.array([1.5, 0.2, -0.4])        # group 0 wants out above 1, group 1 in
     y = J @ truth + 0.05 * rng.standard_normal(n)
     _LinearLS.J, _LinearLS.y = J, y
-    monkeypatch.setattr(fitmod, "CompiledLeastSquares", _LinearLS)
+    monkeypatch.setattr(widenmod, "CompiledLeastSquares", _LinearLS)
     problem = type("P", (), {"n_free": 3})()
     z = np.array([1.0, 0.0, 0.0])  # group 0 at its upper edge (1), group 1 at its lower (0)
     return problem, z, J, y
@@ -216,10 +216,10 @@ def _run_widen(monkeypatch, excess: float, gain: float, refit_costs: list[float]
     problem = _two_groups()
     costs, local = iter(refit_costs), iter(local_costs or [])
     reached = {}
-    monkeypatch.setattr(fitmod, "at_edges", lambda prob, z: [(0, "upper")])
-    monkeypatch.setattr(fitmod, "_cost_and_excess", lambda prob, z: (1.0, excess))
-    monkeypatch.setattr(fitmod, "_cost", lambda prob, z: reached["cost"])
-    monkeypatch.setattr(fitmod, "_release_gains", lambda prob, z, edges: [gain] * len(edges))
+    monkeypatch.setattr(widenmod, "at_edges", lambda prob, z: [(0, "upper")])
+    monkeypatch.setattr(widenmod, "_cost_and_excess", lambda prob, z: (1.0, excess))
+    monkeypatch.setattr(widenmod, "_cost", lambda prob, z: reached["cost"])
+    monkeypatch.setattr(widenmod, "_release_gains", lambda prob, z, edges: [gain] * len(edges))
     searches = []
 
     def search(prob, z_start, label, global_search=True):
