@@ -3,23 +3,19 @@
 The module docstring of :mod:`hhra_phys.result` ("Uncertainty") as code:
 :func:`uncertainty` gives the covariance of the fitting coordinates, their correlation and
 the warnings about what the data cannot tell apart; :func:`weak_directions` names the
-directions of parameter space the data do not determine, and :func:`redundant` refuses a
-candidate whose new parameters only move along one with an old parameter. Separate from
+directions of parameter space the data do not determine (:func:`hhra_phys.result.redundant`
+reads them off a fit to refuse a candidate that only reparametrises the model). Separate from
 :mod:`hhra_phys.result` because it is linear algebra on a residual Jacobian, not the
 result's record; every name here is also importable from :mod:`hhra_phys.result`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from hhra_phys.result import FitResult
-
 __all__ = [
-    "redundant",
     "uncertainty",
     "weak_directions",
 ]
@@ -91,41 +87,6 @@ def weak_directions(J: np.ndarray, names: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str | None:
-    """Why a candidate only reparametrises the model, or ``None`` if it does not.
-
-    A candidate's new parameters (a discovered term's coefficients, an effect's
-    parameters) are redundant when the fit with them has a direction the data
-    cannot determine (:func:`weak_directions`, recorded in
-    ``result.intervals["weak_directions"]``) that joins a new parameter with one the
-    model already had: the candidate then changes nothing the model could not
-    already do (a term ``a*u`` beside an input gain), and whatever gain it shows is
-    the refit's, not the term's. A high correlation alone is not enough (an
-    integrating plant's initial state and an output offset are correlated near 1
-    on one record and still separate through position-dependent terms).
-
-    Parameters
-    ----------
-    result : FitResult
-        The candidate's fit.
-    new_params : sequence of str
-        The candidate's new parameter names.
-
-    Returns
-    -------
-    str or None
-        The reason (naming the parameters and the condition), or ``None``.
-    """
-    new = [n for n in new_params if n in result.free]
-    old = [n for n in result.free if n not in new]
-    for d in result.intervals.get("weak_directions", []):
-        involved = list(d.get("params", {}))
-        a = [n for n in involved if n in new]
-        b = [n for n in involved if n in old]
-        if a and b:
-            return (f"only reparametrises the model ({', '.join(a)} against "
-                    f"{', '.join(b)}): {d['reason']}")
-    return None
 
 
 def uncertainty(

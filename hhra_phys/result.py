@@ -65,7 +65,6 @@ from hhra_phys.identifiability import (  # noqa: F401  (re-exported)
     _correlation,
     _inverse,
     _unresolved,
-    redundant,
     uncertainty,
     weak_directions,
 )
@@ -506,3 +505,38 @@ def format_metric(value: Any, spec: str = ".4g") -> str:
     fit's missing or non-finite one as ``"-"``."""
     return format(value, spec) if value is not None and np.isfinite(value) else "-"
 
+def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str | None:
+    """Why a candidate only reparametrises the model, or ``None`` if it does not.
+
+    A candidate's new parameters (a discovered term's coefficients, an effect's
+    parameters) are redundant when the fit with them has a direction the data
+    cannot determine (:func:`weak_directions`, recorded in
+    ``result.intervals["weak_directions"]``) that joins a new parameter with one the
+    model already had: the candidate then changes nothing the model could not
+    already do (a term ``a*u`` beside an input gain), and whatever gain it shows is
+    the refit's, not the term's. A high correlation alone is not enough (an
+    integrating plant's initial state and an output offset are correlated near 1
+    on one record and still separate through position-dependent terms).
+
+    Parameters
+    ----------
+    result : FitResult
+        The candidate's fit.
+    new_params : sequence of str
+        The candidate's new parameter names.
+
+    Returns
+    -------
+    str or None
+        The reason (naming the parameters and the condition), or ``None``.
+    """
+    new = [n for n in new_params if n in result.free]
+    old = [n for n in result.free if n not in new]
+    for d in result.intervals.get("weak_directions", []):
+        involved = list(d.get("params", {}))
+        a = [n for n in involved if n in new]
+        b = [n for n in involved if n in old]
+        if a and b:
+            return (f"only reparametrises the model ({', '.join(a)} against "
+                    f"{', '.join(b)}): {d['reason']}")
+    return None

@@ -23,15 +23,16 @@ sample period, method and substeps); every name here is also importable from
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
 
 from hhra_phys.compile import CompiledFunction, compile_function
 
-if TYPE_CHECKING:
-    from hhra_phys.simulate import Simulator
+#: The simulator a method of the mixin is called on (its return is another of the same class;
+#: a TypeVar, not an import of hhra_phys.simulate, which imports this module).
+_Sim = TypeVar("_Sim")
 
 __all__ = [
     "step_doubling_error",
@@ -336,9 +337,9 @@ class _StepRule:
         ys = [self._vm_output(u, P[0], X0[:, 0], meth, k * n) for k in (1, 2, 4)]
         return step_doubling_error(*ys)
 
-    def accurate(self, u: np.ndarray, p: np.ndarray, tolerance: float,
+    def accurate(self: _Sim, u: np.ndarray, p: np.ndarray, tolerance: float,
                  x0: np.ndarray | None = None, coarsest: bool = False,
-                 finest: int = MAX_AUTO_SUBSTEPS) -> Simulator:
+                 finest: int = MAX_AUTO_SUBSTEPS) -> _Sim:
         """The simulator whose substeps keep the output error of ``(u, p)`` below ``tolerance``.
 
         Starts from this simulator's substeps when they are stable for ``p`` (the
