@@ -16,7 +16,9 @@ names the variables and their orientation) and NumPy ``.npz``. See ``docs/data.m
 
 The package is split by concept: :mod:`~hhra_phys.data.dataset` (the record),
 :mod:`~hhra_phys.data.checks` (validation), :mod:`~hhra_phys.data.errors` (exceptions),
-:mod:`~hhra_phys.data.formats` (files) and :mod:`~hhra_phys.data.public` (the public
+:mod:`~hhra_phys.data.formats` (files: :func:`load` and :func:`save` by suffix; the
+loaders in :mod:`~hhra_phys.data.csv_format` and :mod:`~hhra_phys.data.array_formats`, the
+side-car in :mod:`~hhra_phys.data.sidecar`) and :mod:`~hhra_phys.data.public` (the public
 record). Import from ``hhra_phys.data``; the submodules are an implementation detail.
 """
 

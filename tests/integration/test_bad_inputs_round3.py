@@ -175,9 +175,9 @@ def test_sigterm_is_handled_as_sigint_only_inside_the_cli() -> None:
 
 def test_simulate_stopped_between_the_csv_and_its_side_car_leaves_neither(
         tmp_path, capsys, monkeypatch) -> None:
-    import hhra_phys.data.formats as formats
+    import hhra_phys.data.csv_format as csv_format  # save_csv writes through its own name
 
-    real, calls = formats.atomic_write_text, []
+    real, calls = csv_format.atomic_write_text, []
 
     def second(path, text):
         calls.append(path)
@@ -185,7 +185,7 @@ def test_simulate_stopped_between_the_csv_and_its_side_car_leaves_neither(
             raise KeyboardInterrupt
         return real(path, text)
 
-    monkeypatch.setattr(formats, "atomic_write_text", second)
+    monkeypatch.setattr(csv_format, "atomic_write_text", second)
     code, _, err = run(["simulate", "--out", tmp_path / "s.csv", "--duration", "2"], capsys)
     assert code == 130 and len(calls) == 2
     assert not list(tmp_path.iterdir())
