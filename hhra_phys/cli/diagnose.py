@@ -122,6 +122,11 @@ def register(subparsers: Any) -> None:
                         "thinly, the selection part decides alone (default: the candidate is "
                         "refitted on the selection part, scored on estimation, and the error "
                         "over both folds decides)")
+    p.add_argument("--no-pairs", action="store_true",
+                   help="never refit pairs: when a round accepts nothing, the refused effects "
+                        "whose criterion was decisively lower while their selection error rose "
+                        "are not refitted two at a time (default: they are, each pair one "
+                        "candidate by the same rule; an effect that shows only beside another)")
     p.add_argument("--no-revisit", action="store_true",
                    help="do not revisit a round a discovered term won over an acceptable library "
                         "effect (by default, when the loop then ends above the noise level, the "
@@ -212,7 +217,7 @@ def _diagnose(args: argparse.Namespace) -> Any:
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
-            rotate=not args.no_rotate,
+            rotate=not args.no_rotate, pairs=not args.no_pairs,
             intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
             fit_shapes="contenders" if args.fit_shapes else args.shapes,
         )

@@ -84,6 +84,9 @@ class _Job:
     #: The loop's acceptance margin (``LoopOptions.margin``): a sharper shape passes the
     #: rule a candidate passes (:func:`_sharpen`).
     margin: float = 0.1
+    #: A pair's first effect (already in ``model``, its parameters in ``previous``, searched
+    #: again with this one's, ``LoopOptions.pairs``); empty for a candidate of one effect.
+    pair_with: str = ""
 
 
 def _widening_worth(res: FitResult, noise_est: float) -> float:
@@ -233,14 +236,17 @@ def refit_candidate(job: _Job) -> _Outcome:
     vr = float(r2.metrics["val"].get("rmse", math.inf))
     if not math.isfinite(vr):
         vr = math.inf
-    step = Step(job.round, job.effect, job.evidence, {n: r2.values[n] for n in new},
-                {n: list(r2.ci95[n]) for n in new if n in r2.ci95},
+    # A pair's step holds both effects' parameters (the first's were searched again).
+    shown = new + (list(job.previous) if job.pair_with else [])
+    step = Step(job.round, job.effect, job.evidence, {n: r2.values[n] for n in shown},
+                {n: list(r2.ci95[n]) for n in shown if n in r2.ci95},
                 dict(r2.metrics["est"]), dict(r2.metrics["val"]), crit, job.crit_cur,
                 job.rmse_cur)
     # Where it enters on this model: a role-bound entry ("rate:@velocity") by its state's name.
     entry_at = getattr(eff, "entry_at", None)
     step.entry = str((entry_at(job.model) if entry_at else getattr(eff, "entry", "")) or "")
     step.sensor = bool(getattr(eff, "sensor", False))
+    step.pair = [job.pair_with, job.effect] if job.pair_with else []
     step.regime = regime_coverage(eff, p2.per_record_values(_free_values(p2, r2)),
                                   {"est": [None] * len(p2.records), "sel": as_records(cfg.sel)})
     # A fitted switching width is the effect's shape, not its size: it is kept only where

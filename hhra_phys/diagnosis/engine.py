@@ -83,6 +83,7 @@ from hhra_phys.diagnosis.fits import (
 )
 from hhra_phys.diagnosis.holds import _HoldStage
 from hhra_phys.diagnosis.options import LoopOptions
+from hhra_phys.diagnosis.pairs import _PairStage
 from hhra_phys.diagnosis.residual import Diagnosis, analyse
 from hhra_phys.diagnosis.result import DiagnosisResult
 from hhra_phys.diagnosis.revisit import _RevisitStage
@@ -91,6 +92,7 @@ from hhra_phys.diagnosis.selection import (
     Step,
     at_noise_level,
     choose,
+    contradicts,
     information_criterion,
     noise_tolerance,
     round_settled,
@@ -246,7 +248,7 @@ def diagnose(
 augment = diagnose
 
 
-class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
+class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
     """One run of :func:`diagnose`: its state, and one method per stage of the data path
     (base fit, inter-sample candidates, rounds of candidates, acceptance, result)."""
 
@@ -450,6 +452,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
         say(self._estimate(rnd, len(queue)))
         tried = holds + (self._refit_all(rnd, queue, jobs, level)
                          if queue or self.discover else [])
+        if not tried:  # two effects that each show only beside the other (pairs.py)
+            tried = self._pairs(rnd, level)
         if not tried:
             say(f"round {rnd}: nothing accepted; stop")
             return "no candidate accepted"
@@ -548,6 +552,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
         library = {k: self._library_refits([item for _, kind, item in queue if kind == k])
                    for k in _LIBRARY_KINDS}
         tried: list[tuple[Step, Any]] = []
+        self.split: list[tuple[Step, Any]] = []  # refused, the evidence contradicting itself
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
         queue = list(queue)
@@ -582,6 +587,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
                 ok = self._rotate(step, payload, ok, rmse_cur, crit_cur, noise_sel, noise_est)
             if ok:
                 tried.append((step, payload))
+            elif kind in _LIBRARY_KINDS and contradicts(step, rmse_cur, crit_cur):
+                self.split.append((step, payload))
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
         self._end_round(rnd, bar, library, settlers, not_refitted)
@@ -674,39 +681,23 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
     def _accept(self, rnd: int, best_step: Step, payload: Any) -> None:
         """Add the chosen candidate, polish the model, then the backward step (another
         inter-sample behaviour: continue with its records and refit; no effect added)."""
-        o, cfg = self.o, self.cfg
+        o = self.o
         if isinstance(payload, HoldCandidate):
             self._take_hold(payload)
             self.say(f"round {rnd}: accepted {best_step.effect}")
             return
+        if best_step.pair:  # a pair (pairs.py): its first effect, then the second
+            self.chosen.append(best_step.pair[0])
         self.chosen.append(best_step.effect)
-        if isinstance(payload, tuple):
-            # Rebuild the accepted fit here from its values (wherever it ran), so the
-            # serial and distributed loops continue from the same numbers.
-            job, best = payload
-            model_c, _, eff_c = _candidate_model(replace(
-                job, effect_kw={**job.effect_kw, **best.effect_kw}))
-            boxes = dict(best.boxes)
-            # A fitted switching width keeps its box as a bound (sharper than the default
-            # only, _sharpen); the other boxes it widened stay with it as guessed boxes.
-            width = _width_param(eff_c) if best.effect_kw.get("fit_width") else None
-            if width in boxes:
-                cfg = self.cfg = replace(cfg, bounds={**cfg.bounds, width: boxes.pop(width)})
-            if boxes:  # its widened boxes stay with it
-                cfg = self.cfg = replace(cfg, default_bounds={**cfg.default_bounds, **boxes})
-            free_c, vals_c, x0_c, integ = best.free, best.values, best.x0, best.integration
-        else:
-            model_c = payload.problem.model
-            free_c = payload.free
-            vals_c, x0_c = _values(payload.result), dict(payload.result.x0)
-            integ = payload.result.settings.get("integration")
+        model_c, free_c, vals_c, x0_c, integ = self._accepted_fit(best_step, payload)
+        cfg = self.cfg
         # A candidate's IPOPT is capped (ipopt_iter) to judge it; the accepted one is
         # polished to convergence before the next round, with substeps by the accuracy
         # rule at its values as its refit had (the base fit's substeps, given, skip the
         # rule: a sharp friction refitted at ROS4 x 16 and polished at x 8 left the drive's
         # selection at 1.26e-6 m where its refit had reached the 1.0e-6 m noise).
         self._polish(model_c, free_c, vals_c, x0_c, integ)
-        self.say(f"round {rnd}: accepted {best_step.effect}")
+        self.say(f"round {rnd}: accepted {' + '.join(best_step.pair) or best_step.effect}")
         if o.backward and len(self.chosen) >= 2 and not self._over_budget():
             self.cur, self.cur_prob, self.cur_free, back, gone = _backward_step(
                 cfg, self.cur, self.cur_prob, self.cur_free, self.chosen, self.base_free, rnd,
@@ -723,11 +714,41 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
             # and its width fitted no better there; once the force came, the default width
             # left 6e-5 m where the noise is 1e-6 m, and stand-ins filled it). A library
             # form that replaced the newest (a discovered term) is among the earlier ones.
-            newest = [best_step] if best_step.effect in self.chosen else []
-            for step in [*newest, *self._earlier_shapes(best_step)]:
+            newest = [(best_step, name) for name in best_step.pair or [best_step.effect]
+                      if name in self.chosen]
+            for step, name in [*newest, *self._earlier_shapes(best_step)]:
                 if self._over_budget():
                     break
-                self._sharpen_chosen(rnd, step)
+                self._sharpen_chosen(rnd, step, name)
+
+    def _accepted_fit(self, step: Step, payload: Any) -> tuple[Model, Sequence[str],
+                                                                Mapping[str, float],
+                                                                Mapping[str, float], Any]:
+        """The accepted candidate's model, free parameters, values, initial state and
+        integration; a library refit's boxes join the loop's settings."""
+        if not isinstance(payload, tuple):
+            res = payload.result
+            return (payload.problem.model, payload.free, _values(res), dict(res.x0),
+                    res.settings.get("integration"))
+        # Rebuild the accepted fit here from its values (wherever it ran), so the serial
+        # and distributed loops continue from the same numbers.
+        job, best = payload
+        cfg = self.cfg
+        if step.pair:  # the first effect's fitted width bound and widened boxes
+            cfg = replace(cfg, bounds={**job.cfg.bounds, **cfg.bounds},
+                          default_bounds={**job.cfg.default_bounds, **cfg.default_bounds})
+        model_c, _, eff_c = _candidate_model(replace(
+            job, effect_kw={**job.effect_kw, **best.effect_kw}))
+        boxes = dict(best.boxes)
+        # A fitted switching width keeps its box as a bound (sharper than the default
+        # only, _sharpen); the other boxes it widened stay with it as guessed boxes.
+        width = _width_param(eff_c) if best.effect_kw.get("fit_width") else None
+        if width in boxes:
+            cfg = replace(cfg, bounds={**cfg.bounds, width: boxes.pop(width)})
+        if boxes:  # its widened boxes stay with it
+            cfg = replace(cfg, default_bounds={**cfg.default_bounds, **boxes})
+        self.cfg = cfg
+        return model_c, best.free, best.values, best.x0, best.integration
 
     # -- result -----------------------------------------------------------------------------
     def _result(self) -> DiagnosisResult:
@@ -761,7 +782,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage):
             "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
-            "rotate": o.rotate,
+            "rotate": o.rotate, "pairs": o.pairs,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
             "stopped_by_budget": self.budget_spent,

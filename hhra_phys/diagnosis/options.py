@@ -183,6 +183,15 @@ class LoopOptions:
         the default width leaves both to be named; on a 1 kHz drive whose friction
         switches within 1e-4 m/s the sharpened width is what names the friction
         (docs/diagnosis.md).
+    pairs : bool
+        Refit pairs when a round accepts nothing (default True; CLI ``--no-pairs``): the
+        refused effects of the dynamics on which the criterion and the selection part
+        contradict each other (:func:`~hhra_phys.selection.contradicts`: the criterion
+        decisively for, the selection error up) are refitted two at a time, the second
+        added to the first one's refit with both searched, and each pair is a candidate
+        judged by the one rule (``steps[].pair``); an accepted pair adds both effects.
+        Two effects that each show only beside the other (a drive's Coulomb friction and
+        constant force) are otherwise never accepted.
     rotate : bool
         Rotate the parts where one cannot decide alone (default True; CLI
         ``--no-rotate``): when the selection part and the information criterion on
@@ -227,6 +236,7 @@ class LoopOptions:
     progress_bar: bool = False
     fit_shapes: bool | str = "chosen"
     rotate: bool = True
+    pairs: bool = True
 
     @property
     def shape_mode(self) -> str:
@@ -261,6 +271,7 @@ class LoopOptions:
              f"fit_shapes must be one of {', '.join(map(repr, SHAPE_MODES))} (or True for "
              f"'contenders', False for 'off'), got {self.fit_shapes!r}")
         need(isinstance(self.rotate, bool), f"rotate must be True or False, got {self.rotate!r}")
+        need(isinstance(self.pairs, bool), f"pairs must be True or False, got {self.pairs!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),

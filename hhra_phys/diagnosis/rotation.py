@@ -81,7 +81,7 @@ class _RotationStage:
         ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
         if veto:
             ok, step.reason = False, f"dropped: {veto} ({step.reason})"
-        self.say(f"  tried {step.effect}"
+        self.say(f"  tried {' + '.join(step.pair) if step.pair else step.effect}"
                  + (f": {step.expression}{_twins_text(step)}"
                     if isinstance(step, DiscoveredStep) else "")
                  + f"; {step.reason} [{step.seconds:.1f} s]")

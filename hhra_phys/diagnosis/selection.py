@@ -64,6 +64,8 @@ __all__ = [
     "votes",
     "thin_part",
     "needs_rotation",
+    "PAIR_CANDIDATES",
+    "contradicts",
     "pooled_rmse",
     "rotated_verdict",
 ]
@@ -340,6 +342,10 @@ class Step:
     #: ``rmse_before``/``rmse_after``, each part's ``est``/``sel`` as the held-out fold,
     #: ``noise`` and ``accepted``; ``None``: the parts did not rotate.
     folds: dict[str, Any] | None = None
+    #: The effects refitted together in one candidate (``[first, second]``: the second is
+    #: :attr:`effect`, the first was refitted alone earlier in the round,
+    #: :func:`contradicts`); empty for a candidate of one effect.
+    pair: list[str] = field(default_factory=list)
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.
     discovered: ClassVar[bool] = False
@@ -356,7 +362,7 @@ class Step:
             "reason": self.reason, "identifiable": self.identifiable, "notes": self.notes,
             "seconds": self.seconds, "action": self.action, "removed": self.removed,
             "entry": self.entry, "sensor": self.sensor, "regime": self.regime,
-            "folds": self.folds,
+            "folds": self.folds, "pair": list(self.pair),
         }
 
 
@@ -510,6 +516,35 @@ def tie_break(fits: Sequence[tuple[float, float]], noise: float, noise_tol: floa
     if prefer is not None:
         tied = [i for i in tied if prefer[i]] or tied
     return min(tied, key=lambda i: (fits[i][1], sels[i]))
+
+
+#: Most refused candidates whose pairs are refitted when a round accepts nothing
+#: (:func:`contradicts`): the four with the lowest criterion, six pairs.
+PAIR_CANDIDATES = 4
+
+
+def contradicts(step: Step, rmse_cur: float, crit_cur: float) -> bool:
+    """Whether the evidence on a refused effect contradicts itself the way two missing
+    effects that need each other leave it: the criterion on estimation is decisively for
+    it (lower by more than :data:`DECISIVE_CRITERION`) while the selection error *rose*.
+
+    A missing effect that shows only beside another one leaves exactly this: on a drive
+    with Coulomb friction and a constant force offset, each of the two (and a dead zone,
+    an input offset) lowered the criterion on the estimation half by 4,000-12,600 units
+    and raised the selection half's free-run error by 10-30 % (the position drifts where
+    the other is missing), so no round accepted anything (docs/diagnosis.md). A candidate
+    whose selection error merely fails the margin is not a contradiction, nor is a sensor
+    effect (it describes the measurement: it cannot make a change of the dynamics show)
+    or a discovered term (its shape was searched among many, so its criterion is not
+    evidence of the same strength). When a round accepts nothing, the loop refits such
+    candidates in pairs, each pair one candidate judged by the one rule
+    (:attr:`Step.pair`).
+    """
+    rmse = float(step.val.get("rmse", math.inf))
+    return (step.action == "add" and not step.sensor and not step.discovered
+            and not step.accepted and math.isfinite(step.criterion)
+            and step.criterion < crit_cur - DECISIVE_CRITERION
+            and math.isfinite(rmse) and rmse > rmse_cur)
 
 
 def round_settled(step: Step, noise_sel: float, noise_est: float, noise_tol: float,

@@ -56,9 +56,10 @@ class _ShapeStage:
         self.cur_free = list(free)
 
     def _accepted_step(self, name: str) -> Step | None:
-        """The step that last added ``name`` to the model (None: not added by a step)."""
-        return next((s for s in reversed(self.steps) if s.effect == name and s.accepted
-                     and s.action == "add"), None)
+        """The step that last added ``name`` to the model, alone or in a pair (None: not
+        added by a step)."""
+        return next((s for s in reversed(self.steps) if (s.effect == name or name in s.pair)
+                     and s.accepted and s.action == "add"), None)
 
     def _library_forms(self, rnd: int) -> None:
         """Each chosen discovered term that holds the shape of a library effect the model
@@ -158,19 +159,20 @@ class _ShapeStage:
                 entry=eff.entry_at(model_r), sensor=bool(getattr(eff, "sensor", False))))
         self.say(f"round {rnd}: replaced {name} by {forms}")
 
-    def _earlier_shapes(self, newest: Step) -> list[Step]:
-        """The accepted steps of the effects chosen before ``newest`` whose part has a
-        switching width still held at its default, in the order they were accepted."""
+    def _earlier_shapes(self, newest: Step) -> list[tuple[Step, str]]:
+        """``(accepted step, effect)`` of the effects chosen before ``newest`` (both of a
+        pair's are newest) whose part has a switching width still held at its default, in
+        the order they were accepted."""
         parts = {p.name: p for p in self.cur_prob.model.parts}
         out = []
         for name in self.chosen:
             part = parts.get(name)
-            if (name == newest.effect or part is None or _width_param(part) is None
-                    or getattr(part, "fit_width", True)):
+            if (name in (newest.pair or [newest.effect]) or part is None
+                    or _width_param(part) is None or getattr(part, "fit_width", True)):
                 continue
             step = self._accepted_step(name)
             if step is not None:
-                out.append(step)
+                out.append((step, name))
         return out
 
     def _noise_now(self) -> tuple[float, float, float]:
@@ -181,7 +183,7 @@ class _ShapeStage:
         lv = self.levels[-1]
         return (float(lv["noise"]), float(lv["estimation"]["noise"]), float(self.tol))
 
-    def _sharpen_chosen(self, rnd: int, step: Step) -> None:
+    def _sharpen_chosen(self, rnd: int, step: Step, name: str | None = None) -> None:
         """The chosen effect's shape (``fit_shapes="chosen"``): its switching width, and its
         sign's profile, fitted in the current model where that fits clearly better
         (:func:`_sharpen`, the rules of a contender's), then the model polished.
@@ -190,13 +192,14 @@ class _ShapeStage:
         starts from: on a drive record a dead zone accepted first and removed once the
         friction came made the algebraic sign fit best beside it, the tanh without it.
         """
+        name = name or step.effect  # a pair's step holds two effects (pairs.py)
         cur, prob, o = self.cur, self.cur_prob, self.o
-        eff = next((p for p in prob.model.parts if p.name == step.effect), None)
+        eff = next((p for p in prob.model.parts if p.name == name), None)
         width = _width_param(eff) if eff is not None else None
         if width is None or getattr(eff, "fit_width", True):
             return
-        job = _Job(self.cfg, rnd, step.effect, dict((o.effect_kw or {}).get(step.effect, {})),
-                   prob.model.without(step.effect), tuple(self.cur_free), _values(cur),
+        job = _Job(self.cfg, rnd, name, dict((o.effect_kw or {}).get(name, {})),
+                   prob.model.without(name), tuple(self.cur_free), _values(cur),
                    dict(cur.x0), {}, o.cand_pop, o.cand_iter, math.nan, math.nan,
                    self.est_range, noise=self._noise_now(), fit_shapes=True, margin=o.margin)
         notes: list[str] = []
@@ -208,7 +211,7 @@ class _ShapeStage:
             shaped = None
         when = "after acceptance" if step.round == rnd else f"in round {rnd}"
         step.notes += [f"{when}: {n}" for n in notes]
-        label = f"  shape of {step.effect}{'' if step.round == rnd else ' again'}"
+        label = f"  shape of {name}{'' if step.round == rnd else ' again'}"
         if shaped is None:
             if notes:
                 self.say(f"{label}: {notes[-1]} [{time.perf_counter() - ts:.1f} s]")

@@ -203,7 +203,7 @@ def test_an_earlier_effect_whose_width_stayed_at_its_default_is_shaped_again():
              for r, name in ((1, "coulomb_friction"), (2, "constant_force"))]
     loop.steps, loop.chosen = steps, ["coulomb_friction", "constant_force"]
     loop.cur_prob = SimpleNamespace(model=model.with_parts(friction, force))
-    assert loop._earlier_shapes(steps[1]) == [steps[0]]
+    assert loop._earlier_shapes(steps[1]) == [(steps[0], "coulomb_friction")]
     loop.cur_prob = SimpleNamespace(model=model.with_parts(replace(friction, fit_width=True),
                                                            force))
     assert loop._earlier_shapes(steps[1]) == []
