@@ -1,4 +1,5 @@
-"""The diagnosis loop's report: a Markdown file and its residual figures.
+"""The diagnosis loop's report: a Markdown file and its residual figures (a fit's report is
+:mod:`hhra_phys.fit_report`).
 
 :func:`loop_report` writes what ``hhra-phys diagnose --report`` writes, from Python:
 the Markdown text (:func:`markdown_report`: the data split and rule, the error before

@@ -385,6 +385,28 @@ class FitResult:
             lines.append(f"{name:<12} {est.value:>13.6g} {est.unit:<10} {ci_text:>29}")
         return lines
 
+    def report(self, path: str | Path, data: Any, overwrite: bool = False) -> Path:
+        """Write the Markdown report and its figure (``hhra-phys fit --report``'s;
+        :func:`hhra_phys.fit_report.fit_report`): parameters with their 95 % intervals, the
+        derived quantities, the errors, the warnings and ``<stem>_fit.png`` beside it.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The report (``.md``).
+        data : Dataset or sequence of Dataset
+            The record(s) the fit ran on (a result does not keep them).
+        overwrite : bool
+            Replace existing files.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        from hhra_phys.fit_report import fit_report
+
+        return fit_report(self, path, data, overwrite=overwrite)
+
     # -- persistence --------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
         """The fit JSON (strict JSON types, NaN and infinities as ``null``).

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 from hhra_phys.cli._common import (
@@ -34,6 +35,7 @@ from hhra_phys.cli._guards import (
 from hhra_phys.cluster import add_cluster_arguments, executor
 from hhra_phys.errors import HHRAError, ParameterError
 from hhra_phys.fit import OPTIMIZERS, best_of, fit_many
+from hhra_phys.fit_report import fit_figure_path
 
 
 def register(subparsers: Any) -> None:
@@ -94,6 +96,9 @@ def register(subparsers: Any) -> None:
                         "stderr)")
     p.add_argument("--plot", type=output_path, default=None, metavar="OUT.png",
                    help="write a figure (.png, .svg or .pdf)")
+    p.add_argument("--report", type=output_path, default=None, metavar="OUT.md",
+                   help="write a Markdown report (parameters, intervals, errors, warnings) "
+                        "with the fit's figure beside it (OUT_fit.png)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -128,9 +133,12 @@ def _say_fitting(args: argparse.Namespace, records: list[Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the fit; returns the exit code (0, 1 data/runtime error or divergence, 2 usage)."""
     try:
-        check_arguments(args, {"--json": args.json, "--plot": args.plot})
-        check_outputs([None if args.json == STDOUT else args.json], args.overwrite,
-                      figures=[args.plot])
+        fig = fit_figure_path(args.report) if args.report else None
+        check_arguments(args, {"--json": args.json, "--plot": args.plot,
+                               "--report": args.report,
+                               **({f"--report's figure {Path(fig).name}": fig} if fig else {})})
+        check_outputs([None if args.json == STDOUT else args.json, args.report],
+                      args.overwrite, figures=[args.plot, fig])
         fixed = parse_fixed(args.fix)
         free = parse_names(args.free, "--free")
         if args.model and args.valve is not None:  # before the model file is looked at
@@ -141,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         # With --json - the JSON alone goes to stdout; the summary to stderr.
         say = (lambda *a: print(*a, file=sys.stderr)) if args.json == STDOUT else print
         print_result(res, say)
-        with all_or_nothing([args.json, args.plot]):  # Ctrl-C: none of them stays
+        with all_or_nothing([args.json, args.plot, args.report, fig]):  # Ctrl-C: none stays
             return _write(args, res, records, validation, say)
     except (HHRAError, OSError) as exc:
         return report_error("fit", exc)
@@ -204,6 +212,11 @@ def _write(args: argparse.Namespace, res: Any, records: list[Any],
                        if len(records) > 1 or validation else
                        plot_result(res, records[0], args.plot, args.split, args.overwrite))
         say(f"wrote {plotted}")
+    if args.report:
+        with stdout_kept_for_json(args.json):
+            data = ([*records, *(validation or [])] if len(records) > 1 or validation
+                    else records[0])
+            say(f"wrote {res.report(args.report, data, overwrite=args.overwrite)}")
     return 0
 
 
