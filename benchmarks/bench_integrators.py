@@ -208,7 +208,8 @@ def write_report(path: Path, lines: list[str], argv: list[str] | None) -> None:
     """Replace the integrator section of the performance report with these results."""
     cmd = "python benchmarks/bench_integrators.py " + " ".join(argv or sys.argv[1:])
     start, end = "<!-- bench_integrators:start -->", "<!-- bench_integrators:end -->"
-    section = (f"{start}\nCommand: `{cmd.strip()}` ({time.strftime('%Y-%m-%d')})\n\n```\n"
+    # docs/ carry no dates (the dated record is benchmarks/notes/)
+    section = (f"{start}\nCommand: `{cmd.strip()}`\n\n```\n"
                + "\n".join(lines) + f"\n```\n{end}")
     text = path.read_text() if path.exists() else "# Performance\n\n"
     if start in text and end in text:

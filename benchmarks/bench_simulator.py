@@ -250,7 +250,7 @@ def write_report(path: Path, lines: list[str], argv: list[str] | None) -> None:
     cmd = "python benchmarks/bench_simulator.py " + " ".join(argv or sys.argv[1:])
     section = (
         "<!-- bench_simulator:start -->\n"
-        f"Command: `{cmd.strip()}` ({time.strftime('%Y-%m-%d')})\n\n```\n"
+        f"Command: `{cmd.strip()}`\n\n```\n"  # docs/ carry no dates: the notes do
         + "\n".join(lines)
         + "\n```\n<!-- bench_simulator:end -->"
     )
