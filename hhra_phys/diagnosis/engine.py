@@ -92,7 +92,6 @@ from hhra_phys.diagnosis.selection import (
     Step,
     at_noise_level,
     choose,
-    contradicts,
     information_criterion,
     noise_tolerance,
     round_settled,
@@ -552,7 +551,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         library = {k: self._library_refits([item for _, kind, item in queue if kind == k])
                    for k in _LIBRARY_KINDS}
         tried: list[tuple[Step, Any]] = []
-        self.split: list[tuple[Step, Any]] = []  # refused, the evidence contradicting itself
+        # The round's refused library effects of the dynamics (pairs.py draws pairs from them)
+        self.refused: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
         queue = list(queue)
@@ -587,8 +587,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
                 ok = self._rotate(step, payload, ok, rmse_cur, crit_cur, noise_sel, noise_est)
             if ok:
                 tried.append((step, payload))
-            elif kind in _LIBRARY_KINDS and contradicts(step, rmse_cur, crit_cur):
-                self.split.append((step, payload))
+            elif kind == "effect" and not step.sensor and math.isfinite(step.criterion):
+                self.refused.append((step, payload))
             if kind not in settlers and round_settled(step, noise_sel, noise_est, self.tol, ok):
                 settlers[kind] = step
         self._end_round(rnd, bar, library, settlers, not_refitted)

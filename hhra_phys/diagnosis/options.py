@@ -184,12 +184,14 @@ class LoopOptions:
         switches within 1e-4 m/s the sharpened width is what names the friction
         (docs/diagnosis.md).
     pairs : bool
-        Refit pairs when a round accepts nothing (default True; CLI ``--no-pairs``): the
-        refused effects of the dynamics on which the criterion and the selection part
-        contradict each other (:func:`~hhra_phys.selection.contradicts`: the criterion
-        decisively for, the selection error up) are refitted two at a time, the second
-        added to the first one's refit with both searched, and each pair is a candidate
-        judged by the one rule (``steps[].pair``); an accepted pair adds both effects.
+        Refit pairs when a round accepts nothing (default True; CLI ``--no-pairs``): each
+        of the two refused effects of the dynamics with the lowest criterion on which the
+        criterion and the selection part contradict each other
+        (:func:`~hhra_phys.diagnosis.selection.contradicts`: the criterion decisively for,
+        the selection error up) is paired with every other refused effect of the dynamics,
+        the second added to the first one's refit with both searched; each pair is a
+        candidate judged by the one rule (``steps[].pair``, :mod:`hhra_phys.diagnosis.pairs`);
+        an accepted pair adds both effects.
         Two effects that each show only beside the other (a drive's Coulomb friction and
         constant force) are otherwise never accepted.
     rotate : bool

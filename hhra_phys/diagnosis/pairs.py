@@ -7,9 +7,10 @@ criterion by thousands of units and *raises* the selection error (the simulated 
 drifts where the other is missing), so no round accepts anything, whatever the record's
 length (docs/diagnosis.md). When a round accepts nothing, the effects on which the evidence
 contradicts itself that way (:func:`~hhra_phys.diagnosis.selection.contradicts`) are
-refitted two at a time: the second is added to the first one's refit and both are searched
-(the first seeded at its own refit), and each pair is one candidate, judged, rotated and
-chosen by the same rule as any other (``steps[].pair``). An accepted pair adds both effects;
+paired with every other refused effect of the dynamics (:func:`pair_jobs`): the second is
+added to the first one's refit and both are searched (the first seeded at its own refit),
+and each pair is one candidate, judged, rotated and chosen by the same rule as any other
+(``steps[].pair``). An accepted pair adds both effects;
 the backward step may later remove either.
 """
 
@@ -17,11 +18,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from itertools import combinations
 from typing import Any
 
 from hhra_phys.diagnosis.candidates import _candidate_model, _Job, _width_param
-from hhra_phys.diagnosis.selection import PAIR_CANDIDATES, Step, information_criterion
+from hhra_phys.diagnosis.selection import (
+    PAIR_CANDIDATES,
+    Step,
+    contradicts,
+    information_criterion,
+    round_settled,
+)
 
 __all__: list[str] = []
 
@@ -45,14 +51,33 @@ def _pair_job(first: tuple[_Job, Any], second: tuple[_Job, Any]) -> _Job:
                    pair_with=job_a.effect)
 
 
-def pair_jobs(split: Sequence[tuple[Step, Any]]) -> list[_Job]:
-    """The pairs of the round's contradicted candidates (``(step, (job, outcome))``): the
-    :data:`~hhra_phys.diagnosis.selection.PAIR_CANDIDATES` with the lowest criterion, each
-    pair once, the one with the lower criterion first (its refit is the start), pairs in
-    order of their two criteria's sum (the most promising first)."""
-    best = sorted(split, key=lambda sp: sp[0].criterion)[:PAIR_CANDIDATES]
-    pairs = sorted(combinations(best, 2), key=lambda ab: ab[0][0].criterion + ab[1][0].criterion)
-    return [_pair_job(a[1], b[1]) for a, b in pairs]
+def pair_jobs(refused: Sequence[tuple[Step, Any]], rmse_cur: float, crit_cur: float
+              ) -> list[_Job]:
+    """The pairs of a round that accepted nothing, from its refused effects of the dynamics
+    (``(step, (job, outcome))``).
+
+    Each of the :data:`~hhra_phys.diagnosis.selection.PAIR_CANDIDATES` contradicted ones
+    (:func:`~hhra_phys.diagnosis.selection.contradicts`) with the lowest criterion is paired
+    with every other refused effect: the partner need not show anything alone (on a 50 s
+    drive record the Coulomb friction's own refit stayed at the base's criterion, with a
+    first-order score of 0, and only the pair with the constant force reached the noise).
+    The contradicted one's refit is the start (the second added to it); each pair once;
+    pairs of two contradicted effects first, then by the partner's criterion.
+    """
+    firsts = sorted((sp for sp in refused if contradicts(sp[0], rmse_cur, crit_cur)),
+                    key=lambda sp: sp[0].criterion)[:PAIR_CANDIDATES]
+    seen: set[frozenset[str]] = set()
+    pairs = []
+    for first in firsts:
+        for second in refused:
+            key = frozenset((first[0].effect, second[0].effect))
+            if len(key) < 2 or key in seen:
+                continue
+            seen.add(key)
+            both = contradicts(second[0], rmse_cur, crit_cur)
+            pairs.append(((not both, second[0].criterion), first, second))
+    pairs.sort(key=lambda item: item[0])
+    return [_pair_job(first[1], second[1]) for _, first, second in pairs]
 
 
 class _PairStage:
@@ -60,21 +85,22 @@ class _PairStage:
     round's contradicted candidates in ``self.split``, its options, judge and rotation)."""
 
     def _pairs(self, rnd: int, level: Mapping[str, Any]) -> list[tuple[Step, Any]]:
-        """The acceptable pairs of round ``rnd``'s contradicted candidates (none unless at
-        least two; every pair's refit is a step)."""
-        split = list(getattr(self, "split", []))
-        if not self.o.pairs or len(split) < 2 or self._over_budget():
-            return []
-        jobs = pair_jobs(split)
-        names = sorted({name for job in jobs for name in (job.pair_with, job.effect)})
-        self.say(f"round {rnd}: nothing accepted; {len(jobs)} pairs of {', '.join(names)} "
-                 "(the criterion for each, the selection error up: each may need another)")
+        """The acceptable pairs of round ``rnd`` (:func:`pair_jobs`; none without a
+        contradicted effect, or once a pair leaves both parts at the noise level); every
+        pair's refit is a step."""
         crit_cur = information_criterion(self.cur, self.o.criterion)
         rmse_cur = float(self.cur.metrics["val"]["rmse"])
+        jobs = pair_jobs(list(getattr(self, "refused", [])), rmse_cur, crit_cur)
+        if not self.o.pairs or not jobs or self._over_budget():
+            return []
+        firsts = ", ".join(dict.fromkeys(job.pair_with for job in jobs))
+        self.say(f"round {rnd}: nothing accepted; {len(jobs)} pairs with {firsts} (the "
+                 "criterion for it, the selection error up: it may need another effect)")
         noise_sel = float(level["noise"])
         noise_est = float(level["estimation"]["noise"])
         won: list[tuple[Step, Any]] = []
-        for job, out in zip(jobs, self._library_refits(jobs), strict=True):
+        refits = self._library_refits(jobs)
+        for job, out in zip(jobs, refits, strict=False):
             if out.step is None:
                 self.say(f"  pair {job.pair_with} + {job.effect}: {out.error}")
                 continue
@@ -83,6 +109,10 @@ class _PairStage:
             ok = self._rotate(step, payload, ok, rmse_cur, crit_cur, noise_sel, noise_est)
             if ok:
                 won.append((step, payload))
-            if self._over_budget():
+            # A pair at the noise level on both parts: no later pair can beat it by more
+            # than the allowance (the round's rule, selection.round_settled).
+            if round_settled(step, noise_sel, noise_est, self.tol, ok) or self._over_budget():
                 break
+        if hasattr(refits, "close"):  # the pairs not started are not refitted
+            refits.close()
         return won

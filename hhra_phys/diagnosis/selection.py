@@ -343,8 +343,8 @@ class Step:
     #: ``noise`` and ``accepted``; ``None``: the parts did not rotate.
     folds: dict[str, Any] | None = None
     #: The effects refitted together in one candidate (``[first, second]``: the second is
-    #: :attr:`effect`, the first was refitted alone earlier in the round,
-    #: :func:`contradicts`); empty for a candidate of one effect.
+    #: :attr:`effect`, the first a refused one the evidence contradicted, :func:`contradicts`,
+    #: whose refit the pair starts from); empty for a candidate of one effect.
     pair: list[str] = field(default_factory=list)
     #: A term or mode discovery built (its shape was chosen from the data), not a library
     #: or user effect whose shape was given in advance.
@@ -518,9 +518,10 @@ def tie_break(fits: Sequence[tuple[float, float]], noise: float, noise_tol: floa
     return min(tied, key=lambda i: (fits[i][1], sels[i]))
 
 
-#: Most refused candidates whose pairs are refitted when a round accepts nothing
-#: (:func:`contradicts`): the four with the lowest criterion, six pairs.
-PAIR_CANDIDATES = 4
+#: Most contradicted candidates (:func:`contradicts`) that start pairs when a round accepts
+#: nothing: the two with the lowest criterion, each paired with every other refused effect
+#: of the dynamics.
+PAIR_CANDIDATES = 2
 
 
 def contradicts(step: Step, rmse_cur: float, crit_cur: float) -> bool:
@@ -536,9 +537,9 @@ def contradicts(step: Step, rmse_cur: float, crit_cur: float) -> bool:
     whose selection error merely fails the margin is not a contradiction, nor is a sensor
     effect (it describes the measurement: it cannot make a change of the dynamics show)
     or a discovered term (its shape was searched among many, so its criterion is not
-    evidence of the same strength). When a round accepts nothing, the loop refits such
-    candidates in pairs, each pair one candidate judged by the one rule
-    (:attr:`Step.pair`).
+    evidence of the same strength). When a round accepts nothing, the loop pairs such a
+    candidate with the round's other refused effects, each pair one candidate judged by the
+    one rule (:attr:`Step.pair`, :mod:`hhra_phys.diagnosis.pairs`).
     """
     rmse = float(step.val.get("rmse", math.inf))
     return (step.action == "add" and not step.sensor and not step.discovered

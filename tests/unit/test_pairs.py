@@ -59,17 +59,27 @@ def test_a_discovered_term_is_never_a_contradiction():
     assert not contradicts(disc, RMSE_CUR, CRIT_CUR)
 
 
-def test_the_four_lowest_criteria_make_six_pairs_most_promising_first(monkeypatch):
+def test_the_two_lowest_contradicted_start_pairs_with_every_other_refused_effect(monkeypatch):
     monkeypatch.setattr(pairs_mod, "_pair_job", lambda a, b: (a[0], b[0]))
-    crit = {"valve_deadzone": -104031.0, "coulomb_friction": -101872.0,
-            "input_offset": -95556.0, "constant_force": -95557.0, "valve_saturation": -91500.0}
-    split = [(_step(name, crit=c), (name, None)) for name, c in crit.items()]
-    got = pairs_mod.pair_jobs(split)
-    assert len(got) == 6 and "valve_saturation" not in {n for pair in got for n in pair}
-    sums = [crit[a] + crit[b] for a, b in got]
-    assert sums == sorted(sums)
-    assert all(crit[a] <= crit[b] for a, b in got)  # the lower criterion's refit is the start
-    assert got[0] == ("valve_deadzone", "coulomb_friction")
+    # the 20 s drive's round 1: four contradicted (selection up), three not (selection down,
+    # the friction's own refit not even lower in criterion on a longer record)
+    rows = {"valve_deadzone": (-104031.0, 0.011), "coulomb_friction": (-101872.0, 0.013),
+            "input_offset": (-95556.0, 0.0128), "constant_force": (-95557.0, 0.0128),
+            "valve_saturation": (-91417.0, 0.00996), "input_delay": (-91428.0, 0.00993),
+            "valve_dynamics": (CRIT_CUR + 5.0, 0.0099)}
+    crit_cur, rmse_cur = -91424.9, 0.009981
+    refused = [(_step(n, rmse=r, crit=c), (n, None)) for n, (c, r) in rows.items()]
+    got = pairs_mod.pair_jobs(refused, rmse_cur, crit_cur)
+    firsts = {a for a, _ in got}
+    assert firsts == {"valve_deadzone", "coulomb_friction"}  # the two lowest contradicted
+    assert len(got) == 6 + 5  # each with every other, the pair of the two once
+    assert len({frozenset(p) for p in got}) == len(got)
+    # both contradicted first (deadzone+friction, then each with the offsets), then the rest
+    both = [p for p in got if all(n in ("valve_deadzone", "coulomb_friction", "input_offset",
+                                        "constant_force") for n in p)]
+    assert got[:len(both)] == both and len(both) == 5
+    assert ("coulomb_friction", "constant_force") in got
+    assert pairs_mod.pair_jobs(refused[4:], rmse_cur, crit_cur) == []  # none contradicted
 
 
 def _record(n: int = 400) -> Dataset:
@@ -109,10 +119,10 @@ def test_a_pair_starts_from_the_first_effects_refit_with_its_boxes_and_shape():
     assert friction_part.fit_width  # its fitted shape, not the default width
 
 
-def _loop(split, refits, pairs=True):
+def _loop(refused, refits, pairs=True):
     loop = object.__new__(_Loop)
     loop.o = LoopOptions(pairs=pairs)
-    loop.split = split
+    loop.refused, loop.tol = refused, 0.01
     loop.say = lambda text: None
     loop._over_budget = lambda: False
     loop.cur = SimpleNamespace(metrics={"val": {"rmse": RMSE_CUR}})
@@ -126,9 +136,9 @@ def test_the_stage_refits_every_pair_and_keeps_the_acceptable_ones(monkeypatch):
     monkeypatch.setattr(pairs_mod, "information_criterion", lambda res, kind="bic": CRIT_CUR)
     monkeypatch.setattr(pairs_mod, "_pair_job", lambda a, b: SimpleNamespace(
         pair_with=a[0], effect=b[0]))
-    split = [(_step(n, crit=c), (n, None)) for n, c in
-             (("coulomb_friction", -2000.0), ("constant_force", -1500.0),
-              ("valve_deadzone", -1800.0))]
+    refused = [(_step(n, crit=c), (n, None)) for n, c in
+               (("coulomb_friction", -2000.0), ("constant_force", -1500.0),
+                ("valve_deadzone", -1800.0))]
 
     def refits(jobs):
         for job in jobs:  # only friction and force together reach the selection part
@@ -137,10 +147,31 @@ def test_the_stage_refits_every_pair_and_keeps_the_acceptable_ones(monkeypatch):
                                  pair=[job.pair_with, job.effect]))
 
     level = {"noise": 1e-6, "estimation": {"noise": 1e-6}}
-    won = _loop(split, refits)._pairs(2, level)
+    won = _loop(refused, refits)._pairs(2, level)
     assert [s.pair for s, _ in won] == [["coulomb_friction", "constant_force"]]
-    assert _loop(split, refits, pairs=False)._pairs(2, level) == []
-    assert _loop(split[:1], refits)._pairs(2, level) == []
+    assert _loop(refused, refits, pairs=False)._pairs(2, level) == []
+    assert _loop(refused[:1], refits)._pairs(2, level) == []
+
+
+def test_a_pair_at_the_noise_level_settles_the_pairs(monkeypatch):
+    monkeypatch.setattr(pairs_mod, "information_criterion", lambda res, kind="bic": CRIT_CUR)
+    monkeypatch.setattr(pairs_mod, "_pair_job", lambda a, b: SimpleNamespace(
+        pair_with=a[0], effect=b[0]))
+    refused = [(_step(n, crit=c), (n, None)) for n, c in
+               (("coulomb_friction", -2000.0), ("constant_force", -1500.0),
+                ("valve_deadzone", -1800.0))]
+    seen = []
+
+    def refits(jobs):
+        for job in jobs:
+            seen.append((job.pair_with, job.effect))
+            step = _step(job.effect, rmse=1e-6, pair=[job.pair_with, job.effect])
+            step.est = {"rmse": 1e-6}
+            yield _Outcome(step)
+
+    level = {"noise": 1e-6, "estimation": {"noise": 1e-6}}
+    won = _loop(refused, refits)._pairs(2, level)
+    assert len(won) == 1 and len(seen) == 1  # the first pair reached the noise: no more
 
 
 def test_an_accepted_pair_adds_both_effects_first_one_first():
