@@ -523,7 +523,8 @@ def test_every_readme_command_runs(tmp_path, capsys) -> None:
              "--generator", "reference", "--effect", "coulomb_friction:g_coulomb=1"],
             ["fit", t / "r.csv", "--optimizer", "hgwo", "--refine", "none", "--free",
              "g_valve,g_compress,g_leak,g_torque,g_damping", "--fix", "g_spring=0",
-             "--json", t / "fit.json", "--plot", t / "fit.png", *cheap, "--quiet"],
+             "--json", t / "fit.json", "--plot", t / "fit.png", "--report", t / "fit.md", *cheap,
+             "--quiet"],
             ["compare", t / "r.csv", "--json", t / "c.json", "--plot", t / "c.png",
              "--methods", "ls", "--quiet"],
             ["diagnose", t / "r.csv", "--validate", t / "v.csv", "--json", t / "d.json",
@@ -534,6 +535,6 @@ def test_every_readme_command_runs(tmp_path, capsys) -> None:
              t / "b.json", "--plot", t / "b.png", "--pop", "5", "--iters", "2"]):
         code, _, err = run(argv, capsys)
         assert code == 0, (argv, err[-2000:])
-    for name in ("r.csv", "v.csv", "fit.json", "fit.png", "c.json", "c.png", "d.json", "d.md",
+    for name in ("r.csv", "v.csv", "fit.json", "fit.png", "fit.md", "fit_fit.png", "c.json", "c.png", "d.json", "d.md",
                  "u.csv", "b.json", "b.png"):
         assert (t / name).is_file(), name
