@@ -295,6 +295,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.settled: list[dict[str, Any]] = []  # rounds whose rest was skipped
         self.branch: dict[str, Any] | None = None  # the path not taken (LoopOptions.revisit)
         self.revisited: dict[str, Any] | None = None
+        self.revisit_skipped: str | None = None  # why the path not taken was not followed
         self.at_noise = False
         # The current fit and its refit on the selection part (_rotated_current).
         self._rot_cache: tuple[FitResult, FitResult] | None = None
@@ -352,7 +353,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
                          else None)
         try:
             self._rounds(0)
-            if self.branch is not None and not self.at_noise and not self._over_budget():
+            if (self.branch is not None and not self.at_noise and not self._over_budget()
+                    and self._branch_stands()):
                 self._revisit()
         finally:
             if self.compiler is not None:
@@ -782,6 +784,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
             "joint_search": o.joint_search, "backward": o.backward,
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
+            "revisit_skipped": self.revisit_skipped,
             "rotate": o.rotate, "pairs": o.pairs,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,

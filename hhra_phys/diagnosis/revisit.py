@@ -45,6 +45,26 @@ class _RevisitStage:
                        "instead_of": best, "noise": noise, "state": self._snapshot(),
                        "judged": (judged or {}).get(id(step), step.reason)}
 
+    def _branch_stands(self) -> bool:
+        """Whether the discovered candidate that took the branch round is still in the
+        model; the path not taken is followed only then.
+
+        Once the backward step removed it (or its library form replaced it), this path
+        has undone the greedy choice itself, and following the other costs a second loop
+        for the same physics: on a 25 s drive record a pair of the friction and the force
+        offset came in round 2 beside the discovered term of round 1, which the backward
+        step then removed, and the revisited path from the dead zone ended with the same
+        two effects (selection 1.014e-6 against 1.02e-6 m) at twice the loop's cost.
+        """
+        br = self.branch
+        if br is None or br["instead_of"].effect in self.chosen:
+            return True
+        self.revisit_skipped = (f"not revisited: {br['instead_of'].effect}, which took round "
+                                f"{br['round']} from {br['step'].effect}, is no longer in the "
+                                f"model ({', '.join(self.chosen) or 'nothing'})")
+        self.say(f"revisit: {self.revisit_skipped}")
+        return False
+
     def _revisit(self) -> None:
         """Follow the path of the given effect a discovered candidate won over; keep the
         better final model by the rule (:attr:`LoopOptions.revisit`)."""

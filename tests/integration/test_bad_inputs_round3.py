@@ -535,6 +535,6 @@ def test_every_readme_command_runs(tmp_path, capsys) -> None:
              t / "b.json", "--plot", t / "b.png", "--pop", "5", "--iters", "2"]):
         code, _, err = run(argv, capsys)
         assert code == 0, (argv, err[-2000:])
-    for name in ("r.csv", "v.csv", "fit.json", "fit.png", "fit.md", "fit_fit.png", "c.json", "c.png", "d.json", "d.md",
-                 "u.csv", "b.json", "b.png"):
+    for name in ("r.csv", "v.csv", "fit.json", "fit.png", "fit.md", "fit_fit.png", "c.json",
+                 "c.png", "d.json", "d.md", "u.csv", "b.json", "b.png"):
         assert (t / name).is_file(), name

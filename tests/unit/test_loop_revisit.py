@@ -146,3 +146,17 @@ def test_no_branch_is_kept_when_there_is_nothing_to_revisit(case):
     else:
         loop._remember_branch(1, term, [(term, 1), (valve, 2)], NOISE)
     assert loop.branch is None
+
+
+def test_the_path_not_taken_is_followed_only_while_its_winner_stands():
+    """Once the backward step removed the discovered term that took the branch round (or
+    its library form replaced it), this path has undone the greedy choice itself."""
+    loop = _loop()
+    term, _ = _round_one(loop)
+    loop.chosen = ["discovered_input_1", "asymmetric_valve"]
+    loop.revisit_skipped = None
+    assert loop._branch_stands() and loop.revisit_skipped is None
+    loop.chosen = ["coulomb_friction", "input_offset"]  # the term removed by the backward step
+    assert not loop._branch_stands()
+    assert "discovered_input_1" in loop.revisit_skipped
+    assert "coulomb_friction, input_offset" in loop.revisit_skipped
