@@ -1,6 +1,6 @@
 """Where independent jobs run: here, local processes, or a Dask cluster.
 
-Candidate refits of the diagnosis loop (:func:`hhra_phys.loop.augment`),
+Candidate refits of the diagnosis loop (:func:`hhra_phys.diagnosis.engine.augment`),
 multi-start fits (:func:`hhra_phys.fit.fit_many`) and the optimiser study
 (:func:`hhra_phys.paper.table2.run_study`) take any :class:`concurrent.futures.Executor`.
 The CLI builds one from ``--workers N`` (a local ``ProcessPoolExecutor``) or

@@ -24,7 +24,7 @@ gives the loop what it needs to test the other assumptions under its one rule:
   parameters as the current model, so the criterion changes only through the fit.
 
 Usage after the base fit and in every round while the record's own behaviour holds
-(what :func:`hhra_phys.loop.augment` does)::
+(what :func:`hhra_phys.diagnosis.engine.augment` does)::
 
     sig = hold_signature(problem.data.y, problem.simulate_values(values))
     if hold_suspected(sig):

@@ -149,7 +149,7 @@ class Model:
     feedthrough : bool
         The input acts on the measured output directly (not only through the states):
         only then may a discovered output term use the input
-        (:func:`hhra_phys.discover.input_followers`). Default ``False``.
+        (:func:`hhra_phys.diagnosis.screening.input_followers`). Default ``False``.
 
     Notes
     -----

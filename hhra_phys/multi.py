@@ -140,7 +140,7 @@ def split_records(
 ) -> tuple[RecordSet, RecordSet, RecordSet | None]:
     """The diagnosis loop's estimation, selection and test parts of several records.
 
-    Every record is split the loop's way (:func:`hhra_phys.loop.split_record`);
+    Every record is split the loop's way (:func:`hhra_phys.diagnosis.selection.split_record`);
     with ``validation`` the records split into estimation and selection only
     (``test`` ignored) and the whole validation records are the test part.
     """

@@ -1,6 +1,6 @@
 """Settings objects: a frozen dataclass of a function's settings, overridden by keyword.
 
-:class:`~hhra_phys.fit.FitOptions` and :class:`~hhra_phys.loop.LoopOptions` are such
+:class:`~hhra_phys.fit.FitOptions` and :class:`~hhra_phys.diagnosis.options.LoopOptions` are such
 objects; each function takes one (``options=``) and keyword overrides of its fields, and
 :func:`with_overrides` applies them the same way for both.
 """

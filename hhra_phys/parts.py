@@ -503,7 +503,7 @@ class Effect(Part):
     signature : str
         What the effect leaves in the residual of a model without it.
     regressors : tuple of str
-        Generic regressors of :mod:`hhra_phys.diagnose` it relates to.
+        Generic regressors of :mod:`hhra_phys.diagnosis.residual` it relates to.
     position_dependent : bool
         Whether it depends on a position-like state (it may extrapolate badly).
     sensor : bool

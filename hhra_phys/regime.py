@@ -16,7 +16,7 @@ A candidate without a first-order column (a discovered term or mode, a user's ef
 without one) is measured by what its fit changes: :func:`change_coverage` of the fitted
 candidate's output against the current model's. Where the selection part and the
 criterion on estimation disagree, a part that holds the regime thinly cannot refuse the
-candidate alone and the parts rotate (:func:`hhra_phys.selection.needs_rotation`).
+candidate alone and the parts rotate (:func:`hhra_phys.diagnosis.selection.needs_rotation`).
 """
 
 from __future__ import annotations

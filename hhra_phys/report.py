@@ -5,14 +5,14 @@
 the Markdown text (:func:`markdown_report`: the data split and rule, the error before
 and after, every candidate tried, the first round's evidence, the accepted effects
 with their intervals, the warnings, the discovered terms) and, beside it, the
-residual figures before and after (:func:`~hhra_phys.diagnose.plot_loop_residuals`)
+residual figures before and after (:func:`~hhra_phys.diagnosis.plots.plot_loop_residuals`)
 and, when discovery built terms, before and after each term
-(:func:`~hhra_phys.discover.plot_discovery`). :meth:`hhra_phys.loop.LoopResult.report`
-calls it; the CLI calls that.
+(:func:`~hhra_phys.diagnosis.plots.plot_discovery`).
+:meth:`hhra_phys.diagnosis.result.DiagnosisResult.report` calls it; the CLI calls that.
 
 The module reads a loop's result by its attributes (``settings``, ``steps``,
 ``chosen``, ``base``, ``final``, ``diagnoses``, ...) and imports nothing of
-:mod:`hhra_phys.loop`, so the loop can offer the report without an import cycle.
+:mod:`hhra_phys.diagnosis`, so the loop can offer the report without an import cycle.
 """
 
 from __future__ import annotations
@@ -47,13 +47,13 @@ def loop_report(res: Any, path: str | Path, data: Any = None, overwrite: bool = 
 
     Parameters
     ----------
-    res : LoopResult
-        What :func:`hhra_phys.loop.augment` returned.
+    res : DiagnosisResult
+        What :func:`hhra_phys.diagnosis.engine.augment` returned.
     path : str or path-like
         The Markdown file (``.md``); the figures go beside it (:func:`figure_paths`).
     data : Dataset or sequence of Dataset, optional
         The record(s) the loop ran on (default: ``res.data``, which
-        :func:`~hhra_phys.loop.augment` keeps).
+        :func:`~hhra_phys.diagnosis.engine.augment` keeps).
     overwrite : bool
         Replace existing files (by default an existing report or figure is refused
         before anything is drawn).
@@ -98,7 +98,7 @@ def _fmt(v: Any, digits: int = 4) -> str:
 
 
 def markdown_report(res: Any, figures: Sequence[str | None], report_path: str | Path) -> str:
-    """The Markdown text of a :class:`~hhra_phys.loop.LoopResult`'s report.
+    """The Markdown text of a :class:`~hhra_phys.diagnosis.result.DiagnosisResult`'s report.
 
     ``figures`` are the before, after and discovery figures (``None`` where not
     drawn), linked relative to the report's folder when they are inside it.

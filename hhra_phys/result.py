@@ -5,7 +5,7 @@ CasADi) gives the Gauss-Newton covariance of the fitting coordinates,
 ``cov_z = s^2 (J^T J)^-1`` with ``s^2 = ||r||^2 / (N - n_free)``. 95 % confidence
 intervals are ``z +- 1.96 sigma_z`` mapped back to physical units (so they are
 asymmetric for log-scaled groups and never cross zero). They assume white
-residuals; :mod:`hhra_phys.diagnose` checks that assumption. When ``J^T J`` is
+residuals; :mod:`hhra_phys.diagnosis.residual` checks that assumption. When ``J^T J`` is
 near singular the parameters along its weak directions (eigenvalues below
 ``1/IDENTIFIABILITY_COND`` of the largest, scaled) are named in a warning and get
 no interval (infinite variance, ``(nan, nan)`` in :attr:`FitResult.ci95`): the data
@@ -25,7 +25,7 @@ gradient of the quantity (CasADi) times the covariance of the free parameters,
 Serialising. :meth:`FitResult.to_json` / :meth:`FitResult.from_json` are the one pair
 that turns a result into the fit JSON and back; :meth:`FitResult.save`,
 :meth:`FitResult.load`, the CLI and the loop's result
-(:meth:`hhra_phys.loop.LoopResult.to_json`) go through them.
+(:meth:`hhra_phys.diagnosis.result.DiagnosisResult.to_json`) go through them.
 
 Where the code is: :class:`FitResult` here; the uncertainty's linear algebra in
 :mod:`hhra_phys.identifiability`, typed estimates in :mod:`hhra_phys.estimates`, the fit

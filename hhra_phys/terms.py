@@ -1,12 +1,12 @@
 """Parts that discovery builds: sparse terms and resonant modes (registered parts).
 
 :class:`DiscoveredTerm` holds a few terms of a library of shapes (module
-:mod:`hhra_phys.discover`) at one entry point of a model (``input``, ``output`` or the rate
-of a state); :class:`DiscoveredMode` adds two states: a resonant mode mixed into the output
+:mod:`hhra_phys.diagnosis.discovery`) at one entry point of a model (``input``, ``output`` or the
+rate of a state); :class:`DiscoveredMode` adds two states: a resonant mode mixed into the output
 or the input, or a load on a compliant coupling of a velocity state. Both are ordinary
 registered parts, so a saved :class:`~hhra_phys.result.FitResult` holding one loads back
 with ``import hhra_phys`` alone; how they are found (screening, sparse fits through the
-simulator, the loop's rule) is :mod:`hhra_phys.discover`'s.
+simulator, the loop's rule) is :mod:`hhra_phys.diagnosis.discovery`'s.
 """
 
 from __future__ import annotations

@@ -97,12 +97,12 @@ def register(subparsers: Any) -> None:
                         "the candidate brings it to the noise level")
     p.add_argument("--noise-tol", type=float, default=None,
                    help="tolerance of the noise level (default: from the selection "
-                        "part's length, hhra_phys.selection.noise_tolerance; see "
+                        "part's length, hhra_phys.diagnosis.selection.noise_tolerance; see "
                         "docs/diagnosis.md)")
     p.add_argument("--no-discover", action="store_true",
                    help="do not propose terms and modes outside the library (discovery, "
-                        "hhra_phys.discover, proposes beside the library in every round by "
-                        "default)")
+                        "hhra_phys.diagnosis.discovery, proposes beside the library in every "
+                        "round by default)")
     p.add_argument("--no-backward", action="store_true",
                    help="no backward step: keep every accepted effect (by default, after a round "
                         "accepts an effect, each earlier one is refitted out and removed if the "
@@ -229,7 +229,7 @@ def _diagnose(args: argparse.Namespace) -> Any:
 
 
 def _print_summary(res: Any, out: dict[str, Any], say: Any) -> None:
-    """Warnings (stderr), then the result's summary (:meth:`LoopResult.summary
+    """Warnings (stderr), then the result's summary (:meth:`DiagnosisResult.summary
     <hhra_phys.diagnosis.result.DiagnosisResult.summary>`, from the JSON already built)."""
     from hhra_phys.diagnosis.result import summary_lines
 

@@ -77,7 +77,7 @@ class _Job:
     #: ``inf``: always, where the current model's error is not known).
     widen_below: float = math.inf
     #: Noise levels of the selection and estimation parts at the current model and the
-    #: loop's noise tolerance (:func:`~hhra_phys.selection.round_settled`; NaN: unknown).
+    #: loop's noise tolerance (:func:`~hhra_phys.diagnosis.selection.round_settled`; NaN: unknown).
     noise: tuple[float, float, float] = (math.nan, math.nan, NOISE_TOL)
     #: Search a sharper switching width for the effect (``LoopOptions.fit_shapes``).
     fit_shapes: bool = False
@@ -337,7 +337,7 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     (``omega*|omega|``); unbounded, the drive's first round took 0.017 m/s, 70 times the
     default. The default is replaced only where the sharper shape passes the rule a
     candidate effect passes against the model at the default width
-    (:func:`~hhra_phys.selection.acceptance`: the selection error falls by the margin or
+    (:func:`~hhra_phys.diagnosis.selection.acceptance`: the selection error falls by the margin or
     to the noise, beyond the noise allowance, and the criterion falls; a width the data
     do not resolve costs a parameter and stays at the default). Why the whole rule: on the
     one-loop study's dead zone beside an exact friction (seed 2) a sharper width taken
@@ -345,7 +345,7 @@ def _sharpen(cfg: _Settings, job: _Job, eff: Any, res: FitResult, all_free: list
     then ended above the current model. Only a contender is sharpened, one whose
     refit took at least :data:`~hhra_phys.fit.WIDEN_CLEAR_GAIN` of the current model's
     estimation error above the noise (as for widening, :func:`_widening_worth`), and not
-    one already at the noise level on both parts (:func:`~hhra_phys.selection.
+    one already at the noise level on both parts (:func:`~hhra_phys.diagnosis.selection.
     round_settled`: a sharper shape cannot beat it by more than the noise allowance).
     Measured: sharpening every friction refit cost 4-5 CPU s on each 20 s dead-zone record
     of ``benchmarks/bench_cost.py`` (+35-40 % of its diagnosis) and 2.4 s on the friction

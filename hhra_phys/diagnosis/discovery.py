@@ -1,6 +1,6 @@
 """Discover a term the effect library does not have, from the residual of a fit.
 
-The diagnosis loop (:mod:`hhra_phys.loop`) chooses among registered effects. When
+The diagnosis loop (:mod:`hhra_phys.diagnosis`) chooses among registered effects. When
 the missing physics is none of them, this module builds the term from the model's
 own quantities and fits it through the simulator, a candidate of every loop round
 beside the library's effects.
@@ -31,9 +31,9 @@ What (term library, :func:`term_library`)
 Screening (first order)
     Every candidate column is propagated to the output through the model
     linearised at the fit and projected off what the model's free parameters
-    absorb: the same first-order machinery :func:`hhra_phys.diagnose.analyse` uses
-    for library effects (:func:`~hhra_phys.diagnose.linear_response`,
-    :func:`~hhra_phys.diagnose.nuisance_basis`). A greedy orthogonal matching
+    absorb: the same first-order machinery :func:`hhra_phys.diagnosis.residual.analyse` uses
+    for library effects (:func:`~hhra_phys.diagnosis.first_order.linear_response`,
+    :func:`~hhra_phys.diagnosis.first_order.nuisance_basis`). A greedy orthogonal matching
     pursuit picks up to ``max_terms`` columns per entry; entries are ranked by
     the residual fraction their picks explain; the loop refits them in that order, beside
     the library's effects.
@@ -73,7 +73,7 @@ A new state (:class:`DiscoveredMode`, entries ``mode:output``, ``mode:input`` an
 Result
     Each entry is a :class:`Proposal` of a :class:`Discovery`; the loop ranks them with the
     library's effects by first-order score, refits them in that order and judges every
-    refit by the one rule of :mod:`hhra_phys.selection` (acceptance, then the tie rule
+    refit by the one rule of :mod:`hhra_phys.diagnosis.selection` (acceptance, then the tie rule
     among acceptable candidates of every kind). An accepted term is a registered part
     (saved and reloaded with a :class:`~hhra_phys.result.FitResult`) named
     ``discovered_<entry>_<k>`` (``rate_omega`` for ``rate:omega``), printed as an
@@ -152,7 +152,7 @@ RANGE_TOLERANCE = 0.05
 
 
 class DiscoveredStep(Step):
-    """A :class:`~hhra_phys.selection.Step` of a discovered term: also ``expression`` and
+    """A :class:`~hhra_phys.diagnosis.selection.Step` of a discovered term: also ``expression`` and
     ``uses``."""
 
     discovered = True
@@ -570,8 +570,9 @@ class Proposal:
         ``input``, ``output``, ``rate:<state>`` (a term) or ``mode:<target>`` (a mode).
     score : float
         Fraction of the projected residual its screening explains to first order (0..1),
-        the same measure as a library effect's :attr:`~hhra_phys.diagnose.EffectEvidence.score`,
-        so that the loop ranks both in one list.
+        the same measure as a library effect's
+        :attr:`~hhra_phys.diagnosis.residual.EffectEvidence.score`, so that the loop ranks both
+        in one list.
     screen : EntryScreen or ModeScreen
     """
 
@@ -607,7 +608,7 @@ class Discovery:
 
     The loop (:func:`hhra_phys.diagnose`) ranks :meth:`proposals` together with the
     library's effects by first-order score, refits them in that order (:meth:`refit`) and
-    judges every refit by the one rule (:mod:`hhra_phys.selection`); it is never chosen
+    judges every refit by the one rule (:mod:`hhra_phys.diagnosis.selection`); it is never chosen
     here.
 
     Parameters
@@ -639,7 +640,7 @@ class Discovery:
     noise_tol : float
         The loop's tolerance of the noise level: an entry's fitted forms (its first-order
         picks, and those led by other variables, :func:`variable_forms`) are told apart by
-        the loop's tie rule (:func:`~hhra_phys.selection.tie_break`) with it; at a state's
+        the loop's tie rule (:func:`~hhra_phys.diagnosis.selection.tie_break`) with it; at a state's
         rate, a tied form holding a term of that state alone is preferred.
     """
 

@@ -9,16 +9,16 @@ The record is split in time order into three parts (default 50/25/25 %):
         stop if the selection residual and the estimation residual are both at the
             noise level (RMSE <= (1 + noise_tol) * noise level, or white by Ljung-Box)
         rank, in one list by first-order score, the library effects not yet in the
-            model (hhra_phys.diagnose.analyse) and the discovered terms and modes
-            (hhra_phys.discover.Discovery)
+            model (hhra_phys.diagnosis.residual.analyse) and the discovered terms and modes
+            (hhra_phys.diagnosis.discovery.Discovery)
         refit them in that order (library effects anywhere, an Executor, or here:
             global search over the new parameters with the previous fit held, then
             IPOPT over all free parameters; discovered ones by IPOPT through the
             simulator), score each on selection, judge it by the one rule
-            (hhra_phys.selection.acceptance), and skip the rest of a kind (library or
+            (hhra_phys.diagnosis.selection.acceptance), and skip the rest of a kind (library or
             discovered) once one of its candidates leaves both parts at the noise level
             (round_settled)
-        add the winner among the acceptable ones (hhra_phys.selection.choose: lowest
+        add the winner among the acceptable ones (hhra_phys.diagnosis.selection.choose: lowest
             selection RMSE, near-ties within the noise allowance by the information
             criterion); polish it; backward step over what came before
     until nothing is accepted or max_effects additions are in
@@ -140,9 +140,9 @@ _ROUND_COST = {"library": 0.3, "screen": 0.3, "term": 2.5, "mode": 0.8, "entries
 
 
 #: What a candidate at the noise level on both parts spares of the rest of its round
-#: (:func:`~hhra_phys.selection.round_settled`): its own kind, and after a library effect of
-#: the dynamics all of discovery, terms and modes (on the selection part they could at best
-#: tie with it, within the noise allowance: the named physics is kept before a stand-in,
+#: (:func:`~hhra_phys.diagnosis.selection.round_settled`): its own kind, and after a library
+#: effect of the dynamics all of discovery, terms and modes (on the selection part they could
+#: at best tie with it, within the noise allowance: the named physics is kept before a stand-in,
 #: and discovery's screening is not even run). Sensor effects are refitted whatever
 #: settled the round (a sensor's drift and a biased valve leave the same trend: the tie
 #: rule needs both); a discovered term or mode spares no mode (a mode at one entry reaches
@@ -197,7 +197,7 @@ def diagnose(
         effect's new ones too) and per-record initial states; selection and test
         scores are pooled over the records (per record in ``records`` of
         ``base``/``final`` in :meth:`DiagnosisResult.to_json`) and the evidence is
-        summed over them (:func:`~hhra_phys.diagnose.analyse`).
+        summed over them (:func:`~hhra_phys.diagnosis.residual.analyse`).
     model : Model, optional
         Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
         output if the record's output is pressure).
@@ -231,8 +231,8 @@ def diagnose(
     least ``margin`` (or to the noise level), the information criterion on estimation
     falls, and the
     selection variance it removes exceeds the noise allowance; of the acceptable
-    candidates of a round (every kind) the one :func:`~hhra_phys.selection.choose` picks
-    is added (:mod:`hhra_phys.selection`). The loop stops when a round accepts
+    candidates of a round (every kind) the one :func:`~hhra_phys.diagnosis.selection.choose` picks
+    is added (:mod:`hhra_phys.diagnosis.selection`). The loop stops when a round accepts
     nothing, ``max_effects`` are in, or the estimation and selection residuals are
     both at the noise level (``rmse <= (1 + noise_tol) * noise`` or white by
     Ljung-Box, each with its own noise level).
@@ -243,7 +243,7 @@ def diagnose(
     return res
 
 
-#: The loop's first name (``hhra_phys.loop.augment``): the same function.
+#: The loop's first name (``hhra_phys.diagnosis.engine.augment``): the same function.
 augment = diagnose
 
 
@@ -536,7 +536,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         of the dynamics all of discovery (not even screened), are not refitted. Sensor
         effects go on until one of their own settles, so that a library effect and a
         sensor's explanation that each reach the noise meet in the tie rule
-        (:func:`~hhra_phys.selection.choose`) instead of the first-ranked taking the round
+        (:func:`~hhra_phys.diagnosis.selection.choose`) instead of the first-ranked taking the round
         (a sensor's drift and a biased valve leave the same trend: ranked first, the valve
         took drift records before the drift was refitted). A discovered term or mode that
         settles the round does not spare the modes: a mode at one entry can reach the
@@ -804,7 +804,7 @@ def _outscores(kind: str, item: Any, settler: Step, say: Callable[[str], None]) 
     first-order score is above the settler's.
 
     A settled round's later candidates could at best tie with the settler, and a tie goes
-    by the information criterion (:func:`~hhra_phys.selection.round_settled`): one that
+    by the information criterion (:func:`~hhra_phys.diagnosis.selection.round_settled`): one that
     explains more of the residual to first order is a contender for that tie, whatever its
     rank (a friction ranked last as not identifiable, score 0.41, was spared by a backlash
     of score 0.31 that settled the round, and the backlash stood in for it: one_loop

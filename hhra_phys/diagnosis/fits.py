@@ -385,7 +385,7 @@ def _effect_params(model: Model, effect: str) -> list[str]:
 
 
 class _DiscoveryFits:
-    """What :class:`hhra_phys.discover.Discovery` needs of the loop's fits."""
+    """What :class:`hhra_phys.diagnosis.discovery.Discovery` needs of the loop's fits."""
 
     def __init__(self, cfg: _Settings) -> None:
         self.cfg = cfg

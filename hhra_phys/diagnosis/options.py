@@ -56,7 +56,7 @@ class LoopOptions:
         all four: asymmetric valve, delay, saturation and a load mode, docs/diagnosis.md).
     top_k : int, optional
         Library candidates refitted per round, best ranked first. Default: all of them
-        (until one settles the round, :func:`~hhra_phys.selection.round_settled`).
+        (until one settles the round, :func:`~hhra_phys.diagnosis.selection.round_settled`).
         The ranking orders and explains; refits decide (a first-order ranking put the
         effect that paid most far down on the public record, docs/diagnosis.md).
     pop_size, max_iter : int
@@ -71,13 +71,13 @@ class LoopOptions:
     margin : float
         Required relative fall of the selection RMSE (0.1: at least 10 %), unless it
         falls to the selection residual's noise level
-        (:func:`~hhra_phys.selection.acceptance`).
+        (:func:`~hhra_phys.diagnosis.selection.acceptance`).
     noise_tol : float, optional
         Tolerance of the noise level: the loop stops when the selection RMSE is
         within ``(1 + noise_tol)`` of the selection residual's noise level (or that
         residual is white), and a candidate must remove more selection variance than
         ``((1 + noise_tol)^2 - 1) * noise^2``. Default: what the selection part's length
-        justifies, :func:`~hhra_phys.selection.noise_tolerance` (0.068 for 400 samples);
+        justifies, :func:`~hhra_phys.diagnosis.selection.noise_tolerance` (0.068 for 400 samples);
         a number gives a flat allowance (:data:`NOISE_TOL` = 0.15 was the default until
         2026-11-25, ``docs/diagnosis.md``).
     criterion : {"bic", "aic"}
@@ -109,12 +109,12 @@ class LoopOptions:
         background thread while the current one is refitted (default True).
     discover : bool
         In every round, beside the library's effects, propose terms and modes outside the
-        library (:class:`hhra_phys.discover.Discovery`): ranked with the effects by
+        library (:class:`hhra_phys.diagnosis.discovery.Discovery`): ranked with the effects by
         first-order score, refitted and judged by the same rule (default True). With
         several records they are screened on the record with the largest residual and
         fitted to all.
     discover_kw : dict, optional
-        Options of :class:`~hhra_phys.discover.Discovery` (``method``, ``max_terms``,
+        Options of :class:`~hhra_phys.diagnosis.discovery.Discovery` (``method``, ``max_terms``,
         ``entries``).
     joint_search : bool
         A candidate's global search also covers the parameters of the effects
@@ -138,7 +138,7 @@ class LoopOptions:
         user) effect and the loop then ends above the noise level, the path from that
         effect is followed too (from the same round, by the same rounds and rule), and
         the final model of each path is compared by the rule of
-        :func:`~hhra_phys.selection.choose` (selection RMSE; within the noise allowance,
+        :func:`~hhra_phys.diagnosis.selection.choose` (selection RMSE; within the noise allowance,
         the information criterion). The first such round is revisited, once. On the public
         record a two-term input stand-in took round 1 from the asymmetric valve and the
         loop stopped at 7.4 x the noise (docs/diagnosis.md). Not when the discovered
@@ -152,8 +152,8 @@ class LoopOptions:
         sub-sample shift, or the curvature a straight line leaves under a smooth input,
         which shows only once the model's own error is below it), refit the same model
         with each other one (:func:`~hhra_phys.intersample.refit_with_hold`) and judge
-        each by the same rule (:mod:`hhra_phys.selection`) beside the round's other
-        candidates; the one :func:`~hhra_phys.selection.choose` picks is kept (tied, it is
+        each by the same rule (:mod:`hhra_phys.diagnosis.selection`) beside the round's other
+        candidates; the one :func:`~hhra_phys.diagnosis.selection.choose` picks is kept (tied, it is
         preferred like a sensor effect: it describes the measurement), and every later fit
         and score uses it. Each is a :class:`Step` named ``"intersample:<kind>"`` marked
         ``sensor``, which changes no physics, adds no parameter and no effect; a path
@@ -200,12 +200,12 @@ class LoopOptions:
         Rotate the parts where one cannot decide alone (default True; CLI
         ``--no-rotate``): when the selection part and the information criterion on
         estimation disagree on a candidate and the part that says no holds the candidate's
-        regime thinly (:func:`~hhra_phys.selection.needs_rotation`; the regime of
+        regime thinly (:func:`~hhra_phys.diagnosis.selection.needs_rotation`; the regime of
         :func:`~hhra_phys.regime.regime_coverage`, or for a candidate without a
         first-order column of :func:`~hhra_phys.regime.change_coverage`), the candidate
         and the current model are refitted on the selection part and scored on the
         estimation part, and the held-out error pooled over both folds decides
-        (:func:`~hhra_phys.selection.rotated_verdict`; ``steps[].folds``). The model
+        (:func:`~hhra_phys.diagnosis.selection.rotated_verdict`; ``steps[].folds``). The model
         itself stays fitted on estimation.
     """
 

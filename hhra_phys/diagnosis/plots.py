@@ -221,7 +221,7 @@ def plot_loop_residuals(
     list of (str or None)
         The two paths written (None where not drawn).
     """
-    from hhra_phys.selection import split_record
+    from hhra_phys.diagnosis.selection import split_record
 
     records = as_records(data)
     if len(records) > 1 or len(res.final.records) > 1:  # several records, or validation ones

@@ -46,7 +46,7 @@ class DiagnosisResult:
     #: :meth:`from_json`. Not saved.
     data: Any = field(default=None, repr=False, compare=False)
     #: The diagnoses' JSON summaries of a result read with :meth:`from_json` (the live
-    #: :class:`~hhra_phys.diagnose.Diagnosis` objects, with their arrays, are not saved).
+    #: :class:`~hhra_phys.diagnosis.residual.Diagnosis` objects, with their arrays, are not saved).
     saved_diagnoses: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property

@@ -75,7 +75,7 @@ class _RotationStage:
 
     def _judge(self, step: Step, veto: str, rmse_cur: float, crit_cur: float,
                noise_sel: float) -> bool:
-        """Judge a refitted candidate (:func:`~hhra_phys.selection.judge`, or its veto),
+        """Judge a refitted candidate (:func:`~hhra_phys.diagnosis.selection.judge`, or its veto),
         say it and keep its step; whether it is acceptable."""
         o = self.o
         ok = judge(step, rmse_cur, crit_cur, noise_sel, o.margin, self.tol, o.criterion)
@@ -94,11 +94,11 @@ class _RotationStage:
 
         When the selection part and the criterion on estimation disagree and the part
         that says no holds the candidate's regime thinly
-        (:func:`~hhra_phys.selection.needs_rotation`), the current model (IPOPT from its
+        (:func:`~hhra_phys.diagnosis.selection.needs_rotation`), the current model (IPOPT from its
         estimation fit) and then the candidate (from the current model's values there, its
         own parameters at their defaults) are refitted on the selection part and scored
         on the estimation part, and the held-out RMSE pooled over both folds decides
-        (:func:`~hhra_phys.selection.rotated_verdict`); the step says so (``folds``, its
+        (:func:`~hhra_phys.diagnosis.selection.rotated_verdict`); the step says so (``folds``, its
         reason). Otherwise (or with ``LoopOptions.rotate`` off) ``ok`` stands. A candidate
         without a first-order regime gets one here from what its fit changes
         (:meth:`_change_regime`: every candidate's step reports its regime). Inter-sample

@@ -87,7 +87,7 @@ def score_floor(n: int, criterion: str = "bic") -> float:
     A candidate whose picks explain the share ``s`` of the estimation residual's variance
     lowers ``N ln(RSS/N)`` by ``-N ln(1 - s)`` to first order and adds at least one
     parameter's penalty (``ln N`` for BIC, 2 for AIC): below ``1 - exp(-penalty/N)`` its
-    criterion cannot fall, and :func:`~hhra_phys.selection.acceptance` asks it to. An
+    criterion cannot fall, and :func:`~hhra_phys.diagnosis.selection.acceptance` asks it to. An
     entry below that floor is screened and not refitted (issue 31: the long drive
     record's fourth round refitted three resonant modes of scores 4e-4 to 6e-4, 30 s, where
     the floor of 12,500 samples is 7.5e-4).
@@ -627,8 +627,8 @@ def screen_mode(problem: Problem, values: np.ndarray, target: str = "output",
 
     The mode's change at its entry at mix 1 (:func:`mode_column` of the simulated
     output, or of the measured input propagated through the model linearised at
-    the fit, :func:`~hhra_phys.diagnose.linear_response`) is projected off what
-    the model's free parameters absorb (:func:`~hhra_phys.diagnose.nuisance_basis`)
+    the fit, :func:`~hhra_phys.diagnosis.first_order.linear_response`) is projected off what
+    the model's free parameters absorb (:func:`~hhra_phys.diagnosis.first_order.nuisance_basis`)
     and compared with the projected residual, for every period of a log grid (4
     to 300 samples, at most an eighth of the record) and damping of
     :data:`MODE_DAMPINGS`.

@@ -94,7 +94,7 @@ class _ShapeStage:
         The model without the term and with the twins is refitted like a candidate (a
         global search over the twins' parameters, the rest held at the current fit, then
         IPOPT over all) and compared with the current model by the backward step's rule
-        (:func:`~hhra_phys.selection.backward_decision`): the discovered form stays only
+        (:func:`~hhra_phys.diagnosis.selection.backward_decision`): the discovered form stays only
         where it is still accepted against its library form. Replaced, the term's step
         gets ``action`` ``"remove"`` and each twin an accepted ``"add"`` step that says
         whose library form it is; the model is polished as an accepted one.

@@ -40,7 +40,7 @@ def selection_noise(problem: Problem, res: FitResult, sel: Any) -> dict[str, Any
     -------
     dict
         ``rmse`` (RMSE over all samples of the parts, output units), ``noise`` (their
-        white-noise level, :func:`~hhra_phys.diagnose.noise_level`; the records' levels
+        white-noise level, :func:`~hhra_phys.noise.noise_level`; the records' levels
         pooled by sample count), ``ratio`` (``rmse/noise``), ``ljung_box_p`` and
         ``white`` (``p > 0.05``) of the residual (with several records one Ljung-Box
         test of them together: statistics and degrees of freedom summed, records
@@ -81,7 +81,7 @@ def _why_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
 
 def _why_not_at_noise(level: Mapping[str, Any], noise_tol: float) -> str:
     """Why the estimation part is not at the noise level, in words: above the allowance,
-    or within it but clearly coloured (:data:`~hhra_phys.selection.COLOURED_P`)."""
+    or within it but clearly coloured (:data:`~hhra_phys.diagnosis.selection.COLOURED_P`)."""
     p = level["ljung_box_p"]
     if level["ratio"] <= 1 + noise_tol:
         return (f"RMSE {level['rmse']:.4g} = {level['ratio']:.3f} x noise, within the "

@@ -3,8 +3,8 @@
 Each effect is a :class:`~hhra_phys.parts.Part` with named parameters (units,
 bounds, fitting scale), a smooth formulation wherever derivatives are taken,
 and a declared *signature*: the way it shows up in the residual of a model that
-lacks it. :mod:`hhra_phys.diagnose` ranks effects by that signature and
-:mod:`hhra_phys.loop` adds, refits and scores them.
+lacks it. :mod:`hhra_phys.diagnosis.residual` ranks effects by that signature and
+:mod:`hhra_phys.diagnosis` adds, refits and scores them.
 
 Library names (stable, read by outside checks)::
 

@@ -1,6 +1,6 @@
 """Records with a load the effect library does not have, from the reference model.
 
-Truth for the discovery tests and study (:mod:`hhra_phys.discover`): the
+Truth for the discovery tests and study (:mod:`hhra_phys.diagnosis.discovery`): the
 independent NumPy/SciPy HHRA of :mod:`hhra_phys.reference.hhra`
 (:func:`~hhra_phys.reference.hhra.reference_rhs`) plus one term no library effect
 can represent, integrated with :func:`scipy.integrate.solve_ivp` under an exact
