@@ -142,8 +142,10 @@ class LoopOptions:
         the information criterion). The first such round is revisited, once. On the public
         record a two-term input stand-in took round 1 from the asymmetric valve and the
         loop stopped at 7.4 x the noise (docs/diagnosis.md). Not when the discovered
-        candidate is no longer in the final model (the backward step or its library form
-        undid the greedy choice on this path; ``settings["revisit_skipped"]`` says so).
+        candidate is no longer in the final model and that model holds given effects of
+        the dynamics only (no discovered term or mode, no sensor effect: the backward step
+        or a library form undid the greedy choice on this path;
+        ``settings["revisit_skipped"]`` says so).
         ``settings["revisited"]`` says what ran and which path was kept.
     intersample : bool
         After the base fit and in every round (one record), while the record's own

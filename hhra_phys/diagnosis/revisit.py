@@ -46,24 +46,38 @@ class _RevisitStage:
                        "judged": (judged or {}).get(id(step), step.reason)}
 
     def _branch_stands(self) -> bool:
-        """Whether the discovered candidate that took the branch round is still in the
-        model; the path not taken is followed only then.
+        """Whether the path not taken is still worth following: the discovered candidate
+        that took the branch round, or any other stand-in (a discovered term or mode, a
+        sensor's effect), is in this path's final model.
 
-        Once the backward step removed it (or its library form replaced it), this path
-        has undone the greedy choice itself, and following the other costs a second loop
-        for the same physics: on a 25 s drive record a pair of the friction and the force
-        offset came in round 2 beside the discovered term of round 1, which the backward
-        step then removed, and the revisited path from the dead zone ended with the same
-        two effects (selection 1.014e-6 against 1.02e-6 m) at twice the loop's cost.
+        Once the backward step removed the discovered winner (or its library form replaced
+        it) and the model holds given effects of the dynamics only, this path has undone
+        the greedy choice itself, and following the other costs a second loop for the same
+        physics: on a 25 s drive record a pair of the friction and the force offset came in
+        round 2 beside the discovered term of round 1, which the backward step then
+        removed, and the revisited path from the dead zone ended with the same two effects
+        (selection 1.014e-6 against 1.02e-6 m) at twice the loop's cost. Where a stand-in
+        remains, the other path may not hold it: on another seed the first path ended with
+        a sensor offset beside the friction and the force, which its revisit had avoided.
         """
         br = self.branch
         if br is None or br["instead_of"].effect in self.chosen:
             return True
+        stand_ins = [n for n in self.chosen if self._stand_in(n)]
+        if stand_ins:
+            return True
         self.revisit_skipped = (f"not revisited: {br['instead_of'].effect}, which took round "
                                 f"{br['round']} from {br['step'].effect}, is no longer in the "
-                                f"model ({', '.join(self.chosen) or 'nothing'})")
+                                f"model, which holds given effects of the dynamics only "
+                                f"({', '.join(self.chosen) or 'nothing'})")
         self.say(f"revisit: {self.revisit_skipped}")
         return False
+
+    def _stand_in(self, name: str) -> bool:
+        """Whether the chosen effect ``name`` is a stand-in: a discovered term or mode, or a
+        sensor's effect (by the step that added it; unknown: a stand-in)."""
+        step = self._accepted_step(name)
+        return step is None or step.discovered or step.sensor
 
     def _revisit(self) -> None:
         """Follow the path of the given effect a discovered candidate won over; keep the

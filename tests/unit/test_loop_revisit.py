@@ -148,15 +148,30 @@ def test_no_branch_is_kept_when_there_is_nothing_to_revisit(case):
     assert loop.branch is None
 
 
-def test_the_path_not_taken_is_followed_only_while_its_winner_stands():
+def test_the_path_not_taken_is_followed_only_while_a_stand_in_stands():
     """Once the backward step removed the discovered term that took the branch round (or
-    its library form replaced it), this path has undone the greedy choice itself."""
+    its library form replaced it) and the model holds given effects of the dynamics only,
+    this path has undone the greedy choice itself; a stand-in left (a sensor's effect, a
+    discovered term) still sends the loop down the other path."""
     loop = _loop()
-    term, _ = _round_one(loop)
-    loop.chosen = ["discovered_input_1", "asymmetric_valve"]
+    _round_one(loop)
     loop.revisit_skipped = None
+    loop.chosen = ["discovered_input_1", "asymmetric_valve"]
     assert loop._branch_stands() and loop.revisit_skipped is None
+
+    def add(effect, sensor=False):
+        loop.steps.append(Step(2, effect, {}, {}, {}, {}, {}, 0.0, 0.0, 0.0, accepted=True,
+                               sensor=sensor))
+
+    add("coulomb_friction")
+    add("input_offset")
     loop.chosen = ["coulomb_friction", "input_offset"]  # the term removed by the backward step
     assert not loop._branch_stands()
     assert "discovered_input_1" in loop.revisit_skipped
     assert "coulomb_friction, input_offset" in loop.revisit_skipped
+    loop.revisit_skipped = None
+    add("sensor_offset", sensor=True)
+    loop.chosen = ["sensor_offset", "coulomb_friction", "input_offset"]
+    assert loop._branch_stands() and loop.revisit_skipped is None
+    loop.chosen = ["coulomb_friction", "unknown_effect"]  # added by no step: not trusted
+    assert loop._branch_stands()
