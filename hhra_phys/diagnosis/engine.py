@@ -296,6 +296,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.branch: dict[str, Any] | None = None  # the path not taken (LoopOptions.revisit)
         self.revisited: dict[str, Any] | None = None
         self.revisit_skipped: str | None = None  # why the path not taken was not followed
+        # The round's refused library effects of the dynamics (pairs.py pairs them).
+        self.refused: list[tuple[Step, Any]] = []
         self.at_noise = False
         # The current fit and its refit on the selection part (_rotated_current).
         self._rot_cache: tuple[FitResult, FitResult] | None = None
@@ -447,6 +449,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         # the same rule: a straight line's error under a smooth input shows only once
         # the model's own error is below it (docs/measuring.md).
         holds = self._round_holds(rnd)
+        self.refused = []  # this round's (pairs.py): none left over from an earlier round
         queue, jobs = self._queue(rnd, remaining)
         if not queue and not holds and not self.discover:
             return "no candidates left"
@@ -553,8 +556,6 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         library = {k: self._library_refits([item for _, kind, item in queue if kind == k])
                    for k in _LIBRARY_KINDS}
         tried: list[tuple[Step, Any]] = []
-        # The round's refused library effects of the dynamics (pairs.py draws pairs from them)
-        self.refused: list[tuple[Step, Any]] = []
         settlers: dict[str, Step] = {}
         not_refitted: dict[str, list[str]] = {}
         queue = list(queue)

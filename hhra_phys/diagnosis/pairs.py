@@ -90,7 +90,7 @@ class _PairStage:
         pair's refit is a step."""
         crit_cur = information_criterion(self.cur, self.o.criterion)
         rmse_cur = float(self.cur.metrics["val"]["rmse"])
-        jobs = pair_jobs(list(getattr(self, "refused", [])), rmse_cur, crit_cur)
+        jobs = pair_jobs(list(self.refused), rmse_cur, crit_cur)
         if not self.o.pairs or not jobs or self._over_budget():
             return []
         firsts = ", ".join(dict.fromkeys(job.pair_with for job in jobs))

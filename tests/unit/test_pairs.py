@@ -122,7 +122,7 @@ def test_a_pair_starts_from_the_first_effects_refit_with_its_boxes_and_shape():
 def _loop(refused, refits, pairs=True):
     loop = object.__new__(_Loop)
     loop.o = LoopOptions(pairs=pairs)
-    loop.refused, loop.tol = refused, 0.01
+    loop.refused, loop.tol = refused, 0.01  # as _round leaves it for _pairs
     loop.say = lambda text: None
     loop._over_budget = lambda: False
     loop.cur = SimpleNamespace(metrics={"val": {"rmse": RMSE_CUR}})
