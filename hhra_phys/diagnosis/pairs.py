@@ -10,8 +10,8 @@ contradicts itself that way (:func:`~hhra_phys.diagnosis.selection.contradicts`)
 paired with every other refused effect of the dynamics (:func:`pair_jobs`): the second is
 added to the first one's refit and both are searched (the first seeded at its own refit),
 and each pair is one candidate, judged, rotated and chosen by the same rule as any other
-(``steps[].pair``). An accepted pair adds both effects;
-the backward step may later remove either.
+(``steps[].pair``). An accepted pair adds both effects; the backward step may later remove
+either.
 """
 
 from __future__ import annotations
