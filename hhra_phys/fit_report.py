@@ -9,20 +9,15 @@ fit's result reaches this one without it.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
+from hhra_phys.outputs import format_metric as _fmt  # one formatter for every number written
 
 __all__ = ["fit_figure_path", "fit_markdown", "fit_report"]
 
-
-def _fmt(v: Any, digits: int = 4) -> str:
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "-"
-    return f"{v:.{digits}g}"
 
 
 def fit_figure_path(path: str | Path) -> str:
@@ -118,16 +113,16 @@ def fit_markdown(res: Any, figure: str | Path | None, report_path: str | Path) -
               "|---|---|---|---|---|"]
     for pname, est in res.params.items():
         ci = est["ci95"]
-        ci_text = "-" if not ci else f"[{_fmt(ci[0], 6)}, {_fmt(ci[1], 6)}]"
-        lines.append(f"| {pname} | {_fmt(est['value'], 6)} | {est['unit']} | {ci_text} | "
+        ci_text = "-" if not ci else f"[{_fmt(ci[0], '.6g')}, {_fmt(ci[1], '.6g')}]"
+        lines.append(f"| {pname} | {_fmt(est['value'], '.6g')} | {est['unit']} | {ci_text} | "
                      f"{'yes' if est['free'] else 'no'} |")
     if res.derived:
         lines += ["", "## Derived quantities", "", "| quantity | value | unit | 95 % CI |",
                   "|---|---|---|---|"]
         for qname, q in res.derived.items():
             ci = q.ci95
-            ci_text = "-" if ci is None else f"[{_fmt(ci[0], 6)}, {_fmt(ci[1], 6)}]"
-            lines.append(f"| {qname} | {_fmt(q.value, 6)} | {q.unit} | {ci_text} |")
+            ci_text = "-" if ci is None else f"[{_fmt(ci[0], '.6g')}, {_fmt(ci[1], '.6g')}]"
+            lines.append(f"| {qname} | {_fmt(q.value, '.6g')} | {q.unit} | {ci_text} |")
     lines += ["", "## Errors", "", "| part | RMSE | VAF [%] | MSE | ITAE |",
               "|---|---|---|---|---|"]
     for part, label in (("est", "estimation"), ("val", "validation")):

@@ -5,7 +5,8 @@ command goes through :func:`check_output_path` before doing any work, so a long 
 ends in "file exists" or "no such directory", and writes through :func:`atomic_path` (or
 :func:`atomic_write_text` / :func:`atomic_write_bytes`), so an interrupted or failing write
 never leaves a truncated file where a good one was. :func:`jsonable` turns results into
-strict JSON (NaN and infinities become ``null``).
+strict JSON (NaN and infinities become ``null``); :func:`format_metric` writes a number into a
+summary or report (a missing or non-finite one as ``"-"``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "check_output_path",
+    "format_metric",
     "jsonable",
 ]
 
@@ -173,6 +175,12 @@ def atomic_write_text(path: PathLike, text: str, encoding: str = "utf-8") -> Pat
     across systems.
     """
     return atomic_write_bytes(path, text.encode(encoding))
+
+
+def format_metric(value: Any, spec: str = ".4g") -> str:
+    """A number for a summary or report (``spec``, default four significant digits); a
+    diverged fit's missing or non-finite one as ``"-"``."""
+    return format(value, spec) if value is not None and np.isfinite(value) else "-"
 
 
 def jsonable(obj: Any, *, default: Callable[[Any], Any] | None = None) -> Any:

@@ -24,6 +24,7 @@ from typing import Any
 
 from hhra_phys.errors import ParameterError
 from hhra_phys.outputs import FIGURE_SUFFIXES, atomic_write_text, check_output_path
+from hhra_phys.outputs import format_metric as _fmt  # one formatter for every number written
 
 __all__ = ["figure_paths", "loop_report", "markdown_report"]
 
@@ -90,11 +91,6 @@ def loop_report(res: Any, path: str | Path, data: Any = None, overwrite: bool = 
     atomic_write_text(p, markdown_report(res, paths, str(p)))
     return p
 
-
-def _fmt(v: Any, digits: int = 4) -> str:
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "-"
-    return f"{v:.{digits}g}"
 
 
 def markdown_report(res: Any, figures: Sequence[str | None], report_path: str | Path) -> str:
@@ -166,8 +162,8 @@ def _tried(res: Any) -> list[str]:
     for s in res.steps:
         ev = s.evidence
         notes = "; ".join(s.notes) or ""
-        lines.append(f"| {s.round} | {s.effect} | {_fmt(ev.get('score'), 3)} | "
-                     f"{_fmt(ev.get('detectability'), 3)} | {_fmt(s.val_rmse_before)} -> "
+        lines.append(f"| {s.round} | {s.effect} | {_fmt(ev.get('score'), '.3g')} | "
+                     f"{_fmt(ev.get('detectability'), '.3g')} | {_fmt(s.val_rmse_before)} -> "
                      f"{_fmt(s.val.get('rmse'))} | {'yes' if s.accepted else 'no'} | "
                      f"{s.reason}{'; ' + notes if notes else ''} |")
     return lines

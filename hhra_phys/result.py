@@ -69,7 +69,7 @@ from hhra_phys.identifiability import (  # noqa: F401  (re-exported)
     weak_directions,
 )
 from hhra_phys.model import Model
-from hhra_phys.outputs import atomic_write_text, check_output_path, jsonable
+from hhra_phys.outputs import atomic_write_text, check_output_path, format_metric, jsonable
 from hhra_phys.result_json import (  # noqa: F401  (re-exported)
     _EDIT,
     FAR_OUTSIDE,
@@ -521,11 +521,6 @@ class FitResult:
 def _finite(values: Any) -> bool:
     return all(v is not None and np.isfinite(v) for v in values)
 
-
-def format_metric(value: Any, spec: str = ".4g") -> str:
-    """A metric for a summary (``spec``, default four significant digits); a diverged
-    fit's missing or non-finite one as ``"-"``."""
-    return format(value, spec) if value is not None and np.isfinite(value) else "-"
 
 def redundant(result: FitResult, new_params: list[str] | tuple[str, ...]) -> str | None:
     """Why a candidate only reparametrises the model, or ``None`` if it does not.
