@@ -23,6 +23,13 @@ from typing import Any
 from hhra_phys.errors import ParameterError
 from hhra_phys.interrupt import ignore_sigint, stop_on_interrupt, stop_workers
 
+#: BLAS threads per process while local worker processes run: one. The cores are shared
+#: by the processes; OpenBLAS's own threads spin while they wait for work and took the
+#: cores from the workers' compiled simulations (the 25 s drive record's diagnosis: 235 s
+#: CPU for 122 s wall with two workers, 119 s CPU for 96 s wall with one BLAS thread each,
+#: the same decisions; benchmarks/notes/performance.md).
+BLAS_THREADS_WITH_WORKERS = 1
+
 __all__ = [
     "executor",
     "auto_workers",
@@ -122,6 +129,29 @@ def check_scheduler_answers(address: str, timeout: float | None = None) -> None:
             f"{head!r}); give the scheduler's address (usually port 8786)")
 
 
+def one_blas_thread() -> Any:
+    """Limit every BLAS library this process has loaded, and any it loads later, to
+    :data:`BLAS_THREADS_WITH_WORKERS` threads; the limit object (its
+    ``restore_original_limits()`` undoes the first part).
+
+    ``scipy.linalg`` is loaded first so that its own copy of OpenBLAS is limited too;
+    ``OPENBLAS_NUM_THREADS`` (and ``OMP_NUM_THREADS``) cover a library loaded later.
+    """
+    import scipy.linalg  # noqa: F401 - its BLAS, loaded before the limit is set
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=BLAS_THREADS_WITH_WORKERS, user_api="blas")
+
+
+def _start_worker() -> None:
+    """Worker-process initializer: SIGINT ignored (:func:`ignore_sigint`) and one BLAS
+    thread (:func:`one_blas_thread`), environment included for libraries loaded later."""
+    ignore_sigint()
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[name] = str(BLAS_THREADS_WITH_WORKERS)
+    one_blas_thread()
+
+
 def auto_workers() -> int | None:
     """``--workers auto``: one worker process per usable core, none on a single core."""
     try:
@@ -183,14 +213,21 @@ def executor(workers: int | str | None = None,
         finally:
             client.close()
     elif workers:
-        with (ProcessPoolExecutor(max_workers=workers, initializer=ignore_sigint) as pool,
-              stop_on_interrupt(pool)):
-            yield pool
-            # What still runs once the block is done is work nobody will read (a candidate
-            # refit of a round another candidate settled while it ran): end it rather than
-            # wait for it. Measured: a dead-zone record's diagnosis waited 3 s at its end for
-            # a friction refit the settled round had abandoned (7.6 s without that wait).
-            stop_workers(pool)
+        # One BLAS thread here too while the workers run: this process judges and screens
+        # beside them, and its idle BLAS threads would spin on their cores.
+        limits = one_blas_thread()
+        try:
+            with (ProcessPoolExecutor(max_workers=workers, initializer=_start_worker) as pool,
+                  stop_on_interrupt(pool)):
+                yield pool
+                # What still runs once the block is done is work nobody will read (a
+                # candidate refit of a round another candidate settled while it ran): end
+                # it rather than wait for it. Measured: a dead-zone record's diagnosis
+                # waited 3 s at its end for a friction refit the settled round had
+                # abandoned (7.6 s without that wait).
+                stop_workers(pool)
+        finally:
+            limits.restore_original_limits()
     else:
         yield None
 

@@ -159,3 +159,29 @@ def test_auto_workers_is_one_per_core_and_none_on_one():
 
     n = auto_workers()
     assert n is None or n >= 2
+
+
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [int(i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_local_workers_and_this_process_use_one_blas_thread_while_the_pool_runs():
+    # Two processes on two cores each with a spinning BLAS pool took the cores from the
+    # compiled simulations; inside the block every process has one BLAS thread, and this
+    # process gets its own setting back afterwards.
+    from threadpoolctl import threadpool_limits
+
+    from hhra_phys.cluster import BLAS_THREADS_WITH_WORKERS, executor
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_threads()
+        with executor(1) as ex:
+            inside = _blas_threads()
+            in_worker = ex.submit(_blas_threads).result()
+        after = _blas_threads()
+    assert before and set(before) == {2}
+    assert set(inside) == {BLAS_THREADS_WITH_WORKERS}
+    assert in_worker and set(in_worker) == {BLAS_THREADS_WITH_WORKERS}
+    assert after == before
