@@ -203,10 +203,11 @@ def next_index(model: Model, kind: type) -> int:
 class _Fitted:
     term: DiscoveredTerm | DiscoveredMode
     result: FitResult
-    problem: Problem
+    problem: Problem | None  # None on its way back from a worker (discovery_jobs.py)
     free: list[str]
     crit: float
     val_rmse: float
+    built: tuple[Any, ...] = ()  # the arguments of ``fitter.problem`` that built it
 
 
 def _term_for(screen_: EntryScreen, support: Sequence[int], beta: np.ndarray, index: int,
@@ -254,14 +255,15 @@ def _refit(fitter: Any, term: DiscoveredTerm, model: Model, cur: FitResult, cur_
         for j in range(len(term.terms)):
             st[term.coefficient_name(j)] = shrink * start[term.coefficient_name(j)]
         try:
-            prob = fitter.problem(model_c, cur_free + new, {}, st, cur.x0)
+            built = (model_c, cur_free + new, {}, st, cur.x0)
+            prob = fitter.problem(*built)
             res = fitter.run(prob, "none", 0, 0)
         except Exception:  # noqa: BLE001 - an unstable start: try a smaller one
             continue
         vr = float(res.metrics["val"].get("rmse", math.inf))
         if math.isfinite(vr) and math.isfinite(float(res.metrics["est"].get("rmse", math.inf))):
             return _Fitted(term, res, prob, cur_free + new,
-                           information_criterion(res, criterion), vr)
+                           information_criterion(res, criterion), vr, built)
     return None
 
 
@@ -372,7 +374,7 @@ def _fit_mode(fitter: Discovery, scr: ModeScreen, index: int, cur: FitResult, cu
     # screened start ends in that swapped optimum. A start of the mode at each of the
     # model's own resonances lets the refit move the model back.
     d, dt = fitter.data, 1.0 / fitter.data.fs
-    own = _resonances(cur_prob.model, fitter.sub.full(fitter.sub_values), d, dt,
+    own = _resonances(cur_prob.model, fitter.sub_params(), d, dt,
                       2 * math.pi / float(scr.periods[-1]), 2 * math.pi / float(scr.periods[0]))
     k_own = MODE_LOAD_START if scr.entry.startswith("mode:rate:") else 1.0
     for w_own, z_own in own:
@@ -384,7 +386,8 @@ def _fit_mode(fitter: Discovery, scr: ModeScreen, index: int, cur: FitResult, cu
         new = [p.name for p in mode.parameters]
         start = {**fitter.values(cur), **{p.name: p.nominal for p in mode.parameters}}
         try:
-            prob = fitter.problem(model_c, cur_free + new, {}, start, cur.x0)
+            built = (model_c, cur_free + new, {}, start, cur.x0)
+            prob = fitter.problem(*built)
             res = fitter.run(prob, "none", 0, 0)
         except Exception as exc:  # noqa: BLE001 - a start that does not simulate
             log.append(f"mode from period {mode.period(st[0]):.3g}: refit failed ({exc})")
@@ -394,7 +397,8 @@ def _fit_mode(fitter: Discovery, scr: ModeScreen, index: int, cur: FitResult, cu
                                                                                   math.inf)))):
             log.append(f"mode from period {mode.period(st[0]):.3g}: not finite")
             continue
-        f = _Fitted(mode, res, prob, cur_free + new, information_criterion(res, criterion), vr)
+        f = _Fitted(mode, res, prob, cur_free + new, information_criterion(res, criterion), vr,
+                    built)
         why = _mode_rejected(fitter._view(f), cur_prob.model, d, dt)
         log.append(f"mode from period {mode.period(st[0]):.3g} {mode.time_unit}: "
                    f"{mode.expression(res.values)}; |k|/sd {_t_values(f)[0]:.1f}, "
@@ -696,6 +700,7 @@ class Discovery:
         y_sub = self.sub.simulate_values(self.sub_values)
         self.noise = noise_level(self.sub.data.y - y_sub, (self.sub.data.u, y_sub))
         self._before: tuple[np.ndarray, np.ndarray] | None = None
+        self._sub_full: np.ndarray | None = None
         self.say(f"round {round_no}: discovery, entry points by first-order score"
                  + (f" (modes screened on record {self.record_index + 1})"
                     if len(cur_prob.records) > 1 else "") + ": "
@@ -784,12 +789,9 @@ class Discovery:
                                              term.period(lo) if lo > 0 else math.inf]
             step.screening["time_unit"] = term.time_unit
         step.notes.extend(log)
-        if self._before is None:
-            self._before = _residuals(self.sub, _ValuesOnly(self.sub.free_names,
-                                                            self.sub_values), self._val())
+        before = self._residuals_before()
         after = _residuals(view.problem, view.result, self._val())
-        step.residuals = {"est": (self._before[0], after[0]),
-                          "val": (self._before[1], after[1])}
+        step.residuals = {"est": (before[0], after[0]), "val": (before[1], after[1])}
         if step.extrapolated:
             step.notes.append(
                 f"validation drives {', '.join(step.extrapolated)} outside the range seen in "
@@ -831,12 +833,32 @@ class Discovery:
         self.say("    " + log[-1])
         return got[i][0], log, got[i][1]
 
-    def _sel_noise(self) -> float:
-        """Noise level of the current model's selection residual (output units)."""
+    def _residuals_before(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current model's estimation and selection residuals on the screened record
+        (once: every refit of the round compares with them)."""
         if self._before is None:
             self._before = _residuals(self.sub, _ValuesOnly(self.sub.free_names,
                                                             self.sub_values), self._val())
-        r = self._before[1]
+        return self._before
+
+    def sub_params(self) -> np.ndarray:
+        """The current model's full parameter vector on the screened record."""
+        if self._sub_full is None:
+            self._sub_full = self.sub.full(self.sub_values)
+        return self._sub_full
+
+    def __getstate__(self) -> dict[str, Any]:
+        # For a refit in a worker (discovery_jobs.py): live problems hold compiled code
+        # that cannot cross processes; what a refit reads of them goes computed.
+        self._residuals_before()
+        self.sub_params()
+        state = dict(self.__dict__)
+        state.update(say=None, sub=None, cur_prob=_ModelOf(self.cur_prob.model))
+        return state
+
+    def _sel_noise(self) -> float:
+        """Noise level of the current model's selection residual (output units)."""
+        r = self._residuals_before()[1]
         val = self._val()
         return noise_level(r, (val.u, val.y - r)) if np.isfinite(r).all() else math.nan
 
@@ -857,6 +879,12 @@ class Discovery:
     def run(self, *args: Any, **kw: Any) -> FitResult:
         """The loop's fit (every record)."""
         return self.fitter.run(*args, **kw)
+
+
+@dataclass
+class _ModelOf:
+    """What a refit in a worker reads of the current problem: its model."""
+    model: Model
 
 
 class _ValuesOnly:

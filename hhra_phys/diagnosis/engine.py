@@ -68,6 +68,7 @@ from hhra_phys.diagnosis.candidates import (
     _width_param,
     refit_candidate,
 )
+from hhra_phys.diagnosis.discovery_jobs import cancel_refits, submit_refits, take_refit
 from hhra_phys.diagnosis.fits import (
     _as_refitted,
     _base_fit,
@@ -298,6 +299,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.revisit_skipped: str | None = None  # why the path not taken was not followed
         # The round's refused library effects of the dynamics (pairs.py pairs them).
         self.refused: list[tuple[Step, Any]] = []
+        # The round's discovery refits running on the executor (discovery_jobs.py).
+        self.disc_refits: dict[int, Any] = {}
         self.at_noise = False
         # The current fit and its refit on the selection part (_rotated_current).
         self._rot_cache: tuple[FitResult, FitResult] | None = None
@@ -602,6 +605,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         """Close the round: its bar, its pace (the next estimate's unit), the library
         refits not started, and the notes of what settled it."""
         bar.close()
+        cancel_refits(self.disc_refits)  # a settled round's refits not taken
         if self.round_units:
             self.unit_seconds = (time.perf_counter() - self.round_t0) / self.round_units
         for stream in library.values():
@@ -620,6 +624,9 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
             return None
         self.round_units += self.round_discovery_units
         disc, more = self._discovered(rnd)
+        if self.executor is not None and disc is not None and more:
+            # Every entry's refit at once on the workers, taken below in queue order.
+            self.disc_refits = submit_refits(self.executor, disc, [it for _, _, it in more])
         queue += more
         bar.total += len(more)
         return disc
@@ -675,7 +682,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
                 self.say(f"  skipped {item.effect}: {out.error}")
                 return None
             return out.step, (item, out), ""
-        got = disc.refit(item)
+        got = (take_refit(self.disc_refits, disc, item, self.say)
+               if id(item) in self.disc_refits else disc.refit(item))
         if got is None:
             return None
         step, fitted, veto = got

@@ -189,3 +189,35 @@ def test_local_workers_and_this_process_use_one_blas_thread_while_the_pool_runs(
     assert set(inside) == {BLAS_THREADS_WITH_WORKERS}
     assert in_worker and set(in_worker) == {BLAS_THREADS_WITH_WORKERS}
     assert after == before
+
+
+def _timeless(lines: list[str]) -> list[str]:
+    # Seconds and the round's cost estimate depend on the machine, nothing else may.
+    import re
+
+    return [re.sub(r"\[[0-9.]+ s\]|about [0-9]+ s", "", line) for line in lines]
+
+
+def test_discovery_refits_on_workers_say_and_decide_as_here():
+    # Discovery's entries are refitted in the worker processes (discovery_jobs.py); the
+    # lines, steps and choice must be those of the refits run here, one BLAS thread in
+    # both so that the arithmetic is the same.
+    from hhra_phys.cluster import executor, one_blas_thread
+
+    ds = reference_record(seed=4, duration=6.0, effects={"valve_deadzone": {"i_dead": 0.1}})
+    kw = {"candidates": ["input_delay"], "max_effects": 1, "pop_size": 16, "max_iter": 12,
+          "discover": True, "background": False}
+    here: list[str] = []
+    limits = one_blas_thread()
+    try:
+        res_here = _run(ds, progress=here.append, **kw)
+    finally:
+        limits.restore_original_limits()
+    there: list[str] = []
+    with executor(2) as ex:
+        res_there = _run(ds, progress=there.append, executor=ex, **kw)
+    assert any(s.discovered for s in res_here.steps)  # discovery did refit something
+    assert _summary(res_there) == _summary(res_here)
+    assert ([getattr(s, "expression", None) for s in res_there.steps]
+            == [getattr(s, "expression", None) for s in res_here.steps])
+    assert _timeless(there) == _timeless(here)
