@@ -465,7 +465,13 @@ def summarise(d: dict[str, Any]) -> dict[str, Any]:
             "final": _rmse(d.get("final")), "stop": st.get("stop"),
             "stopped_by_budget": d.get("stopped_by_budget"), "loop_seconds": st.get("seconds"),
             "skipped": d.get("skipped"),
-            "final_params": (d.get("final") or {}).get("params")}
+            "final_params": _final_values(d)}
+
+
+def _final_values(d: dict[str, Any]) -> dict[str, float] | None:
+    """The final fit's parameter values of a diagnose JSON (``fits.final.params``)."""
+    params = ((d.get("fits") or {}).get("final") or {}).get("params")
+    return None if params is None else {k: p["value"] for k, p in params.items()}
 
 
 def step_seconds(log: Path) -> list[str]:
@@ -557,7 +563,7 @@ def run_record(kind: str, seed: int, out: Path, args: argparse.Namespace) -> dic
     if truth_json.exists():
         t = json.loads(truth_json.read_text())
         row["truth_refit"] = {**_rmse(t.get("base")),
-                              "params": (t.get("final") or {}).get("params")}
+                              "params": _final_values(t)}
     c = row["commands"]
     if "fit" in c and "diagnose" in c:
         row["diagnose_over_fit"] = {

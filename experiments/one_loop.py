@@ -146,7 +146,7 @@ def run(family: str, seed: int, duration: float, workers: int,
                         if s["accepted"] and s.get("discovered")],
         "removed": js["settings"]["removed"], "settled": js["settings"]["settled"],
         "widened": js["final"].get("widened", []),
-        "final_params": {k: v for k, v in js["final"]["params"].items()
+        "final_params": {k: p["value"] for k, p in js["fits"]["final"]["params"].items()
                          if k.startswith(("g_grav", "g_coulomb", "i_dead", "g_damping"))},
         "base_sel": js["base"]["val"]["rmse"], "final_sel": js["final"]["val"]["rmse"],
         "base_test": (js["base"].get("test") or {}).get("rmse"),

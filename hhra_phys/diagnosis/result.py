@@ -93,9 +93,10 @@ class DiagnosisResult:
         untouched test part) scores; ``test`` at top level is the final model's test
         score, ``steps``, ``chosen``, ``skipped`` as before; ``stopped_by_budget``
         whether :attr:`LoopOptions.budget` ended the loop early. ``fits`` holds the base
-        and final fits whole (:meth:`FitResult.to_json <hhra_phys.result.FitResult.to_json>`,
-        with the derived quantities), ``test_scores`` and ``loop_warnings`` what
-        :meth:`from_json` needs besides.
+        and final fits whole, once (:meth:`FitResult.to_json
+        <hhra_phys.result.FitResult.to_json>`: ``params[NAME]`` with ``value``, ``ci95``
+        and ``free``, the derived quantities, warnings and intervals),
+        ``test_scores`` and ``loop_warnings`` what :meth:`from_json` needs besides.
         """
         def part(res: FitResult, key: str) -> dict[str, Any]:
             out = {k: {m: res.metrics[k].get(m) for m in METRIC_KEYS}
@@ -110,13 +111,10 @@ class DiagnosisResult:
                     for r in res.records]
             return {**out, **{k: v for k, v in res.settings.items() if k == "widened"}}
 
+        # Each fit once: its parameters with their intervals, its warnings and how the
+        # intervals were had are in ``fits`` (``fits.final.params[NAME]``: ``value``,
+        # ``ci95``, ``free``); ``base`` and ``final`` hold the loop's scores of them.
         final = part(self.final, "final")
-        final["params"] = self.final.values
-        final["ci95"] = {k: list(v) for k, v in self.final.ci95.items()}
-        # The final fit's own warnings (identifiability, bounds, extrapolation) and how
-        # its intervals were had (the directions the data cannot determine, with why).
-        final["warnings"] = list(self.final.warnings)
-        final["intervals"] = self.final.intervals
         saved = self.saved_diagnoses
         return jsonable({
             "base": part(self.base, "base"),

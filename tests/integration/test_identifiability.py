@@ -58,7 +58,8 @@ def test_a_term_duplicating_a_parameter_is_refused(seed):
                       final_diagnosis=None, settings={})
     out = loop.to_json()
     assert set(res.warnings) <= set(out["warnings"])
-    assert out["final"]["intervals"]["weak_directions"]
+    assert out["fits"]["final"]["intervals"]["weak_directions"]
+    assert "params" not in out["final"]  # each fit once: its parameters are in fits
 
 
 def test_parameters_the_data_can_tell_are_not_redundant():

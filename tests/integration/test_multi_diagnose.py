@@ -320,5 +320,5 @@ def test_a_list_of_one_record_is_that_record(loops):
     for part in ("base", "final"):
         assert listed[part]["val"] == one[part]["val"]
         assert listed[part]["test"] == one[part]["test"]
-    assert set(listed["final"]["ci95"]) == set(one["final"]["ci95"])
-    assert not any("_rec" in n for n in one["final"]["ci95"])
+    assert set(listed["fits"]["final"]["params"]) == set(one["fits"]["final"]["params"])
+    assert not any("_rec" in n for n in one["fits"]["final"]["params"])
