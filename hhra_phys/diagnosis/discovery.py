@@ -89,6 +89,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -847,13 +848,18 @@ class Discovery:
             self._sub_full = self.sub.full(self.sub_values)
         return self._sub_full
 
+    def prepare_to_travel(self) -> None:
+        """Compute what a refit in another process reads of the live problems."""
+        self._residuals_before()
+        self.sub_params()
+
     def __getstate__(self) -> dict[str, Any]:
         # For a refit in a worker (discovery_jobs.py): live problems hold compiled code
         # that cannot cross processes; what a refit reads of them goes computed.
-        self._residuals_before()
-        self.sub_params()
+        self.prepare_to_travel()
         state = dict(self.__dict__)
-        state.update(say=None, sub=None, cur_prob=_ModelOf(self.cur_prob.model))
+        # Of the current problem a refit reads its model only.
+        state.update(say=None, sub=None, cur_prob=SimpleNamespace(model=self.cur_prob.model))
         return state
 
     def _sel_noise(self) -> float:
@@ -879,12 +885,6 @@ class Discovery:
     def run(self, *args: Any, **kw: Any) -> FitResult:
         """The loop's fit (every record)."""
         return self.fitter.run(*args, **kw)
-
-
-@dataclass
-class _ModelOf:
-    """What a refit in a worker reads of the current problem: its model."""
-    model: Model
 
 
 class _ValuesOnly:

@@ -46,6 +46,9 @@ def refit_elsewhere(job: tuple[Discovery, Proposal]) -> Outcome:
 def submit_refits(executor: Executor, disc: Discovery, proposals: Sequence[Proposal]
                   ) -> dict[int, Future[Outcome]]:
     """Every proposal's refit submitted now, keyed by ``id(proposal)``."""
+    # What Discovery.__getstate__ computes, computed here: a process pool pickles the jobs
+    # in its own thread.
+    disc.prepare_to_travel()
     return {id(p): executor.submit(refit_elsewhere, (disc, p)) for p in proposals}
 
 
@@ -54,7 +57,10 @@ def take_refit(futures: dict[int, Future[Outcome]], disc: Discovery, proposal: P
     """The refit of ``proposal`` as :meth:`Discovery.refit` gives it here: its lines said
     now, in the loop's order, and its fitted problem rebuilt (the worker built it from
     these arguments with the same settings)."""
-    got, lines = futures.pop(id(proposal)).result()
+    try:
+        got, lines = futures.pop(id(proposal)).result()
+    except Exception:  # noqa: BLE001 - it could not run there (a part that does not pickle)
+        return disc.refit(proposal)  # here, as without workers; its own errors are its own
     for line in lines:
         say(line)
     if got is None:

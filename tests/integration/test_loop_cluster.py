@@ -221,3 +221,30 @@ def test_discovery_refits_on_workers_say_and_decide_as_here():
     assert ([getattr(s, "expression", None) for s in res_there.steps]
             == [getattr(s, "expression", None) for s in res_here.steps])
     assert _timeless(there) == _timeless(here)
+    # A discovery refit that cannot run on the workers (a part that does not pickle) runs
+    # here instead, with the same result.
+    fallback: list[str] = []
+    limits = one_blas_thread()
+    try:
+        with _NoDiscoveryThere(1) as ex:
+            res_fallback = _run(ds, progress=fallback.append, executor=ex, **kw)
+    finally:
+        limits.restore_original_limits()
+    assert _summary(res_fallback) == _summary(res_here)
+    assert _timeless(fallback) == _timeless(here)
+
+
+class _NoDiscoveryThere(ProcessPoolExecutor):
+    """A pool on which discovery's refits fail as an unpicklable job would."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        import pickle
+        from concurrent.futures import Future
+
+        from hhra_phys.diagnosis.discovery_jobs import refit_elsewhere
+
+        if fn is refit_elsewhere:
+            failed: Future = Future()
+            failed.set_exception(pickle.PicklingError("cannot pickle a part"))
+            return failed
+        return super().submit(fn, *args, **kwargs)
