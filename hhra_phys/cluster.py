@@ -32,6 +32,7 @@ BLAS_THREADS_WITH_WORKERS = 1
 
 __all__ = [
     "executor",
+    "one_blas_thread",
     "auto_workers",
     "add_cluster_arguments",
     "check_scheduler_answers",
@@ -130,12 +131,18 @@ def check_scheduler_answers(address: str, timeout: float | None = None) -> None:
 
 
 def one_blas_thread() -> Any:
-    """Limit every BLAS library this process has loaded, and any it loads later, to
-    :data:`BLAS_THREADS_WITH_WORKERS` threads; the limit object (its
-    ``restore_original_limits()`` undoes the first part).
+    """Limit every BLAS library this process has loaded to
+    :data:`BLAS_THREADS_WITH_WORKERS` thread(s).
 
-    ``scipy.linalg`` is loaded first so that its own copy of OpenBLAS is limited too;
-    ``OPENBLAS_NUM_THREADS`` (and ``OMP_NUM_THREADS``) cover a library loaded later.
+    ``scipy.linalg`` is loaded first so that its own copy of OpenBLAS is limited too
+    (NumPy and SciPy each bundle one). Worker processes of :func:`executor` also get
+    ``OPENBLAS_NUM_THREADS`` for a library loaded later.
+
+    Returns
+    -------
+    threadpoolctl.threadpool_limits
+        The limit; its ``restore_original_limits()`` gives the libraries their thread
+        counts back.
     """
     import scipy.linalg  # noqa: F401 - its BLAS, loaded before the limit is set
     from threadpoolctl import threadpool_limits
