@@ -1,9 +1,9 @@
 """Discovery's refits on the loop's executor: the round's discovered forms side by side.
 
 A round's library refits run in the executor's worker processes; its discovery ran after
-them in this process, one entry after another, while the workers waited: on a 25 s drive
-record 25 of the round's 40 seconds, on one core of two. Each entry's refit (its sparse
-forms, or a mode's starts) needs nothing from the others, so all of them are submitted
+them in this process, one entry after another, while the workers waited: in round 2 of a
+25 s drive record, 29 of the round's 40 seconds on one core of two. Each entry's refit
+(its sparse forms, or a mode's starts) needs nothing from the others, so all are submitted
 at once (:func:`submit_refits`) and taken in the loop's order (:func:`take_refit`),
 judged there as before. A refit is the same computation wherever it runs (every fit
 carries its own seed, :mod:`hhra_phys.cluster`): the steps, lines and choices are those
