@@ -49,6 +49,7 @@ def _loop(outcomes: dict[str, dict[str, float]], discovered=()) -> tuple[_Loop, 
     loop.steps, loop.settled, loop.names = [], [], []
     loop.skipped, loop.cur, loop.discover = {}, _Res(), bool(discovered)
     loop.budget_spent, loop.budget_left = False, []
+    loop.executor, loop.disc_refits = None, {}  # discovery refits here, none on workers
     refitted: list[str] = []
 
     def refit_one(kind, item, library, disc, in_stream=True):
