@@ -392,15 +392,16 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         """What round ``rnd`` may cost (wall seconds), said before it runs.
 
         In units of the base fit's wall time (:data:`_ROUND_COST`), with the library's
-        refits shared among the executor's workers; from round 2 on, scaled by the last
-        round's measured cost per unit. The library's refits come first; discovery's
-        (screen, term entries, modes) only when no library effect settles the round.
+        refits and discovery's entries shared among the executor's workers (the screen runs
+        here); from round 2 on, scaled by the last round's measured cost per unit. The
+        library's refits come first; discovery's (screen, term entries, modes) only when no
+        library effect settles the round.
         """
         c = _ROUND_COST
         workers = _lookahead(self.executor) if self.executor is not None else 1
         library = c["library"] * n_library / (workers or 2)
-        discovery = (c["screen"] + c["term"] * c["entries"] + c["mode"] * c["modes"]
-                     if self.discover else 0.0)
+        discovery = (c["screen"] + (c["term"] * c["entries"] + c["mode"] * c["modes"])
+                     / (workers or 2) if self.discover else 0.0)
         scale = self.t_base if self.unit_seconds is None else self.unit_seconds
         # The round's pace is measured on what it runs (discovery only if screened).
         self.round_units, self.round_t0 = library, time.perf_counter()
