@@ -854,12 +854,12 @@ class Discovery:
         self.sub_params()
 
     def __getstate__(self) -> dict[str, Any]:
-        # For a refit in a worker (discovery_jobs.py): live problems hold compiled code
-        # that cannot cross processes; what a refit reads of them goes computed.
+        # For a refit in a worker (discovery_jobs.py): no live problem (compiled code), what a
+        # refit reads of them computed; the proposal goes on its own (screens are megabytes).
         self.prepare_to_travel()
         state = dict(self.__dict__)
-        # Of the current problem a refit reads its model only.
-        state.update(say=None, sub=None, cur_prob=SimpleNamespace(model=self.cur_prob.model))
+        state.update(say=None, sub=None, _proposals=[],
+                     cur_prob=SimpleNamespace(model=self.cur_prob.model))
         return state
 
     def _sel_noise(self) -> float:
