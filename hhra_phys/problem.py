@@ -58,7 +58,7 @@ names are importable from here too.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Literal
+from typing import ClassVar, Literal
 
 import casadi as ca
 import numpy as np
@@ -319,7 +319,8 @@ class Problem(_Coordinates):
                                simulator=self.simulators.get(float(ds.fs)),
                                start={**shared_start, **own_start[i]},
                                default_bounds=default_bounds,
-                               allow_outside_box=allow_outside_box)
+                               allow_outside_box=allow_outside_box,
+                               fit_states=self._fit_states_of(ds))
             self.simulators.setdefault(float(ds.fs), pr.sim)
             self.records.append(pr)
         first = self.records[0]
@@ -330,6 +331,21 @@ class Problem(_Coordinates):
         self.widened = [w for pr in self.records for w in pr.widened]
         self.notes = list(first.notes)
         self._stack()
+
+    #: Under ``"fit"``, fit the initial value of every state (not only the model's
+    #: :attr:`~hhra_phys.model.Model.fitted_states`) on a record that starts after the first
+    #: sample of the record it was cut from (:attr:`Dataset.origin
+    #: <hhra_phys.data.Dataset.origin>`): a model that starts at rest (its velocity not
+    #: fitted) is not at rest in the middle of a motion. Off here; the diagnosis loop's
+    #: folds train on such pieces (:class:`hhra_phys.diagnosis.folds.LaterStartProblem`).
+    fit_later_states: ClassVar[bool] = False
+
+    def _fit_states_of(self, ds: Dataset) -> list[str] | None:
+        """The states whose initial value is fitted on record ``ds`` (``None``: the model's
+        own, :attr:`fit_later_states`)."""
+        if not self.fit_later_states or ds.origin is None or ds.origin[1] <= 0:
+            return None
+        return [n for n in self.model.state_names if n not in self.model.pinned]
 
     def _stack(self) -> None:
         """The stacked coordinates: the shared model parameters, then each record's own."""
@@ -383,7 +399,7 @@ class Problem(_Coordinates):
         defaults = {p.name: (p.lower, p.upper) for p in first.free_params
                     if not p.name.startswith("x0_") and p.name not in self.explicit_bounds}
         defaults.update(boxes)
-        new = Problem(self.model, self.datasets, cost=self.cost, free=self._free_model,
+        new = type(self)(self.model, self.datasets, cost=self.cost, free=self._free_model,
                       fixed={**self.fixed, **self._fixed_given}, bounds=explicit,
                       default_bounds=defaults, initial_state=self.initial_state,
                       simulator=self.simulators, allow_outside_box=True,

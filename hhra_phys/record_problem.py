@@ -126,6 +126,10 @@ class RecordProblem(_Coordinates):
         A simulator of ``model`` at the record's sample rate to reuse (its sibling with
         the record's inter-sample behaviour, :meth:`Simulator.with_intersample`, if it
         differs); default: one built here with accuracy-chosen substeps.
+    fit_states : sequence of str, optional
+        Under ``"fit"``, the states whose initial value is fitted (default: the model's
+        :attr:`~hhra_phys.model.Model.fitted_states`). :class:`Problem` passes every state
+        for a record that starts after its record's first sample (``later_states``).
 
     Attributes
     ----------
@@ -159,12 +163,14 @@ class RecordProblem(_Coordinates):
         start: Mapping[str, float] | None = None,
         default_bounds: Mapping[str, tuple[float, float]] | None = None,
         allow_outside_box: bool = False,
+        fit_states: Sequence[str] | None = None,
     ) -> None:
         _check_choices(cost, initial_state)
         self.model = model
         self.data = data
         self.cost = cost
         self.initial_state = initial_state
+        self._fit_states = None if fit_states is None else list(fit_states)
         start = self._checked_start(model, start)
         free = self._set_values(free, fixed, start, allow_outside_box)
         params = self._model_params(free, bounds, default_bounds, start)
@@ -264,8 +270,8 @@ class RecordProblem(_Coordinates):
         ``"data"`` rule's value."""
         model = self.model
         x0_start = {k: float(v) for k, v in start.items() if k.startswith("x0_")}
-        self._x0_states: list[str] = (list(model.fitted_states)
-                                      if self.initial_state == "fit" else [])
+        chosen = model.fitted_states if self._fit_states is None else self._fit_states
+        self._x0_states: list[str] = list(chosen) if self.initial_state == "fit" else []
         params: list[Parameter] = []
         if self._x0_states:
             guess = self._x0_from_data(self.base[None, :])[0]
@@ -283,7 +289,7 @@ class RecordProblem(_Coordinates):
         if x0_start:
             raise ParameterError(
                 f"start values {sorted(x0_start)} name initial states that are not fitted "
-                f"(fitted with initial_state='fit': {', '.join(model.fitted_states) or 'none'})"
+                f"(fitted with initial_state='fit': {', '.join(chosen) or 'none'})"
             )
         return params
 

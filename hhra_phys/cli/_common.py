@@ -37,6 +37,14 @@ def positive_int(text: str) -> int:
     return _int_at_least(text, 1)
 
 
+def fold_count(text: str) -> int:
+    """argparse type: folds of a rotation, an integer from 2 to
+    :data:`~hhra_phys.diagnosis.folds.MAX_FOLDS` (``--folds``)."""
+    from hhra_phys.diagnosis.folds import MAX_FOLDS
+
+    return _int_at_least(text, 2, MAX_FOLDS)
+
+
 def population(text: str) -> int:
     """argparse type: a population size, an integer >= 4 (what every optimiser needs) and
     at most :data:`~hhra_phys.options.MAX_POPULATION`."""

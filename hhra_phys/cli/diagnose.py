@@ -17,6 +17,7 @@ from hhra_phys.cli._common import (
     add_data_arguments,
     add_model_arguments,
     check_outputs,
+    fold_count,
     iterations,
     model_for,
     model_records,
@@ -122,6 +123,12 @@ def register(subparsers: Any) -> None:
                         "thinly, the selection part decides alone (default: the candidate is "
                         "refitted on the selection part, scored on estimation, and the error "
                         "over both folds decides)")
+    p.add_argument("--folds", type=fold_count, default=2, metavar="K",
+                   help="contiguous folds where the parts rotate (default 2: the selection "
+                        "part fitted and the estimation part scored); K > 2 cuts the "
+                        "estimation part into K - 1 blocks, each held out in turn with the "
+                        "model refitted on the rest of its record, and the error pooled over "
+                        "the K folds decides (K - 1 refits of each model per rotation)")
     p.add_argument("--no-pairs", action="store_true",
                    help="never refit pairs: when a round accepts nothing, the refused effects "
                         "whose criterion was decisively lower while their selection error rose "
@@ -217,7 +224,7 @@ def _diagnose(args: argparse.Namespace) -> Any:
             progress=lambda s: print(s, file=sys.stderr, flush=True),
             discover=not args.no_discover, discover_kw={"method": args.discover_method},
             backward=not args.no_backward, revisit=not args.no_revisit,
-            rotate=not args.no_rotate, pairs=not args.no_pairs,
+            rotate=not args.no_rotate, pairs=not args.no_pairs, folds=args.folds,
             intersample=not args.keep_intersample, budget=args.budget, progress_bar=True,
             fit_shapes="contenders" if args.fit_shapes else args.shapes,
         )

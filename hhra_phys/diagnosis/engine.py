@@ -82,6 +82,7 @@ from hhra_phys.diagnosis.fits import (
     _values,
     _warm_compile,
 )
+from hhra_phys.diagnosis.folds import fold_plan
 from hhra_phys.diagnosis.holds import _HoldStage
 from hhra_phys.diagnosis.options import LoopOptions
 from hhra_phys.diagnosis.pairs import _PairStage
@@ -270,6 +271,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.tol = (noise_tolerance(sel.n) if opts.noise_tol is None
                     else float(opts.noise_tol))
         self.data, self.est, self.sel, self.held = data, est, sel, held
+        if opts.rotate:  # before any fit: folds the estimation part is too short for
+            fold_plan(as_records(est), as_records(sel), opts.folds)
         self.hold_changed = False  # a path changes the records' hold at most once
         self.hold_tried: Any = None  # the fit the hold candidates were last tried on
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
@@ -302,8 +305,10 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         # The round's discovery refits running on the executor (discovery_jobs.py).
         self.disc_refits: dict[int, Any] = {}
         self.at_noise = False
-        # The current fit and its refit on the selection part (_rotated_current).
-        self._rot_cache: tuple[FitResult, FitResult] | None = None
+        # The current fit and its refits on the folds (_rotated_current); the folds of the
+        # parts, keyed by the parts' identity (_fold_plan).
+        self._rot_cache: tuple[FitResult, list[FitResult]] | None = None
+        self._fold_cache: tuple[tuple[int, int], list[Any]] | None = None
         # The current fit and its simulated outputs on the parts (_current_outputs).
         self._out_cache: tuple[FitResult, dict[str, np.ndarray]] | None = None
         # Not path state (a revisit keeps them): whether the budget ended anything, and

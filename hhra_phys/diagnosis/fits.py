@@ -150,8 +150,10 @@ def _accuracy_checked(problem: Problem) -> Problem:
 
 def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[str, float],
              start: Mapping[str, float], x0: Mapping[str, float] | None = None,
-             simulator: Simulator | Mapping[float, Simulator] | None = None) -> Problem:
-    """A problem on the estimation part(s) (warm-started at ``start`` and ``x0``).
+             simulator: Simulator | Mapping[float, Simulator] | None = None,
+             kind: type[Problem] = Problem) -> Problem:
+    """A problem on the estimation part(s) (warm-started at ``start`` and ``x0``), of
+    class ``kind`` (a fold's: :class:`~hhra_phys.diagnosis.folds.LaterStartProblem`).
 
     Candidates keep the base model's substeps: "auto" would size them at the
     effect's nominal (a stiff friction sign can ask for 8x more) and the
@@ -190,7 +192,7 @@ def _problem(cfg: _Settings, model: Model, free: Sequence[str], fixed: Mapping[s
                 st.setdefault(f"x0_{state}", float(x0[state]))
     bnd = {k: v for k, v in cfg.bounds.items() if k in free}
     dflt = {k: v for k, v in cfg.default_bounds.items() if k in free and k not in bnd}
-    return Problem(model, records, free=list(free), fixed=held, bounds=bnd,
+    return kind(model, records, free=list(free), fixed=held, bounds=bnd,
                    initial_state=cfg.initial_state, start=st,  # type: ignore[arg-type]
                    simulator=sims, default_bounds=dflt or None,
                    allow_outside_box=True)  # fixed values come from the loop's fits
@@ -209,17 +211,26 @@ def _values(res: FitResult) -> dict[str, float]:
     return out
 
 
-def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
-         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None,
-         stall: bool = True) -> FitResult:
+def _judged_options(cfg: _Settings, optimizer: str, pop: int, iters: int,
+                    refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None,
+                    stall: bool = True) -> FitOptions:
+    """The fit options of a loop's refit (:func:`_run`)."""
     # A warm start seeds the first population with the problem's start values
-    # (the previous fit); the base fit is not seeded. Each record is scored on its
-    # own selection part. A refit that is judged (capped at ipopt_iter) stops where
-    # IPOPT's iterate stalls (refine.STALL_ITER); a polish (stall=False) runs on.
-    opts = FitOptions(optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
+    # (the previous fit); the base fit is not seeded. A refit that is judged (capped at
+    # ipopt_iter) stops where IPOPT's iterate stalls (refine.STALL_ITER); a polish
+    # (stall=False) runs on.
+    return FitOptions(optimizer=optimizer, refine=refine, pop_size=pop, max_iter=iters,
                       seed=cfg.seed, seed_population=warm, split=cfg.split,
                       refine_options={"max_iter": ipopt_iter or cfg.ipopt_iter,
                                       "stall_iter": STALL_ITER if stall else 0})
+
+
+def _run(cfg: _Settings, problem: Problem, optimizer: str, pop: int, iters: int,
+         refine: str = "ipopt", warm: bool = True, ipopt_iter: int | None = None,
+         stall: bool = True) -> FitResult:
+    """A loop's refit of ``problem`` (:func:`_judged_options`), each record scored on its
+    own selection part."""
+    opts = _judged_options(cfg, optimizer, pop, iters, refine, warm, ipopt_iter, stall)
     return fit_problem(problem, as_records(cfg.sel), options=opts,
                        records=as_records(cfg.data))
 

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from hhra_phys.diagnosis.folds import MAX_FOLDS
 from hhra_phys.effects import (
     EFFECTS,
     effect_name,
@@ -208,7 +209,15 @@ class LoopOptions:
         and the current model are refitted on the selection part and scored on the
         estimation part, and the held-out error pooled over both folds decides
         (:func:`~hhra_phys.diagnosis.selection.rotated_verdict`; ``steps[].folds``). The model
-        itself stays fitted on estimation.
+        itself stays fitted on estimation. Rotation also happens where the part that says
+        no holds fewer than :data:`~hhra_phys.diagnosis.selection.REGIME_MIN_SAMPLES`
+        samples of the regime (a short record: too few to refuse alone).
+    folds : int
+        Contiguous folds of a rotation (default 2; CLI ``--folds``): the selection part is
+        one, the estimation part is cut into ``folds - 1`` blocks, each held out in turn
+        with the model refitted on the rest of its record
+        (:mod:`hhra_phys.diagnosis.folds`). 2 is the two-fold swap above; more folds
+        cost ``folds - 1`` refits of the current model and of the candidate per rotation.
     """
 
     split: float = 0.5
@@ -243,6 +252,7 @@ class LoopOptions:
     fit_shapes: bool | str = "chosen"
     rotate: bool = True
     pairs: bool = True
+    folds: int = 2
 
     @property
     def shape_mode(self) -> str:
@@ -278,6 +288,9 @@ class LoopOptions:
              f"'contenders', False for 'off'), got {self.fit_shapes!r}")
         need(isinstance(self.rotate, bool), f"rotate must be True or False, got {self.rotate!r}")
         need(isinstance(self.pairs, bool), f"pairs must be True or False, got {self.pairs!r}")
+        need(isinstance(self.folds, int) and not isinstance(self.folds, bool)
+             and 2 <= self.folds <= MAX_FOLDS,
+             f"folds must be an integer from 2 to {MAX_FOLDS}, got {self.folds!r}")
         need(isinstance(self.max_effects, int) and self.max_effects >= 0,
              f"max_effects must be an integer >= 0, got {self.max_effects!r}")
         need(self.top_k is None or (isinstance(self.top_k, int) and self.top_k >= 1),

@@ -15,22 +15,33 @@ import numpy as np
 
 from hhra_phys.diagnosis.candidates import _candidate_model
 from hhra_phys.diagnosis.discovery import DiscoveredStep
-from hhra_phys.diagnosis.fits import _free_values, _problem, _run, _Settings, _values
+from hhra_phys.diagnosis.fits import (
+    _free_values,
+    _judged_options,
+    _problem,
+    _run,
+    _Settings,
+    _values,
+)
+from hhra_phys.diagnosis.folds import Fold, LaterStartProblem, fold_plan
 from hhra_phys.diagnosis.result import _twins_text
 from hhra_phys.diagnosis.selection import (
+    REGIME_MIN_SAMPLES,
     Step,
     judge,
     needs_rotation,
     pooled_rmse,
     rotated_verdict,
-    thin_part,
+    thin_parts,
     votes,
 )
+from hhra_phys.fit import fit_problem
 from hhra_phys.intersample import (
     HoldCandidate,
 )
 from hhra_phys.model import Model
-from hhra_phys.problem import as_records
+from hhra_phys.parameters import record_name
+from hhra_phys.problem import Problem, as_records
 from hhra_phys.regime import change_coverage
 from hhra_phys.result import FitResult
 
@@ -58,16 +69,57 @@ def _fitted_candidate(payload: Any) -> tuple[Model, list[str], dict[str, float],
     return payload.problem.model, list(payload.free), _values(res), dict(res.x0), {}
 
 
-def _rotated_fit(cfg: _Settings, model: Model, free: Sequence[str],
-                 start: Mapping[str, float], boxes: Mapping[str, tuple[float, float]]
-                 ) -> FitResult:
-    """``model`` refitted on the selection part(s) from ``start`` (the parameters it
-    lacks at their defaults; IPOPT, capped as a candidate's refit) and scored on the
-    estimation part(s): the other fold of the two. The initial state starts by the
-    ``"data"`` rule on the selection part (the fitted one is the estimation part's)."""
-    rot = replace(cfg, est=cfg.sel, sel=cfg.est,
+def _fold_fit(cfg: _Settings, fold: Fold, model: Model, free: Sequence[str],
+              start: Mapping[str, float], boxes: Mapping[str, tuple[float, float]]
+              ) -> FitResult:
+    """``model`` refitted on a fold's pieces from ``start`` (the parameters it lacks at
+    their defaults; IPOPT, capped as a candidate's refit) and scored on its held-out
+    block(s) (:mod:`hhra_phys.diagnosis.folds`). A piece that starts in the middle of its
+    record has every state's initial value fitted, started at the state the model
+    reaches there at ``start`` through the samples before it (as a scored part starts)."""
+    rot = replace(cfg, est=fold.train, sel=[ds for ds in fold.held if ds is not None],
                   default_bounds={**cfg.default_bounds, **boxes})
-    return _run(rot, _problem(rot, model, free, {}, start, None), "none", 0, 0)
+    problem = _problem(rot, model, free, {}, start, None, kind=LaterStartProblem)
+    later = _later_starts(problem)
+    if later:
+        problem = _problem(rot, model, free, {}, {**start, **later}, None,
+                           kind=LaterStartProblem)
+    if len(fold.train) == 1:  # one piece: scored on its selection part as _run scores
+        return _run(rot, problem, "none", 0, 0)
+    return fit_problem(problem, fold.held, options=_judged_options(rot, "none", 0, 0))
+
+
+def _later_starts(problem: Problem) -> dict[str, float]:
+    """``{x0_<state>_rec<k>: value}``: for each record of ``problem`` that starts in the
+    middle of its own record, the state at its first sample through the samples before it
+    (:meth:`~hhra_phys.problem.RecordProblem.initial_states` with its leading window), at
+    the problem's start values."""
+    out: dict[str, float] = {}
+    for k, (pr, vk) in enumerate(problem.per_record_values(problem.start_values()), start=1):
+        if not pr.x0_states or pr.lead_window(pr.data) is None:
+            continue
+        x = pr.initial_states(vk, data=pr.data)[0]
+        for state in pr.x0_states:
+            value = float(x[pr.model.state_names.index(state)])
+            if math.isfinite(value):
+                out[record_name(f"x0_{state}", k)] = value
+    return out
+
+
+def _thin_text(part: str, regime: Mapping[str, Any] | None) -> str:
+    """Why ``part`` (``"est"`` or ``"sel"``) cannot refuse alone, in words."""
+    name = {"sel": "selection", "est": "estimation"}[part]
+    n = int(round(_regime_samples(regime, part)))
+    if regime and n < REGIME_MIN_SAMPLES:
+        return f"the {name} part holds only {n} samples of its regime"
+    return f"the {name} part holds its regime thinly"
+
+
+def _regime_samples(regime: Mapping[str, Any] | None, part: str) -> float:
+    """Samples of the candidate's regime in ``part`` (0 when unknown)."""
+    if not regime or part not in regime:
+        return 0.0
+    return float(regime[part].get("samples", 0)) * float(regime[part].get("in_regime", 0.0))
 
 
 class _RotationStage:
@@ -119,7 +171,7 @@ class _RotationStage:
                                     step.criterion, o.margin, noise_sel, self.tol)
         if sel_vote == crit_vote:
             return ok
-        thin = thin_part(step.regime)
+        thin = thin_parts(step.regime)
         if not needs_rotation(sel_vote, crit_vote, thin):
             return ok
         fitted = fitted or _fitted_candidate(payload)
@@ -128,51 +180,74 @@ class _RotationStage:
         t0 = time.perf_counter()
         model, free, _, _, boxes = fitted
         try:
+            folds = self._fold_plan()
             rest_cur = self._rotated_current()
-            # From the current model's fit on the selection part, the candidate's own
-            # parameters at their defaults: started at its estimation fit, a parameter the
-            # selection part cannot move (a saturation level where no input reaches it)
-            # would carry the estimation part's answer into the fold that scores it there.
-            rest = _rotated_fit(self.cfg, model, free, _values(rest_cur), boxes)
+            # From the current model's fit on each fold, the candidate's own parameters at
+            # their defaults: started at its estimation fit, a parameter the fold cannot
+            # move (a saturation level where no input reaches it) would carry the
+            # estimation part's answer into the block that scores it.
+            rest = [_fold_fit(self.cfg, f, model, free, _values(c), boxes)
+                    for f, c in zip(folds, rest_cur, strict=True)]
         except Exception as exc:  # noqa: BLE001 - the rotation is evidence, not the refit
             step.notes.append(f"parts not rotated: its refit on the selection part failed "
                               f"({type(exc).__name__}: {exc})")
             return ok
-        if not math.isfinite(_val_rmse(rest_cur)):
-            # Without the current model's other fold there is nothing to compare with:
+        if not all(math.isfinite(_val_rmse(c)) for c in rest_cur):
+            # Without the current model's other folds there is nothing to compare with:
             # every candidate would pass against an infinite error.
             step.notes.append("parts not rotated: the current model's refit on the selection "
                               "part could not be scored on estimation")
             return ok
-        n_est, n_sel = (sum(ds.n for ds in as_records(p)) for p in (self.est, self.sel))
-        before = pooled_rmse([(n_sel, rmse_cur), (n_est, _val_rmse(rest_cur))])
-        after = pooled_rmse([(n_sel, float(step.val.get("rmse", math.inf))),
-                             (n_est, _val_rmse(rest))])
-        noise = pooled_rmse([(n_sel, noise_sel), (n_est, noise_est)])
-        verdict, why = rotated_verdict(before, after, o.margin, noise, self.tol)
-        part = {"sel": "selection", "est": "estimation"}[thin or "sel"]
+        n_sel = sum(ds.n for ds in as_records(self.sel))
+        cand_sel = float(step.val.get("rmse", math.inf))
+        blocks = [{"held": "sel", "samples": n_sel, "rmse_before": rmse_cur,
+                   "rmse_after": cand_sel}]
+        blocks += [{"held": f.name, "samples": f.n_held, "rmse_before": _val_rmse(c),
+                    "rmse_after": _val_rmse(r)}
+                   for f, c, r in zip(folds, rest_cur, rest, strict=True)]
+        before = pooled_rmse([(b["samples"], b["rmse_before"]) for b in blocks])
+        after = pooled_rmse([(b["samples"], b["rmse_after"]) for b in blocks])
+        noise = pooled_rmse([(n_sel, noise_sel)] + [(f.n_held, noise_est) for f in folds])
+        verdict, why = rotated_verdict(before, after, o.margin, noise, self.tol, len(blocks))
+        refusing = "sel" if crit_vote else "est"
         said = ("the criterion on estimation says yes, the selection part no"
                 if crit_vote else "the selection part says yes, the criterion on estimation no")
+        held_by = _thin_text(refusing, step.regime)
+        how = ("refitted on selection, scored on estimation" if len(blocks) == 2 else
+               f"{len(blocks)} contiguous folds, each block held out in turn")
         step.folds = {
-            "k": 2, "why": f"{said}; the {part} part holds its regime thinly",
+            "k": len(blocks), "why": f"{said}; {held_by}",
             "rmse_before": before, "rmse_after": after, "noise": noise, "accepted": verdict,
             "sel": {"rmse_before": rmse_cur, "rmse_after": float(step.val.get("rmse", math.nan))},
-            "est": {"rmse_before": _val_rmse(rest_cur), "rmse_after": _val_rmse(rest)},
-            "seconds": time.perf_counter() - t0}
-        step.reason += (f"; {said}, and the {part} part holds its regime thinly: parts "
-                        f"rotated (refitted on selection, scored on estimation): {why}")
+            "est": {key: (blocks[1][key] if len(blocks) == 2 else
+                          pooled_rmse([(b["samples"], b[key]) for b in blocks[1:]]))
+                    for key in ("rmse_before", "rmse_after")},
+            "blocks": blocks, "seconds": time.perf_counter() - t0}
+        step.reason += f"; {said}, and {held_by}: parts rotated ({how}): {why}"
         self.say(f"    parts rotated for {step.effect}: {why} -> "
                  f"{'acceptable' if verdict else 'refused'} "
                  f"[{step.folds['seconds']:.1f} s]")
         return verdict
 
-    def _rotated_current(self) -> FitResult:
-        """The current model refitted on the selection part and scored on estimation (once
+    def _fold_plan(self) -> list[Fold]:
+        """The folds beyond the loop's own (:func:`~hhra_phys.diagnosis.folds.fold_plan`),
+        once per estimation and selection parts (an inter-sample change replaces them)."""
+        key = (id(self.est), id(self.sel))
+        cached = self._fold_cache
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        plan = fold_plan(as_records(self.est), as_records(self.sel), self.o.folds)
+        self._fold_cache = (key, plan)
+        return plan
+
+    def _rotated_current(self) -> list[FitResult]:
+        """The current model refitted on each fold and scored on its held-out block (once
         per current fit)."""
         cached = self._rot_cache
         if cached is not None and cached[0] is self.cur:
             return cached[1]
-        res = _rotated_fit(self.cfg, self.cur_prob.model, self.cur_free, _values(self.cur), {})
+        res = [_fold_fit(self.cfg, f, self.cur_prob.model, self.cur_free, _values(self.cur), {})
+               for f in self._fold_plan()]
         self._rot_cache = (self.cur, res)
         return res
 

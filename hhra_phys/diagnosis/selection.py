@@ -61,7 +61,9 @@ __all__ = [
     "stops_at_noise",
     "split_record",
     "REGIME_THIN",
+    "REGIME_MIN_SAMPLES",
     "votes",
+    "thin_parts",
     "thin_part",
     "needs_rotation",
     "PAIR_CANDIDATES",
@@ -237,32 +239,50 @@ def votes(rmse_before: float, rmse_after: float, crit_before: float, crit_after:
             bool(crit_after < crit_before))
 
 
-def thin_part(regime: Mapping[str, Any] | None) -> str | None:
-    """The deciding part (``"est"`` or ``"sel"``) that holds the regime thinly, if one does.
+#: A deciding part holding fewer samples of a candidate's regime than this cannot refuse
+#: it alone, whatever its share (:func:`thin_parts`): on a short record a quarter of it may
+#: hold the regime in proportion and still only in one or two events (a level reached once,
+#: a few reversals), too few to tell the candidate's gain from the noise there.
+REGIME_MIN_SAMPLES = 50
+
+
+def thin_parts(regime: Mapping[str, Any] | None) -> tuple[str, ...]:
+    """The deciding parts (``"est"``, ``"sel"``) that hold the regime too thinly to refuse a
+    candidate alone.
 
     ``regime`` is a step's coverage (:func:`hhra_phys.regime.regime_coverage` or
-    :func:`hhra_phys.regime.change_coverage`): a part is thin when its ``share`` of the
-    regime's samples is below :data:`REGIME_THIN` times its share of the samples. None when
-    neither is (or the coverage is not known).
+    :func:`hhra_phys.regime.change_coverage`). A part is thin when its ``share`` of the
+    regime's samples is below :data:`REGIME_THIN` times its share of the samples, or when
+    it holds fewer than :data:`REGIME_MIN_SAMPLES` samples of the regime (a short part).
+    Empty when neither is (or the coverage is not known, or no part reaches the regime).
     """
     if not regime or "est" not in regime or "sel" not in regime:
-        return None
+        return ()
     n = {p: float(regime[p].get("samples", 0)) for p in ("est", "sel")}
     total = n["est"] + n["sel"]
     if total <= 0 or not any(regime[p].get("share", 0.0) > 0 for p in n):
-        return None
-    thin = [p for p in n if regime[p].get("share", 0.0) < REGIME_THIN * n[p] / total]
+        return ()
+    return tuple(p for p in n
+                 if regime[p].get("share", 0.0) < REGIME_THIN * n[p] / total
+                 or n[p] * regime[p].get("in_regime", 1.0) < REGIME_MIN_SAMPLES)
+
+
+def thin_part(regime: Mapping[str, Any] | None) -> str | None:
+    """The first of :func:`thin_parts` (``"est"`` before ``"sel"``), or ``None``."""
+    thin = thin_parts(regime)
     return thin[0] if thin else None
 
 
-def needs_rotation(sel_vote: bool, crit_vote: bool, thin: str | None) -> bool:
+def needs_rotation(sel_vote: bool, crit_vote: bool,
+                   thin: str | Sequence[str] | None) -> bool:
     """Whether the parts rotate for a candidate: the selection part and the criterion on
-    estimation disagree, and the part whose evidence says no holds the candidate's regime
-    thinly (:func:`thin_part`): a part that barely reaches the regime cannot refuse alone.
+    estimation disagree, and the part whose evidence says no is among the ``thin`` ones
+    (:func:`thin_parts`): a part that barely reaches the regime cannot refuse alone.
     """
-    if sel_vote == crit_vote or thin is None:
+    if sel_vote == crit_vote or not thin:
         return False
-    return thin == ("sel" if crit_vote else "est")
+    parts = (thin,) if isinstance(thin, str) else tuple(thin)
+    return ("sel" if crit_vote else "est") in parts
 
 
 def pooled_rmse(parts: Sequence[tuple[int, float]]) -> float:
@@ -274,21 +294,24 @@ def pooled_rmse(parts: Sequence[tuple[int, float]]) -> float:
 
 
 def rotated_verdict(rmse_before: float, rmse_after: float, margin: float, noise: float,
-                    noise_tol: float) -> tuple[bool, str]:
-    """The one verdict where the parts rotated: the held-out RMSE pooled over both folds.
+                    noise_tol: float, k: int = 2) -> tuple[bool, str]:
+    """The one verdict where the parts rotated: the held-out RMSE pooled over the folds.
 
     The two folds (fitted on estimation, scored on selection; fitted on selection, scored
-    on estimation) see the whole regime between them, so their pooled error decides,
-    by the same gain and allowance as :func:`acceptance`. The information criterion is
-    not asked again: computed on the estimation part only, it is one of the two votes
-    that disagreed, and one of the parts holds the regime thinly.
+    on estimation), or ``k`` contiguous blocks each held out in turn
+    (:mod:`hhra_phys.diagnosis.folds`), see the whole regime between them, so their pooled
+    error decides, by the same gain and allowance as :func:`acceptance`. The information
+    criterion is not asked again: computed on the estimation part only, it is one of the
+    two votes that disagreed, and one of the parts holds the regime thinly.
 
     Parameters
     ----------
     rmse_before, rmse_after : float
         Pooled held-out RMSE of the current model and of the candidate (output units).
     margin, noise, noise_tol : float
-        As in :func:`acceptance`; ``noise`` the pooled noise level of both parts.
+        As in :func:`acceptance`; ``noise`` the pooled noise level of the folds.
+    k : int
+        Folds pooled (for the reason's words).
 
     Returns
     -------
@@ -296,7 +319,8 @@ def rotated_verdict(rmse_before: float, rmse_after: float, margin: float, noise:
     reason : str
     """
     ok, text = _gain(rmse_before, rmse_after, margin, noise, noise_tol)
-    return ok, f"held-out RMSE over both folds {text} decides"
+    over = "both folds" if k == 2 else f"{k} folds"
+    return ok, f"held-out RMSE over {over} {text} decides"
 
 
 @dataclass

@@ -117,14 +117,14 @@ def _loop(monkeypatch, rotated: dict[str, float], regime: dict | None):
     loop.cur, loop.cur_free = _Res(0.5), []
     loop.cur_prob = type("P", (), {"model": object()})()
     loop.est = loop.sel = type("D", (), {"n": 500})()
-    loop.cfg, loop._rot_cache = None, None
+    loop.cfg, loop._rot_cache, loop._fold_cache = None, None, None
     calls = []
 
-    def rotated_fit(cfg, model, free, start, boxes):
+    def fold_fit(cfg, fold, model, free, start, boxes):
         calls.append(model)
         return _Res(rotated["cur" if model is loop.cur_prob.model else "cand"])
 
-    monkeypatch.setattr(rotation_mod, "_rotated_fit", rotated_fit)
+    monkeypatch.setattr(rotation_mod, "_fold_fit", fold_fit)
     monkeypatch.setattr(rotation_mod, "_fitted_candidate",
                         lambda payload: ("cand-model", ["a"], {}, {}, {}))
     monkeypatch.setattr(rotation_mod, "as_records", lambda d: [d])
