@@ -1,6 +1,8 @@
 """The loop's rotated parts: where the selection part and the criterion disagree and the
-part that refuses holds the candidate's regime thinly, the candidate and the current model
-are refitted on the selection part and scored on estimation (one verdict over both folds).
+part that refuses holds the candidate's regime thinly (or only a few samples of it), the
+candidate and the current model are refitted on each other fold (the selection part, or the
+rest of the record around each estimation block: :mod:`hhra_phys.diagnosis.folds`) and
+scored on what it held out, and the error pooled over all folds is the one verdict.
 """
 
 from __future__ import annotations

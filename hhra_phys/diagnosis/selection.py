@@ -18,10 +18,11 @@ candidates here, so that they are compared by the same numbers:
   term);
 - :func:`needs_rotation` / :func:`rotated_verdict`: the one verdict where the evidence
   disagrees. Both votes (:func:`votes`: the selection part's, the criterion's) must say yes,
-  except where the part that says no holds the candidate's regime thinly
-  (:func:`thin_part`): such a part cannot refuse alone, so the parts rotate (the candidate
-  and the current model refitted on selection, scored on estimation) and the held-out error
-  over both folds decides, the same for every kind of candidate;
+  except where the part that says no holds the candidate's regime thinly or holds only a
+  few samples of it (:func:`thin_parts`): such a part cannot refuse alone, so the parts
+  rotate (the candidate and the current model refitted on selection, scored on estimation,
+  or over more contiguous folds) and the held-out error over the folds decides, the same for
+  every kind of candidate;
 - :func:`backward_decision`: an accepted part stays only if it would be accepted now;
 - :func:`stops_at_noise` / :func:`at_noise_level`: the loop stops when both the estimation
   and the selection residual are at the noise level.
