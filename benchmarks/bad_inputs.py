@@ -188,7 +188,7 @@ def cases(d: Path) -> Iterator[Case]:
             yield Case(g, ["fit", str(rig), f"{opt}={v}"], 2, opt)
     yield Case(g, ["fit", str(rig), "--starts", "0"], 2, "--starts")
     for opt, values in (("--top", ("0", "-1", "one")), ("--max-effects", ("-1", "x")),
-                        ("--split", ("1",))):
+                        ("--split", ("1",)), ("--folds", ("1", "11", "three"))):
         for v in values:
             yield Case(g, ["diagnose", str(rig), f"{opt}={v}"], 2, opt)
     for opt, values in (("--pop", ("0", "3")), ("--iters", ("0",)), ("--split", ("0", "-3")),

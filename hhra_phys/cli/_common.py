@@ -42,7 +42,8 @@ def fold_count(text: str) -> int:
     :data:`~hhra_phys.diagnosis.folds.MAX_FOLDS` (``--folds``)."""
     from hhra_phys.diagnosis.folds import MAX_FOLDS
 
-    return _int_at_least(text, 2, MAX_FOLDS)
+    return _int_at_least(text, 2, MAX_FOLDS, "each fold refits both models; more folds "
+                                              "cut the estimation part too fine")
 
 
 def population(text: str) -> int:
@@ -66,7 +67,10 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(text, 0)
 
 
-def _int_at_least(text: str, low: int, high: int | None = None) -> int:
+_TOO_LARGE = "a larger search would not fit in memory or would run for days; see docs/data.md"
+
+
+def _int_at_least(text: str, low: int, high: int | None = None, why: str = _TOO_LARGE) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -75,8 +79,7 @@ def _int_at_least(text: str, low: int, high: int | None = None) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
     if high is not None and value > high:
         raise argparse.ArgumentTypeError(
-            f"expected an integer <= {high:,} (a larger search would not fit in memory or "
-            f"would run for days; see docs/data.md), got {value:,}")
+            f"expected an integer <= {high:,} ({why}), got {value:,}")
     return value
 
 

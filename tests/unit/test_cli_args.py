@@ -46,6 +46,7 @@ CONSTRAINTS = {
     "--time-unit": ("fit", lambda v: v in ("s", "ms", "us")),
     "--top": ("diagnose", lambda v: isinstance(v, int) and v >= 1),
     "--max-effects": ("diagnose", lambda v: isinstance(v, int) and v >= 0),
+    "--folds": ("diagnose", lambda v: isinstance(v, int) and 2 <= v <= 10),
 }
 
 
