@@ -305,10 +305,10 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         # The round's discovery refits running on the executor (discovery_jobs.py).
         self.disc_refits: dict[int, Any] = {}
         self.at_noise = False
-        # The current fit and its refits on the folds (_rotated_current); the folds of the
-        # parts, keyed by the parts' identity (_fold_plan).
+        # The current fit and its refits on the folds (_rotated_current); the parts and
+        # their folds (_fold_plan).
         self._rot_cache: tuple[FitResult, list[FitResult]] | None = None
-        self._fold_cache: tuple[tuple[int, int], list[Any]] | None = None
+        self._fold_cache: tuple[tuple[Any, Any], list[Any]] | None = None
         # The current fit and its simulated outputs on the parts (_current_outputs).
         self._out_cache: tuple[FitResult, dict[str, np.ndarray]] | None = None
         # Not path state (a revisit keeps them): whether the budget ended anything, and

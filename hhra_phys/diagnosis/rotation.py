@@ -191,14 +191,14 @@ class _RotationStage:
             rest = [_fold_fit(self.cfg, f, model, free, _values(c), boxes)
                     for f, c in zip(folds, rest_cur, strict=True)]
         except Exception as exc:  # noqa: BLE001 - the rotation is evidence, not the refit
-            step.notes.append(f"parts not rotated: its refit on the selection part failed "
+            step.notes.append(f"parts not rotated: its refit on a fold failed "
                               f"({type(exc).__name__}: {exc})")
             return ok
         if not all(math.isfinite(_val_rmse(c)) for c in rest_cur):
             # Without the current model's other folds there is nothing to compare with:
             # every candidate would pass against an infinite error.
-            step.notes.append("parts not rotated: the current model's refit on the selection "
-                              "part could not be scored on estimation")
+            step.notes.append("parts not rotated: the current model's refit on a fold could "
+                              "not be scored on the block it held out")
             return ok
         n_sel = sum(ds.n for ds in as_records(self.sel))
         cand_sel = float(step.val.get("rmse", math.inf))
@@ -234,12 +234,11 @@ class _RotationStage:
     def _fold_plan(self) -> list[Fold]:
         """The folds beyond the loop's own (:func:`~hhra_phys.diagnosis.folds.fold_plan`),
         once per estimation and selection parts (an inter-sample change replaces them)."""
-        key = (id(self.est), id(self.sel))
         cached = self._fold_cache
-        if cached is not None and cached[0] == key:
+        if cached is not None and cached[0][0] is self.est and cached[0][1] is self.sel:
             return cached[1]
         plan = fold_plan(as_records(self.est), as_records(self.sel), self.o.folds)
-        self._fold_cache = (key, plan)
+        self._fold_cache = ((self.est, self.sel), plan)
         return plan
 
     def _rotated_current(self) -> list[FitResult]:
