@@ -51,6 +51,7 @@ from hhra_phys.assemble import (  # noqa: F401  (re-exported)
     assemble_result,
 )
 from hhra_phys.data import Dataset
+from hhra_phys.defaults import default_for, registered_default
 from hhra_phys.errors import ParameterError
 from hhra_phys.fit_accuracy import (  # noqa: F401  (re-exported)
     ACCURACY_REFIT_SHIFT,
@@ -122,15 +123,26 @@ __all__ = [
 
 
 def default_model(
-    data: Dataset, valve: str = "orifice"
+    data: Dataset, valve: str | None = None
 ) -> tuple[Model, dict[str, tuple[float, float]]]:
-    """The model (and bounds) :func:`fit` uses for a record when none is given: the HHRA.
+    """The model (and bounds) :func:`fit` uses for a record when none is given: the
+    registered default model (:mod:`hhra_phys.defaults`; the HHRA registers itself, see
+    :func:`hhra_phys.models.hhra.defaults.default_model`).
 
-    See :func:`hhra_phys.models.hhra.defaults.default_model`.
+    Parameters
+    ----------
+    data : Dataset
+        The record.
+    valve : str, optional
+        The HHRA's valve (``"orifice"``, its default, or ``"linear"``); passed to the
+        default model only when given.
+
+    Raises
+    ------
+    ParameterError
+        No default model is registered.
     """
-    from hhra_phys.models.hhra.defaults import default_model as hhra_default
-
-    return hhra_default(data, valve=valve)
+    return default_for(data, **({} if valve is None else {"valve": valve}))
 
 
 def fit(
@@ -149,14 +161,16 @@ def fit(
     Parameters
     ----------
     data : Dataset or sequence of Dataset, optional
-        The whole record (default: the built-in simulated rig, seed 0), or a list
+        The whole record (default: the default model's example record, the HHRA's
+        simulated rig, seed 0: :mod:`hhra_phys.defaults`), or a list
         of records fitted jointly (:class:`~hhra_phys.problem.Problem`): shared
         parameters, per-record initial states (``x0_<state>_rec<k>``) and per-record
         parameters, each record split by ``split`` unless ``validation`` is
         given; metrics per record in :attr:`FitResult.records`, pooled in
         :attr:`FitResult.metrics`.
     model : Model, optional
-        Model to fit (default: :func:`default_model`: the HHRA with the orifice
+        Model to fit (default: :func:`default_model`, the registered default model of
+        :mod:`hhra_phys.defaults`: the HHRA with the orifice
         valve, a pressure output if the data's output is pressure, rescaled to
         sample units for records without a sample time). With the default model
         the records are first converted to its units (mA, deg) where they declare
@@ -199,9 +213,7 @@ def fit(
     opts = FitOptions.of(options, **settings)
     t_start = time.perf_counter()
     if data is None:
-        from hhra_phys.models.hhra.rig import simulate_rig
-
-        data = simulate_rig(seed=0)
+        data = _example_record()
     records = as_records(data)
     whole = as_records(validation) if validation is not None and len(validation) else []
     notes: list[str] = []
@@ -212,6 +224,15 @@ def fit(
         problem = _build_problem(est, model, opts)
     return fit_problem(problem, val_parts, whole, opts, datasheet=datasheet,
                        callback=callback, records=records, notes=notes, t_start=t_start)
+
+
+def _example_record() -> Dataset:
+    """The default model's example record, for a fit without data."""
+    example = registered_default().example
+    if example is None:
+        raise ParameterError(f"no data given and the default model "
+                             f"({registered_default().name}) has no example record: pass data")
+    return example()
 
 
 def _check_model_argument(model: object) -> None:
@@ -228,9 +249,10 @@ def _check_model_argument(model: object) -> None:
 
 def _prepare_records(records: list[Dataset], whole: list[Dataset]
                      ) -> tuple[list[Dataset], list[Dataset], list[str]]:
-    """The default HHRA knows its units: convert the records, warn about odd ranges."""
-    from hhra_phys.models.hhra.defaults import prepare_record
-
+    """The default model knows its units: convert the records, warn about odd ranges."""
+    prepare_record = registered_default().prepare
+    if prepare_record is None:
+        return records, whole, []
     notes: list[str] = []
     out: tuple[list[Dataset], list[Dataset]] = ([], [])
     for given, prepared in zip((records, whole), out, strict=True):

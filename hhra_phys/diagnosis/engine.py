@@ -201,8 +201,10 @@ def diagnose(
         ``base``/``final`` in :meth:`DiagnosisResult.to_json`) and the evidence is
         summed over them (:func:`~hhra_phys.diagnosis.residual.analyse`).
     model : Model, optional
-        Base model (default: :class:`~hhra_phys.models.hhra.HHRAModel`, pressure
-        output if the record's output is pressure).
+        Base model (default: the registered default model of :mod:`hhra_phys.defaults`
+        for the first record, as :func:`base_model_for` gives it: the HHRA, with a
+        pressure output if the record's output is pressure, rescaled to sample units for a
+        record without a sample time).
     options : LoopOptions, optional
         The loop's settings (default :class:`LoopOptions`'s).
     validation : Dataset or sequence of Dataset, optional
@@ -276,10 +278,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.hold_changed = False  # a path changes the records' hold at most once
         self.hold_tried: Any = None  # the fit the hold candidates were last tried on
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
-        if model is None:
-            from hhra_phys.models.hhra import HHRAModel
-
-            model = HHRAModel(output="pressure" if data.output_name == "pressure" else "angle")
+        if model is None:  # the registered default (the HHRA), as a fit without a model
+            model = base_model_for(data if isinstance(data, Dataset) else data[0])[0]
         if base is not None and int(base.settings["data"]["n_est"]) != est.n:
             raise ParameterError(
                 f"base was fitted on {base.settings['data']['n_est']} estimation samples, "
@@ -879,9 +879,10 @@ def _loop_parts(data: Dataset | Sequence[Dataset], split: float, test: float,
 def base_model_for(data: Dataset) -> tuple[Model, dict[str, tuple[float, float]]]:
     """The default base model for a record, and bounds that make sense for it.
 
-    The fitting module's choice (:func:`hhra_phys.fit.default_model`): the HHRA
-    with an angle or pressure output, rescaled to sample units with wide boxes for
-    records without a sample time (such as the public actuator record).
+    The fitting module's choice (:func:`hhra_phys.fit.default_model`, the registered
+    default of :mod:`hhra_phys.defaults`): the HHRA with an angle or pressure output,
+    rescaled to sample units with wide boxes for records without a sample time (such as
+    the public actuator record).
     """
     from hhra_phys.fit import default_model
 

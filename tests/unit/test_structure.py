@@ -160,6 +160,27 @@ def test_no_import_cycle_between_the_package_modules():
     assert found == [], f"import cycles (lazy imports count): {found}"
 
 
+#: Modules outside the model packages that may name the HHRA: the package's top level (it
+#: exports ``HHRAModel``), the CLI (the HHRA's defaults for a record, the simulated rig) and
+#: ``control``'s closed-form transfer function of the HHRA (``control.tf``).
+HHRA_ALLOWED = ("hhra_phys", "hhra_phys.cli", "hhra_phys.control")
+
+
+def test_the_core_imports_no_particular_model():
+    graph = import_graph()
+    naming = sorted(
+        m for m, deps in graph.items()
+        if not m.startswith("hhra_phys.models")
+        and not any(m == a or m.startswith(a + ".") for a in HHRA_ALLOWED if a != "hhra_phys")
+        and m != "hhra_phys"
+        and any(d.startswith("hhra_phys.models.hhra") for d in deps))
+    assert naming == [], f"core modules that import the HHRA (use hhra_phys.defaults): {naming}"
+    # the fit and the loop reach the HHRA only through the registered default
+    assert not any(d.startswith("hhra_phys.models") for d in graph["hhra_phys.fit"])
+    assert not any(d.startswith("hhra_phys.models")
+                   for d in graph["hhra_phys.diagnosis.engine"])
+
+
 def test_no_public_signature_over_twelve_parameters():
     wide = wide_signatures()
     assert wide == [], f"over {MAX_PARAMETERS} parameters, group them in an options object: {wide}"
