@@ -590,6 +590,16 @@ class Effect(Part):
             return f"rate:{model.motion.velocity}"
         return cls.entry
 
+    @classmethod
+    def scaled_fields(cls, auto: Mapping[str, Any], model: Any) -> dict[str, Any]:
+        """The fields :func:`~hhra_phys.effects.make_effect` sets from a record, a fit and
+        the model (``auto``: ``u_scale``, ``dt``, ``y_scale``, ``y_unit``, and the motion's
+        ``accel_scale``, ``v_scale``, ``v_unit``, ``width``): by default those of ``auto``
+        that are fields of the class. An effect whose fields mean something else in
+        another model's units (the backlash's widths are in output units) overrides it."""
+        fields = getattr(cls, "__dataclass_fields__", {})
+        return {k: v for k, v in auto.items() if k in fields}
+
     def probe(self) -> dict[str, float]:
         """Parameter values of a small but relevant size of the effect."""
         return {p.name: p.nominal for p in self.parameters}

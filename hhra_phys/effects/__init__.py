@@ -23,7 +23,8 @@ any model. ``coulomb_friction``, ``constant_force`` and ``gravity_load`` bind by
 they act on the rate of the model's velocity (:attr:`hhra_phys.model.Model.motion`, the
 state with role ``"velocity"`` or ``"angular_velocity"``: ``omega`` on the HHRA, ``v`` on
 the cylinder or a user's drive) and ``gravity_load`` reads its angle (role ``"angle"``);
-``backlash`` needs an angle output in degrees, ``asymmetric_valve`` the ``"flow"`` and
+``backlash`` binds the velocity and the position, rotary or linear, seen by an output affine
+in the position (its play in the output's unit), ``asymmetric_valve`` the ``"flow"`` and
 ``"command"`` signals of a valve model such as the HHRA (by name). A user's effect is
 registered with :func:`hhra_phys.parts.register_effect`.
 

@@ -132,8 +132,8 @@ def _model_scales(model: Any, values: Mapping[str, float] | None,
     if "g_torque" in model.params.names:
         return {}  # the HHRA: g_torque (or the rig's) and the rig's units, as before roles
     out = motion_scales(model, values, u_scale)
-    if "v_scale" in out:
-        out["width"] = FRICTION_WIDTH * out["v_scale"]
+    if "v_scale" in out:  # the friction's switching width (CoulombFriction.scaled_fields)
+        out["friction_width"] = FRICTION_WIDTH * out["v_scale"]
     return out
 
 
@@ -161,7 +161,8 @@ def make_effect(
         the HHRA), :func:`motion_scales` sets ``accel_scale``, and the velocity state
         sets ``v_scale``, ``v_unit`` and the friction's ``width``
         (:data:`FRICTION_WIDTH` times ``v_scale``), so that the motion effects work in
-        the model's own units (a linear drive in m, m/s).
+        the model's own units (a linear drive in m, m/s); each class takes what it needs
+        (:meth:`~hhra_phys.parts.Effect.scaled_fields`).
     **kw
         Fields of the effect class (explicit ones win).
 
@@ -180,11 +181,13 @@ def make_effect(
         auto["u_scale"] = float(np.max(np.abs(data.u))) or 1.0
         auto["dt"] = float(data.dt)
         auto["y_scale"] = float(np.std(data.y)) or 1.0
+        if getattr(data, "output_unit", ""):
+            auto["y_unit"] = data.output_unit
     if model is not None:
         auto.update(_model_scales(model, values, auto.get("u_scale", 1.0)))
     if values and values.get("g_torque", 0) > 0:
         auto["accel_scale"] = float(values["g_torque"])
-    args = {k: v for k, v in auto.items() if k in fields}
+    args = cls.scaled_fields(auto, model)
     removed = sorted(set(kw) & set(REMOVED_SETTINGS) - fields)
     if removed:
         raise ModelError(f"effect {name!r}: " + "; ".join(

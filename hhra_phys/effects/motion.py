@@ -122,6 +122,15 @@ class CoulombFriction(Effect):
             raise ParameterError(f"coulomb_friction profile must be one of "
                                  f"{', '.join(map(repr, SIGN_PROFILES))}, got {self.profile!r}")
 
+    @classmethod
+    def scaled_fields(cls, auto: Mapping[str, Any], model: Any) -> dict[str, Any]:
+        """The generic fields, and ``width`` from the motion's ``friction_width``
+        (:data:`FRICTION_WIDTH` times the velocity's scale) on a model other than the HHRA."""
+        out = super().scaled_fields(auto, model)
+        if "friction_width" in auto:
+            out["width"] = float(auto["friction_width"])
+        return out
+
     @property
     def parameters(self) -> Sequence[Parameter]:
         a, vs, vu = self.accel_scale, self.v_scale, self.v_unit

@@ -145,7 +145,7 @@ def test_effects_on_a_users_own_model():
 
 def test_applicability_is_checked():
     pm = HHRAModel(output="pressure")
-    assert "angle output" in make_effect("backlash").applicable(pm)
+    assert "not affine in its position" in make_effect("backlash").applicable(pm)
     assert "p_offset" in make_effect("sensor_offset").applicable(pm)
     dz = make_effect("valve_deadzone")
     assert "already" in dz.applicable(HHRAModel(effects=[dz]))

@@ -103,8 +103,55 @@ def test_an_effect_that_cannot_bind_names_the_role_and_how_to_declare_it():
         make_effect("constant_force").applicable(tank)
     why = make_effect("gravity_load").applicable(drive.make_model())
     assert "rotary position" in why and "role='angle'" in why and "constant_force" in why
+    # the HHRA's backlash (an encoder in degrees) on a cylinder measured in mm: built anew
     why = make_effect("backlash").applicable(LinearCylinderModel())
-    assert "role 'angle'" in why
+    assert "1000" in why and "make_effect('backlash', model=...)" in why
+    assert make_effect("backlash", model=LinearCylinderModel()).applicable(
+        LinearCylinderModel()) is None
+    assert "backlash needs a state with role 'velocity'" in make_effect("backlash").applicable(
+        tank)
+
+
+def test_a_backlash_binds_a_linear_drive_in_its_own_units():
+    model = drive.make_model()
+    rec = drive.simulate_record(seed=1, n=600)
+    bl = make_effect("backlash", model=model, data=rec)
+    assert bl.applicable(model) is None
+    # 2 % of the position's scale (0.05 m) in the output's unit (mm): a play box in mm
+    assert bl.slope == pytest.approx(1000.0) and bl.play_scale == pytest.approx(1.0)
+    play = next(p for p in bl.parameters if p.name == "play")
+    assert (play.unit, play.nominal, play.lower, play.upper) == ("mm", 0.5, 0.02, 10.0)
+    assert bl.states[0].unit == "m" and bl.speed == pytest.approx(0.2)  # the velocity's scale
+    # the HHRA keeps its own defaults: the same effect as the library's default
+    from hhra_phys import HHRAModel
+    assert make_effect("backlash", model=HHRAModel()) == make_effect("backlash")
+
+
+def test_the_drives_backlash_lags_the_sensor_by_the_play_after_a_reversal():
+    from hhra_phys import Simulator
+    model = drive.make_model()
+    bl = make_effect("backlash", model=model, width=0.001)
+    with_play = model.with_parts(bl)
+    fs, n = 1000.0, 2000
+    u = np.where(np.arange(n) < n // 2, 0.5, -0.5)  # push one way, then the other
+    p0 = model.nominal()
+    base = dict(zip(model.params.names, p0, strict=True))
+    p1 = np.array([base.get(k, 0.4) for k in with_play.params.names])  # play 0.4 mm
+    y0 = Simulator(model, fs=fs).simulate(u, p0)
+    y1 = Simulator(with_play, fs=fs).simulate(u, p1)
+    # carried one way the sensor trails by half the play (mm), the other way it leads by it
+    assert y1[n // 2 - 1] - y0[n // 2 - 1] == pytest.approx(-0.2, abs=0.01)
+    assert y1[-1] - y0[-1] == pytest.approx(0.2, abs=0.01)
+
+
+def test_only_the_friction_takes_the_motions_switching_width():
+    from hhra_phys.effects import CORNER_WIDTH, FRICTION_WIDTH
+    model = drive.make_model()
+    rec = drive.simulate_record(seed=1, n=600)
+    assert make_effect("coulomb_friction", model=model, data=rec).width == \
+        pytest.approx(FRICTION_WIDTH * 0.2)
+    for name in ("valve_deadzone", "valve_saturation"):  # a corner relative to u_scale
+        assert make_effect(name, model=model, data=rec).width == CORNER_WIDTH
 
 
 @dataclass(frozen=True)
