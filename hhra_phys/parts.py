@@ -591,6 +591,14 @@ class Effect(Part):
         return cls.entry
 
     @classmethod
+    def unasked(cls, model: Any) -> str | None:
+        """Why the diagnosis loop does not try this effect on ``model`` unless asked
+        (``LoopOptions.candidates``, CLI ``--effects``), or ``None`` (the default: every
+        applicable effect is tried). For an effect whose refit costs much on a kind of model
+        where it was not offered before (the backlash on a linear position)."""
+        return None
+
+    @classmethod
     def scaled_fields(cls, auto: Mapping[str, Any], model: Any) -> dict[str, Any]:
         """The fields :func:`~hhra_phys.effects.make_effect` sets from a record, a fit and
         the model (``auto``: ``u_scale``, ``dt``, ``y_scale``, ``y_unit``, and the motion's

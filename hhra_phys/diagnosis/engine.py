@@ -294,6 +294,10 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.diagnoses: list[Diagnosis] = []
         self.warnings: list[str] = []
         self.skipped: dict[str, str] = {}
+        if opts.candidates is None:  # unasked: what each effect offers on this model
+            self.skipped.update({n: why for n in self.names
+                                 if (why := EFFECTS[n].unasked(model))})
+            self.names = [n for n in self.names if n not in self.skipped]
         self.dropped: list[str] = []  # removed by the backward step, never proposed again
         self.levels: list[dict[str, Any]] = []
         self.settled: list[dict[str, Any]] = []  # rounds whose rest was skipped

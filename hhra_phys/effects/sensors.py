@@ -148,6 +148,17 @@ class Backlash(Effect):
                 "unit": str(auto.get("y_unit") or "output units"),
                 "position_unit": st.unit or ""}
 
+    @classmethod
+    def unasked(cls, model: Any) -> str | None:
+        """Tried unasked on an angle (the HHRA's encoder, as always); on a linear position
+        only when asked: there its stiff contact made each refit of the 25 s drive cost
+        9-17 s and its diagnosis about a quarter longer (docs/diagnosis.md)."""
+        motion = model.motion
+        if motion.position is None or motion.rotary:
+            return None
+        return ("tried on a linear position only when asked (--effects ...,backlash or "
+                "LoopOptions.candidates): its stiff contact costs a long refit each round")
+
     @property
     def parameters(self) -> Sequence[Parameter]:
         k = self.play_scale

@@ -268,3 +268,19 @@ def test_the_score_floor_is_one_parameters_penalty_in_residual_share():
     assert -n * np.log1p(-floor) == pytest.approx(np.log(n))  # one BIC penalty exactly
     assert score_floor(1000, "aic") == pytest.approx(2 / 1000, rel=1e-3)
     assert score_floor(0) == 0.0
+
+
+def test_the_loop_tries_a_linear_backlash_only_when_asked():
+    from hhra_phys import HHRAModel
+    from hhra_phys.diagnosis.engine import _Loop
+    from hhra_phys.diagnosis.options import LoopOptions
+
+    assert EFFECTS["backlash"].unasked(HHRAModel()) is None  # an angle: as always
+    why = EFFECTS["backlash"].unasked(drive.make_model())
+    assert "only when asked" in why and "--effects" in why
+    rec = drive.simulate_record(seed=1, n=800)
+    loop = _Loop(rec, drive.make_model(), LoopOptions(), None, None, None, None)
+    assert "backlash" not in loop.names and "only when asked" in loop.skipped["backlash"]
+    asked = _Loop(rec, drive.make_model(), LoopOptions(candidates=("backlash",)), None, None,
+                  None, None)
+    assert asked.names == ["backlash"] and "backlash" not in asked.skipped
