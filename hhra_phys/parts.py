@@ -602,7 +602,7 @@ class Effect(Part):
     def scaled_fields(cls, auto: Mapping[str, Any], model: Any) -> dict[str, Any]:
         """The fields :func:`~hhra_phys.effects.make_effect` sets from a record, a fit and
         the model (``auto``: ``u_scale``, ``dt``, ``y_scale``, ``y_unit``, and the motion's
-        ``accel_scale``, ``v_scale``, ``v_unit``, ``width``): by default those of ``auto``
+        ``accel_scale``, ``v_scale``, ``v_unit``, ``friction_width``): by default those of ``auto``
         that are fields of the class. An effect whose fields mean something else in
         another model's units (the backlash's widths are in output units) overrides it."""
         fields = getattr(cls, "__dataclass_fields__", {})
