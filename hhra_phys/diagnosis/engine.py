@@ -804,7 +804,7 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
             "intersample": o.intersample, "removed": list(self.dropped),
             "settled": self.settled, "revisit": o.revisit, "revisited": self.revisited,
             "revisit_skipped": self.revisit_skipped,
-            "rotate": o.rotate, "pairs": o.pairs,
+            "rotate": o.rotate, "folds": o.folds, "pairs": o.pairs,
             "executor": type(self.executor).__name__ if self.executor is not None else None,
             "base_given": self.base_given, "stop": self.stop, "budget": o.budget,
             "stopped_by_budget": self.budget_spent,

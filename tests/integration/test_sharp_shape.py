@@ -108,7 +108,8 @@ def test_the_cli_fits_shapes_on_request(tmp_path):
     out = tmp_path / "d.json"
     assert main(["diagnose", str(data), "--model", f"{model}:make_model", "--effects",
                  "coulomb_friction", "--max-effects", "1", "--no-discover", "--pop", "20",
-                 "--iters", "20", "--workers", "0", "--fit-shapes", "--json", str(out)]) == 0
+                 "--iters", "20", "--workers", "0", "--fit-shapes", "--folds", "3",
+                 "--json", str(out)]) == 0
     js = json.loads(out.read_text())
     assert js["chosen"] == ["coulomb_friction"]
     part = next(p for p in js["fits"]["final"]["model"]["parts"]
@@ -116,6 +117,7 @@ def test_the_cli_fits_shapes_on_request(tmp_path):
     assert part["args"]["fit_width"] is True
     assert js["fits"]["final"]["params"]["v_switch"]["value"] < 5e-4
     assert js["settings"]["fit_shapes"] == "contenders"
+    assert js["settings"]["folds"] == 3 and js["settings"]["rotate"] is True
 
 
 def test_shape_modes_are_checked_by_name():
