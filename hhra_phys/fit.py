@@ -228,11 +228,11 @@ def fit(
 
 def _example_record() -> Dataset:
     """The default model's example record, for a fit without data."""
-    example = registered_default().example
-    if example is None:
-        raise ParameterError(f"no data given and the default model "
-                             f"({registered_default().name}) has no example record: pass data")
-    return example()
+    default = registered_default()
+    if default.example is None:
+        raise ParameterError(f"no data given and the default model ({default.name}) has no "
+                             "example record: pass data")
+    return default.example()
 
 
 def _check_model_argument(model: object) -> None:

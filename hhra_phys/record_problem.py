@@ -129,7 +129,8 @@ class RecordProblem(_Coordinates):
     fit_states : sequence of str, optional
         Under ``"fit"``, the states whose initial value is fitted (default: the model's
         :attr:`~hhra_phys.model.Model.fitted_states`). :class:`Problem` passes every state
-        for a record that starts after its record's first sample (``later_states``).
+        for a record that starts after its record's first sample
+        (:attr:`Problem.fit_later_states`).
 
     Attributes
     ----------

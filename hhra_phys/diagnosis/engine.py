@@ -273,8 +273,11 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         self.tol = (noise_tolerance(sel.n) if opts.noise_tol is None
                     else float(opts.noise_tol))
         self.data, self.est, self.sel, self.held = data, est, sel, held
-        if opts.rotate:  # before any fit: folds the estimation part is too short for
-            fold_plan(as_records(est), as_records(sel), opts.folds)
+        # The parts' folds, made before any fit: folds the estimation part is too short for
+        # fail here (_RotationStage._fold_plan keeps them for the parts they were made of).
+        self._fold_cache: tuple[tuple[Any, Any], list[Any]] | None = (
+            ((est, sel), fold_plan(as_records(est), as_records(sel), opts.folds))
+            if opts.rotate else None)
         self.hold_changed = False  # a path changes the records' hold at most once
         self.hold_tried: Any = None  # the fit the hold candidates were last tried on
         self.names = list(opts.candidates) if opts.candidates is not None else list(EFFECTS)
@@ -309,10 +312,8 @@ class _Loop(_HoldStage, _RotationStage, _ShapeStage, _RevisitStage, _PairStage):
         # The round's discovery refits running on the executor (discovery_jobs.py).
         self.disc_refits: dict[int, Any] = {}
         self.at_noise = False
-        # The current fit and its refits on the folds (_rotated_current); the parts and
-        # their folds (_fold_plan).
+        # The current fit and its refits on the folds (_rotated_current).
         self._rot_cache: tuple[FitResult, list[FitResult]] | None = None
-        self._fold_cache: tuple[tuple[Any, Any], list[Any]] | None = None
         # The current fit and its simulated outputs on the parts (_current_outputs).
         self._out_cache: tuple[FitResult, dict[str, np.ndarray]] | None = None
         # Not path state (a revisit keeps them): whether the budget ended anything, and

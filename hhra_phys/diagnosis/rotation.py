@@ -21,7 +21,6 @@ from hhra_phys.diagnosis.fits import (
     _free_values,
     _judged_options,
     _problem,
-    _run,
     _Settings,
     _values,
 )
@@ -33,6 +32,7 @@ from hhra_phys.diagnosis.selection import (
     judge,
     needs_rotation,
     pooled_rmse,
+    regime_samples,
     rotated_verdict,
     thin_parts,
     votes,
@@ -86,8 +86,6 @@ def _fold_fit(cfg: _Settings, fold: Fold, model: Model, free: Sequence[str],
     if later:
         problem = _problem(rot, model, free, {}, {**start, **later}, None,
                            kind=LaterStartProblem)
-    if len(fold.train) == 1:  # one piece: scored on its selection part as _run scores
-        return _run(rot, problem, "none", 0, 0)
     return fit_problem(problem, fold.held, options=_judged_options(rot, "none", 0, 0))
 
 
@@ -111,17 +109,10 @@ def _later_starts(problem: Problem) -> dict[str, float]:
 def _thin_text(part: str, regime: Mapping[str, Any] | None) -> str:
     """Why ``part`` (``"est"`` or ``"sel"``) cannot refuse alone, in words."""
     name = {"sel": "selection", "est": "estimation"}[part]
-    n = int(round(_regime_samples(regime, part)))
-    if regime and n < REGIME_MIN_SAMPLES:
-        return f"the {name} part holds only {n} samples of its regime"
+    n = regime_samples(regime, part) if regime and part in regime else math.inf
+    if n < REGIME_MIN_SAMPLES:
+        return f"the {name} part holds only {round(n)} samples of its regime"
     return f"the {name} part holds its regime thinly"
-
-
-def _regime_samples(regime: Mapping[str, Any] | None, part: str) -> float:
-    """Samples of the candidate's regime in ``part`` (0 when unknown)."""
-    if not regime or part not in regime:
-        return 0.0
-    return float(regime[part].get("samples", 0)) * float(regime[part].get("in_regime", 0.0))
 
 
 class _RotationStage:

@@ -64,6 +64,7 @@ __all__ = [
     "REGIME_THIN",
     "REGIME_MIN_SAMPLES",
     "votes",
+    "regime_samples",
     "thin_parts",
     "thin_part",
     "needs_rotation",
@@ -247,6 +248,12 @@ def votes(rmse_before: float, rmse_after: float, crit_before: float, crit_after:
 REGIME_MIN_SAMPLES = 50
 
 
+def regime_samples(regime: Mapping[str, Any], part: str) -> float:
+    """Samples of a candidate's regime in ``part`` of a step's coverage (all of the part's
+    samples where the coverage gives no ``in_regime``)."""
+    return float(regime[part].get("samples", 0)) * float(regime[part].get("in_regime", 1.0))
+
+
 def thin_parts(regime: Mapping[str, Any] | None) -> tuple[str, ...]:
     """The deciding parts (``"est"``, ``"sel"``) that hold the regime too thinly to refuse a
     candidate alone.
@@ -265,7 +272,7 @@ def thin_parts(regime: Mapping[str, Any] | None) -> tuple[str, ...]:
         return ()
     return tuple(p for p in n
                  if regime[p].get("share", 0.0) < REGIME_THIN * n[p] / total
-                 or n[p] * regime[p].get("in_regime", 1.0) < REGIME_MIN_SAMPLES)
+                 or regime_samples(regime, p) < REGIME_MIN_SAMPLES)
 
 
 def thin_part(regime: Mapping[str, Any] | None) -> str | None:

@@ -6,6 +6,7 @@ model is written in; ``simulate_rig`` (:mod:`.rig`) makes records of a simulated
 rig with known truth.
 """
 
+from hhra_phys.data import Dataset
 from hhra_phys.models.hhra.model import (
     HHRA_STAGES,
     NOMINAL_GROUPS,
@@ -24,7 +25,8 @@ from hhra_phys.models.hhra.model import (
 from hhra_phys.models.hhra.physical import PhysicalParameters
 
 
-def _example_record():  # noqa: ANN202 - the rig is imported only when asked for
+def _example_record() -> Dataset:
+    """The simulated rig, seed 0 (imported only when asked for)."""
     from hhra_phys.models.hhra.rig import simulate_rig
 
     return simulate_rig(seed=0)
